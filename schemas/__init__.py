@@ -1,0 +1,1 @@
+"""Message definitions and table schemas (installed as toolkit.schemas)."""

@@ -1,0 +1,46 @@
+"""The toolkit's error family.
+
+Every error a user can cause is a :class:`ToolkitError`. Its message names the file (or
+configuration key) and the offending value, so the command line can print it as one clear
+line and exit 1. Programming errors are ordinary Python exceptions and keep their traceback.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+
+class ToolkitError(Exception):
+    """Root of every error the toolkit raises on bad input or a failed stage."""
+
+    def __init__(self, message: str, path: str | Path | None = None) -> None:
+        self.path = None if path is None else Path(path)
+        super().__init__(f"{self.path}: {message}" if self.path is not None else message)
+
+
+class ConfigError(ToolkitError):
+    """A configuration file or value is unusable (names the key and the value)."""
+
+
+class LogReadError(ToolkitError):
+    """An MCAP log cannot be read at all (nothing usable in it)."""
+
+
+class SchemaError(ToolkitError):
+    """A message definition or table schema is missing or malformed."""
+
+
+class CdrError(ToolkitError):
+    """A CDR payload does not match its message layout."""
+
+
+class WorkspaceError(ToolkitError):
+    """The workspace is missing, locked or inconsistent."""
+
+
+class StageError(ToolkitError):
+    """A pipeline stage failed on its inputs."""
+
+
+class SimulationError(ToolkitError):
+    """The simulator was asked for something it cannot produce."""
