@@ -1,0 +1,330 @@
+"""Tests of the command line's plumbing: help, exit codes, error lines, logging, progress.
+
+The sim and info verbs' implementations belong to other modules; here they are replaced by
+fakes so only argument handling and error mapping are tested.
+"""
+
+from __future__ import annotations
+
+import logging
+import subprocess
+import sys
+import types
+from pathlib import Path
+from typing import Any
+
+import pytest
+from click.testing import CliRunner
+
+import toolkit
+from toolkit import progress as progress_mod
+from toolkit.cli import main
+from toolkit.errors import LogReadError, SimulationError
+
+VERBS = ["sim", "info"]
+
+
+@pytest.fixture
+def runner() -> CliRunner:
+    return CliRunner()
+
+
+@pytest.fixture(autouse=True)
+def _restore_logging_and_quiet() -> Any:
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    yield
+    root.handlers[:] = handlers
+    root.setLevel(level)
+    progress_mod.set_quiet(False)
+
+
+def assert_one_error_line(stderr: str) -> str:
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, stderr
+    assert lines[0].startswith("terrain: error: "), stderr
+    assert "Traceback" not in stderr
+    return lines[0]
+
+
+# -- help and usage -----------------------------------------------------------------------
+
+
+def test_main_help_lists_verbs(runner: CliRunner) -> None:
+    result = runner.invoke(main, ["--help"])
+    assert result.exit_code == 0
+    for verb in VERBS:
+        assert verb in result.output
+    for option in ("--verbose", "--quiet", "--debug", "--version"):
+        assert option in result.output
+
+
+@pytest.mark.parametrize("verb", VERBS)
+def test_every_verb_has_help(runner: CliRunner, verb: str) -> None:
+    result = runner.invoke(main, [verb, "--help"])
+    assert result.exit_code == 0, result.output
+    assert f"Usage: terrain {verb}" in result.output or f"{verb} [OPTIONS]" in result.output
+
+
+def test_version(runner: CliRunner) -> None:
+    result = runner.invoke(main, ["--version"])
+    assert result.exit_code == 0
+    assert result.output.strip() == f"terrain {toolkit.__version__}"
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["frobnicate"],
+        ["sim"],
+        ["sim", "out.mcap", "--profile", "desert"],
+        ["sim", "out.mcap", "--distance-m", "-5"],
+        ["sim", "out.mcap", "--seed", "many"],
+        ["info"],
+        ["info", "a.mcap", "--bogus"],
+        ["--no-such-global"],
+    ],
+)
+def test_usage_errors_exit_2(runner: CliRunner, args: list[str]) -> None:
+    result = runner.invoke(main, args)
+    assert result.exit_code == 2, result.output
+    assert "Traceback" not in result.output
+
+
+# -- info -------------------------------------------------------------------------------
+
+
+class FakeInfo:
+    def to_dict(self) -> dict[str, Any]:
+        return {"topics": [{"topic": "/imu/data", "count": 3}], "problems": []}
+
+
+def fake_sim_module(monkeypatch: pytest.MonkeyPatch, simulate: Any) -> None:
+    module = types.ModuleType("toolkit.sim.simulate")
+    module.simulate = simulate  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "toolkit.sim.simulate", module)
+
+
+def fake_info_module(scan: Any) -> types.ModuleType:
+    module = types.ModuleType("toolkit.mcapio.info")
+    module.scan_log = scan  # type: ignore[attr-defined]
+    module.render_table = lambda info: "TOPIC /imu/data 3"  # type: ignore[attr-defined]
+    return module
+
+
+def test_info_missing_file_exits_1_with_one_line(runner: CliRunner, tmp_path: Path) -> None:
+    missing = tmp_path / "absent.mcap"
+    result = runner.invoke(main, ["info", str(missing)])
+    assert result.exit_code == 1
+    line = assert_one_error_line(result.stderr)
+    assert str(missing) in line and "no such file" in line
+
+
+def test_info_prints_table_or_json(
+    runner: CliRunner, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    log = tmp_path / "a.mcap"
+    log.write_bytes(b"")
+    seen: list[Path] = []
+
+    def scan(path: Path, **kwargs: Any) -> FakeInfo:
+        seen.append(path)
+        assert kwargs == {"full": path.name == "full.mcap"}
+        return FakeInfo()
+
+    monkeypatch.setitem(sys.modules, "toolkit.mcapio.info", fake_info_module(scan))
+    result = runner.invoke(main, ["info", str(log)])
+    assert result.exit_code == 0, result.output
+    assert result.stdout.strip() == "TOPIC /imu/data 3"
+    assert seen == [log]
+    result = runner.invoke(main, ["info", str(log), "--json"])
+    assert result.exit_code == 0
+    assert '"topic": "/imu/data"' in result.stdout
+    full = tmp_path / "full.mcap"
+    full.write_bytes(b"")
+    assert runner.invoke(main, ["info", str(full), "--full"]).exit_code == 0
+
+
+def test_info_log_read_error_exits_1(
+    runner: CliRunner, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    log = tmp_path / "broken.mcap"
+    log.write_bytes(b"garbage")
+
+    def scan(path: Path, **kwargs: Any) -> FakeInfo:
+        raise LogReadError("no MCAP magic\nat offset 0", path=path)
+
+    monkeypatch.setitem(sys.modules, "toolkit.mcapio.info", fake_info_module(scan))
+    result = runner.invoke(main, ["info", str(log)])
+    assert result.exit_code == 1
+    line = assert_one_error_line(result.stderr)
+    assert line == f"terrain: error: {log}: no MCAP magic at offset 0"
+    assert result.stdout == ""
+
+    debug = runner.invoke(main, ["--debug", "info", str(log)])
+    assert debug.exit_code == 1
+    assert "Traceback" in debug.stderr and "LogReadError" in debug.stderr
+    assert debug.stderr.rstrip().splitlines()[-1].startswith("terrain: error: ")
+
+
+# -- sim --------------------------------------------------------------------------------
+
+
+class FakeResult:
+    def summary(self) -> str:
+        return "wrote 1200 m, 5 lasers"
+
+
+def test_sim_passes_arguments_and_prints_summary(
+    runner: CliRunner, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls: list[tuple[Path, dict[str, Any]]] = []
+
+    def simulate(out_path: Path, **kwargs: Any) -> FakeResult:
+        calls.append((out_path, kwargs))
+        return FakeResult()
+
+    fake_sim_module(monkeypatch, simulate)
+    out = tmp_path / "race.mcap"
+    args = ["sim", str(out), "--profile", "race", "--distance-m", "1200", "--seed", "7"]
+    result = runner.invoke(main, args)
+    assert result.exit_code == 0, result.output
+    assert result.stdout.strip() == "wrote 1200 m, 5 lasers"
+    assert calls == [
+        (out, {"profile": "race", "distance_m": 1200.0, "seed": 7, "show_progress": False})
+    ]
+    result = runner.invoke(main, ["sim", str(out)])
+    assert calls[-1][1] == {
+        "profile": "sample",
+        "distance_m": None,
+        "seed": 0,
+        "show_progress": False,
+    }
+
+
+def test_sim_toolkit_error_exits_1(
+    runner: CliRunner, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def simulate(out_path: Path, **kwargs: Any) -> FakeResult:
+        raise SimulationError("distance_m 3 is shorter than one scan")
+
+    fake_sim_module(monkeypatch, simulate)
+    result = runner.invoke(main, ["sim", str(tmp_path / "x.mcap")])
+    assert result.exit_code == 1
+    assert assert_one_error_line(result.stderr).endswith("shorter than one scan")
+
+
+def test_sim_missing_output_directory_exits_1(runner: CliRunner, tmp_path: Path) -> None:
+    result = runner.invoke(main, ["sim", str(tmp_path / "nope" / "x.mcap")])
+    assert result.exit_code == 1
+    assert "output directory does not exist" in assert_one_error_line(result.stderr)
+
+
+def test_unexpected_exception_exits_1_with_hint(
+    runner: CliRunner, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def simulate(out_path: Path, **kwargs: Any) -> FakeResult:
+        raise ZeroDivisionError("division by zero")
+
+    fake_sim_module(monkeypatch, simulate)
+    result = runner.invoke(main, ["sim", str(tmp_path / "x.mcap")])
+    assert result.exit_code == 1
+    line = assert_one_error_line(result.stderr)
+    assert "ZeroDivisionError" in line and "--debug" in line
+    debug = runner.invoke(main, ["--debug", "sim", str(tmp_path / "x.mcap")])
+    assert debug.exit_code == 1
+    assert "Traceback" in debug.stderr
+
+
+def test_python_dash_m_entry_point(tmp_path: Path) -> None:
+    """The real process: exit code and a single stderr line, no traceback."""
+    proc = subprocess.run(
+        [sys.executable, "-m", "toolkit", "info", str(tmp_path / "absent.mcap")],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert proc.returncode == 1
+    assert_one_error_line(proc.stderr)
+    usage = subprocess.run(
+        [sys.executable, "-m", "toolkit", "sim"], capture_output=True, text=True, timeout=120
+    )
+    assert usage.returncode == 2
+
+
+# -- logging and progress -----------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("flags", "level"),
+    [
+        ([], logging.WARNING),
+        (["-v"], logging.INFO),
+        (["-vv"], logging.DEBUG),
+        (["-q"], logging.ERROR),
+    ],
+)
+def test_verbosity_sets_log_level(
+    runner: CliRunner, tmp_path: Path, flags: list[str], level: int
+) -> None:
+    result = runner.invoke(main, [*flags, "info", str(tmp_path / "absent.mcap")])
+    assert result.exit_code == 1
+    assert logging.getLogger().level == level
+
+
+def test_log_records_are_one_line_on_stderr(
+    runner: CliRunner, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    def simulate(out_path: Path, **kwargs: Any) -> FakeResult:
+        logging.getLogger("toolkit.sim").warning("gps dropout\nfor 2 s")
+        logging.getLogger("toolkit.sim").info("details")
+        return FakeResult()
+
+    fake_sim_module(monkeypatch, simulate)
+    result = runner.invoke(main, ["sim", str(tmp_path / "x.mcap")])
+    assert result.exit_code == 0
+    assert result.stderr.splitlines() == ["terrain: warning: [toolkit.sim] gps dropout for 2 s"]
+    assert "gps dropout" not in result.stdout
+    verbose = runner.invoke(main, ["-v", "sim", str(tmp_path / "x.mcap")])
+    assert "terrain: info: [toolkit.sim] details" in verbose.stderr.splitlines()
+
+
+def test_progress_disabled_off_terminal_in_ci_and_quiet(monkeypatch: pytest.MonkeyPatch) -> None:
+    class Tty:
+        def isatty(self) -> bool:
+            return True
+
+        def write(self, text: str) -> int:
+            return len(text)
+
+        def flush(self) -> None:
+            pass
+
+    monkeypatch.delenv("CI", raising=False)
+    monkeypatch.setattr(sys, "stderr", Tty())
+    assert progress_mod.progress_enabled()
+    for value in ("true", "1"):
+        monkeypatch.setenv("CI", value)
+        assert not progress_mod.progress_enabled()
+    monkeypatch.setenv("CI", "false")
+    assert progress_mod.progress_enabled()
+    progress_mod.set_quiet(True)
+    assert not progress_mod.progress_enabled()
+    progress_mod.set_quiet(False)
+    monkeypatch.setattr(sys, "stderr", types.SimpleNamespace(isatty=lambda: False))
+    assert not progress_mod.progress_enabled()
+
+
+def test_progress_passes_items_through(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CI", "true")
+    bar = progress_mod.progress(range(5), desc="x")
+    assert bar.disable
+    assert list(bar) == [0, 1, 2, 3, 4]
+    with progress_mod.progress(total=10, unit="B") as manual:
+        manual.update(4)
+        assert manual.n == 4 or manual.disable
+
+
+def test_quiet_flag_disables_progress(runner: CliRunner, tmp_path: Path) -> None:
+    runner.invoke(main, ["-q", "info", str(tmp_path / "absent.mcap")])
+    assert progress_mod._quiet is True

@@ -1,0 +1,179 @@
+"""The ``terrain`` command line: parses arguments, calls one stage, maps errors to exit codes.
+
+Exit codes (the contract): 0 on success; 1 on bad input or a failed stage, with one line
+``terrain: error: <message>`` on stderr and no traceback unless ``--debug``; 2 on usage
+errors (click's own handling). Every verb registered on :data:`main` gets this mapping from
+:class:`TerrainGroup`, so a verb only raises :class:`~toolkit.errors.ToolkitError`.
+
+Verbs import their implementation lazily, so ``terrain --help`` stays fast and a verb's
+heavy dependencies load only when it runs.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import click
+
+from toolkit import __version__
+from toolkit.errors import LogReadError, ToolkitError
+from toolkit.progress import progress_enabled, set_quiet
+
+PROG = "terrain"
+
+_log = logging.getLogger("toolkit")
+
+
+@dataclass(frozen=True)
+class CliOptions:
+    """The global options, kept on the click context for every verb."""
+
+    verbose: int = 0
+    quiet: bool = False
+    debug: bool = False
+
+
+def _error_line(message: str) -> None:
+    """Print one error line to stderr (newlines in the message folded)."""
+    one_line = " ".join(str(message).split("\n"))
+    click.echo(f"{PROG}: error: {one_line}", err=True)
+
+
+class TerrainGroup(click.Group):
+    """A click group that maps the toolkit's errors to exit codes for all its commands."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except (click.exceptions.ClickException, click.exceptions.Exit, click.Abort):
+            raise  # usage errors (exit 2), explicit exits, Ctrl-C: click handles them
+        except ToolkitError as exc:
+            if _debug(ctx):
+                traceback.print_exc(file=sys.stderr)
+            _error_line(str(exc))
+            ctx.exit(1)
+        except Exception as exc:
+            if _debug(ctx):
+                traceback.print_exc(file=sys.stderr)
+                _error_line(f"internal error: {type(exc).__name__}: {exc}")
+            else:
+                _error_line(
+                    f"internal error: {type(exc).__name__}: {exc} "
+                    f"(run '{PROG} --debug ...' for the traceback)"
+                )
+            ctx.exit(1)
+
+
+def _debug(ctx: click.Context) -> bool:
+    opts = ctx.find_object(CliOptions)
+    return bool(opts and opts.debug)
+
+
+class _OneLineFormatter(logging.Formatter):
+    """``terrain: warning: [logger] message`` on one line (tracebacks only with --debug)."""
+
+    def __init__(self, show_traces: bool) -> None:
+        super().__init__()
+        self.show_traces = show_traces
+
+    def format(self, record: logging.LogRecord) -> str:
+        message = " ".join(record.getMessage().splitlines())
+        line = f"{PROG}: {record.levelname.lower()}: [{record.name}] {message}"
+        if self.show_traces and record.exc_info:
+            line += "\n" + self.formatException(record.exc_info)
+        return line
+
+
+def configure_logging(verbose: int, quiet: bool, debug: bool) -> None:
+    """Route log records to stderr: WARNING by default, INFO with -v, DEBUG with -vv."""
+    if quiet:
+        level = logging.ERROR
+    elif verbose >= 2:
+        level = logging.DEBUG
+    elif verbose == 1:
+        level = logging.INFO
+    else:
+        level = logging.WARNING
+    root = logging.getLogger()
+    for handler in [h for h in root.handlers if getattr(h, "_terrain", False)]:
+        root.removeHandler(handler)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_OneLineFormatter(show_traces=debug))
+    handler._terrain = True  # type: ignore[attr-defined]
+    root.addHandler(handler)
+    root.setLevel(level)
+    logging.captureWarnings(True)
+
+
+@click.group(cls=TerrainGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
+@click.option("-q", "--quiet", is_flag=True, help="Only errors; no progress bars.")
+@click.option("--debug", is_flag=True, help="Show tracebacks on errors.")
+@click.version_option(__version__, "--version", prog_name=PROG, message="%(prog)s %(version)s")
+@click.pass_context
+def main(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
+    """Self-supervised terrain roughness estimation (Stavens & Thrun, 2006) over MCAP logs."""
+    ctx.obj = CliOptions(verbose=verbose, quiet=quiet, debug=debug)
+    configure_logging(verbose, quiet, debug)
+    set_quiet(quiet)
+
+
+def _require_file(path: Path, error: type[ToolkitError] = ToolkitError) -> None:
+    """Bad input, not a usage error: a missing input file exits 1 with one line."""
+    if not path.exists():
+        raise error("no such file", path=path)
+    if not path.is_file():
+        raise error("not a file", path=path)
+
+
+@main.command()
+@click.argument("out", metavar="OUT.mcap", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--profile",
+    type=click.Choice(["sample", "race", "calibration"]),
+    default="sample",
+    show_default=True,
+    help="sample: a short log for tests; race: a long desert stretch; calibration: "
+    "manoeuvres for checking timing and mounts.",
+)
+@click.option(
+    "--distance-m",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=None,
+    help="Route length in metres (default: the profile's).",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+def sim(out: Path, profile: str, distance_m: float | None, seed: int) -> None:
+    """Write a synthetic race log with ground truth to OUT.mcap."""
+    if not out.parent.is_dir():
+        raise ToolkitError("output directory does not exist", path=out.parent)
+    from toolkit.sim.simulate import simulate
+
+    result = simulate(
+        out, profile=profile, distance_m=distance_m, seed=seed, show_progress=progress_enabled()
+    )
+    click.echo(result.summary())
+
+
+@main.command()
+@click.argument("log", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+@click.option(
+    "--full", is_flag=True, help="Read every record with CRC checks, even when an index exists."
+)
+def info(log: Path, as_json: bool, full: bool) -> None:
+    """Topics, types, counts, rates, duration and problems found in LOG.mcap."""
+    _require_file(log, LogReadError)
+    from toolkit.mcapio.info import render_table, scan_log
+
+    log_info = scan_log(log, full=full)
+    if as_json:
+        click.echo(json.dumps(log_info.to_dict(), indent=2, sort_keys=False))
+    else:
+        click.echo(render_table(log_info))

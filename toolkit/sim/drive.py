@@ -1,0 +1,295 @@
+"""Driving the vehicle along the route: the true state, block by block.
+
+The vehicle's rear axle follows a *driven path*: the route's centreline shifted sideways by
+a slow lane wander ``w(s)``. Its longitudinal speed comes from the reactive speed controller;
+its vertical motion and attitude from the full-car suspension model driven by the terrain
+under its four tyres. Each call of :meth:`Driver.step` advances one block (0.1 s) at the
+dynamics rate (1 kHz) and returns the true state at every dynamics sample.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.signal import butter, sosfilt, sosfilt_zi
+from scipy.spatial.transform import Rotation
+
+from toolkit.sim.vehicle import (
+    ModalSuspension,
+    ReactiveSpeedController,
+    ReactiveSpeedParams,
+    VehicleParams,
+    safe_speed_profile,
+)
+from toolkit.sim.world import Route, Terrain, TerrainWindow
+
+FloatArray = NDArray[np.float64]
+
+GRAVITY_MPS2 = 9.80665
+# A tyre of 0.38 m radius envelops short bumps: average the road over its contact length.
+TYRE_CONTACT_OFFSETS_M = np.array([-0.15, -0.075, 0.0, 0.075, 0.15])
+
+
+@dataclass(frozen=True)
+class DrivenPath:
+    """The rear axle's path, tabulated against centreline distance ``s_m`` (shape (n,)).
+
+    ``sigma_m`` is distance along the driven path itself, ``wander_m`` the lateral offset
+    from the centreline, ``heading_rad`` and ``curvature_per_m`` those of the driven path.
+    """
+
+    s_m: FloatArray
+    sigma_m: FloatArray
+    wander_m: FloatArray
+    x_m: FloatArray
+    y_m: FloatArray
+    heading_rad: FloatArray
+    curvature_per_m: FloatArray
+
+    def at_sigma(self, sigma_m: FloatArray) -> dict[str, FloatArray]:
+        s = np.interp(sigma_m, self.sigma_m, self.s_m)
+        return {
+            "s_m": s,
+            "d_m": np.interp(s, self.s_m, self.wander_m),
+            "x_m": np.interp(s, self.s_m, self.x_m),
+            "y_m": np.interp(s, self.s_m, self.y_m),
+            "heading_rad": np.interp(s, self.s_m, self.heading_rad),
+            "curvature_per_m": np.interp(s, self.s_m, self.curvature_per_m),
+        }
+
+
+def make_driven_path(
+    route: Route, rng: np.random.Generator, wander_amplitude_m: float, ds_m: float = 0.25
+) -> DrivenPath:
+    """Offset the centreline by a smooth lane wander (sinusoids of 60-400 m wavelength).
+
+    Heading and curvature follow analytically from the offset's derivatives, so they are
+    smooth (a polyline's would jump at every vertex and shake the simulated IMU).
+    """
+    s = np.arange(0.0, route.length_m - 1.0, ds_m)
+    wavelengths = rng.uniform(60.0, 400.0, size=3)
+    phases = rng.uniform(0, 2 * np.pi, size=3)
+    amps = rng.uniform(0.5, 1.0, size=3) * wander_amplitude_m / 3
+    k = 2 * np.pi / wavelengths
+    arg = s[:, None] * k[None, :] + phases[None, :]
+    w = (amps * np.sin(arg)).sum(axis=1)
+    w1 = (amps * k * np.cos(arg)).sum(axis=1)
+    w2 = -(amps * k**2 * np.sin(arg)).sum(axis=1)
+    cx, cy, ch = route.sample(s)
+    kc = np.interp(s, route.s_m, route.curvature_per_m)
+    x = cx - w * np.sin(ch)
+    y = cy + w * np.cos(ch)
+    # d(path)/ds = (1 - kc w) t + w' n
+    along = 1.0 - kc * w
+    heading = ch + np.arctan2(w1, along)
+    dsigma = np.hypot(along, w1)
+    # Curvature of an offset curve: (kc + (d/ds) atan(w'/(1 - kc w))) / |d path / ds|.
+    datan = (w2 * along + w1 * (kc * w1)) / (along**2 + w1**2)
+    curvature = (kc + datan) / dsigma
+    sigma = np.concatenate([[0.0], np.cumsum(0.5 * (dsigma[1:] + dsigma[:-1])) * ds_m])
+    return DrivenPath(s, sigma, w, x, y, heading, curvature)
+
+
+@dataclass
+class TrueBlock:
+    """The true state at every dynamics sample of one block; arrays (n,) or (n, 3).
+
+    Position is that of ``base_link`` (ENU, m); attitude roll/pitch/yaw (rad, Z-Y-X);
+    ``omega_body_radps`` body angular rates; ``specific_force_body_mps2`` what a perfect
+    accelerometer at the IMU would read (gravity included); ``wheel_speed_mps`` (n, 4) in
+    the order FL, FR, RL, RR.
+    """
+
+    t_ns: NDArray[np.int64]
+    sigma_m: FloatArray
+    s_m: FloatArray
+    d_m: FloatArray
+    position_m: FloatArray
+    roll_rad: FloatArray
+    pitch_rad: FloatArray
+    yaw_rad: FloatArray
+    roll_rate_radps: FloatArray
+    pitch_rate_radps: FloatArray
+    speed_mps: FloatArray
+    accel_mps2: FloatArray
+    curvature_per_m: FloatArray
+    velocity_world_mps: FloatArray
+    omega_body_radps: FloatArray
+    specific_force_body_mps2: FloatArray
+    wheel_speed_mps: FloatArray
+
+    def world_from_base(self) -> Rotation:
+        return Rotation.from_euler("ZYX", np.stack([self.yaw_rad, self.pitch_rad, self.roll_rad], 1))
+
+    def __len__(self) -> int:
+        return int(self.t_ns.size)
+
+
+class Driver:
+    """Advances the vehicle through the world one block at a time.
+
+    Holds the only mutable simulation state: distance, speed, the suspension state, the
+    controller's speed cap and its shock filter.
+    """
+
+    def __init__(
+        self,
+        route: Route,
+        terrain: Terrain,
+        path: DrivenPath,
+        vehicle: VehicleParams,
+        controller: ReactiveSpeedParams,
+        imu_position_m: tuple[float, float, float],
+        start_time_ns: int,
+        initial_speed_mps: float,
+        speed_schedule: tuple[tuple[float, float], ...] = (),
+        dt_ns: int = 1_000_000,
+    ) -> None:
+        self.route = route
+        self.terrain = terrain
+        self.path = path
+        self.vehicle = vehicle
+        self.dt_ns = dt_ns
+        self.dt_s = dt_ns * 1e-9
+        self.suspension = ModalSuspension.build(vehicle, self.dt_s)
+        self.controller = ReactiveSpeedController(controller)
+        if speed_schedule:
+            limits = np.full(route.s_m.size, speed_schedule[0][1])
+            for s_from, v in speed_schedule:
+                limits[route.s_m >= s_from] = v
+            self.limit_mps = limits
+        else:
+            self.limit_mps = safe_speed_profile(
+                route.s_m, route.speed_limit_mps, route.curvature_per_m, controller
+            )
+        self.imu_position_m = np.asarray(imu_position_m)
+        self.t_ns = start_time_ns
+        self.sigma_m = 2.0
+        self.speed_mps = initial_speed_mps
+        self.state: FloatArray | None = None
+        # The controller's shock meter: 10 Hz high-pass of the vertical specific force.
+        self._shock_sos = butter(2, 10.0, "highpass", fs=1.0 / self.dt_s, output="sos")
+        self._shock_zi = sosfilt_zi(self._shock_sos) * GRAVITY_MPS2
+        self._window: TerrainWindow | None = None
+        self._window_range = (0.0, -1.0)
+
+    @property
+    def end_sigma_m(self) -> float:
+        return float(self.path.sigma_m[-1]) - 60.0
+
+    def window(self, s_lo_m: float, s_hi_m: float) -> TerrainWindow:
+        """A terrain window covering ``[s_lo, s_hi]``, rebuilt only when it must grow."""
+        lo, hi = self._window_range
+        if self._window is None or s_lo_m < lo or s_hi_m > hi:
+            lo = max(0.0, s_lo_m - 10.0)
+            hi = s_hi_m + self.terrain.tile_length_m
+            self._window = self.terrain.window(lo, hi)
+            tile = self.terrain.tile_length_m
+            self._window_range = (np.floor(lo / tile) * tile, (np.floor(hi / tile) + 1) * tile)
+        return self._window
+
+    def step(self, n: int) -> TrueBlock:
+        """Advance ``n`` dynamics samples; the block's first sample is the current time."""
+        p = self.vehicle
+        k = np.arange(n)
+        t_rel = k * self.dt_s
+        s_now = float(np.interp(self.sigma_m, self.path.sigma_m, self.path.s_m))
+        limit = float(np.interp(s_now, self.route.s_m, self.limit_mps))
+        a = self.controller.acceleration(self.speed_mps, limit)
+        v = np.maximum(self.speed_mps + a * t_rel, 0.0)
+        if a < 0 and self.speed_mps + a * t_rel[-1] < 0:
+            a_eff = np.where(v > 0, a, 0.0)
+        else:
+            a_eff = np.full(n, a)
+        sigma = self.sigma_m + np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]))]) * self.dt_s
+        kin = self.path.at_sigma(sigma)
+        heading = kin["heading_rad"]
+        kappa = kin["curvature_per_m"]
+        ch, sh = np.cos(heading), np.sin(heading)
+
+        # Road heights under each tyre, averaged over its contact patch.
+        half = p.track_m / 2
+        lateral = np.array([half, -half, half, -half])
+        forward = np.array([p.wheelbase_m, p.wheelbase_m, 0.0, 0.0])
+        fwd = forward[None, :, None] + TYRE_CONTACT_OFFSETS_M[None, None, :]
+        wx = kin["x_m"][:, None, None] + fwd * ch[:, None, None] - lateral[None, :, None] * sh[:, None, None]
+        wy = kin["y_m"][:, None, None] + fwd * sh[:, None, None] + lateral[None, :, None] * ch[:, None, None]
+        guess = kin["s_m"][:, None, None] + fwd + 0.0 * wx
+        ws, wd = self.route.to_route(wx.ravel(), wy.ravel(), guess.ravel())
+        win = self.window(float(ws.min()), float(ws.max()) + 100.0)
+        road = win.height(ws, wd).reshape(wx.shape).mean(axis=2)  # (n, 4)
+
+        a_lat = v**2 * kappa
+        u = np.concatenate([road, a_eff[:, None], a_lat[:, None]], axis=1)
+        if self.state is None:
+            self.state = self.suspension.equilibrium(u[0])
+        states, self.state = self.suspension.step_block(self.state, u)
+        acc = self.suspension.accelerations(states, u)
+
+        b = p.cg_from_rear_m
+        pitch, roll = states[:, 1], states[:, 2]
+        pitch_rate, roll_rate = states[:, 8], states[:, 9]
+        z_base = states[:, 0] + b * pitch
+        z_base_rate = states[:, 7] + b * pitch_rate
+        z_base_acc = acc[:, 0] + b * acc[:, 1]
+        yaw_rate = v * kappa
+
+        # Body rates from Euler rates (Z-Y-X): exact kinematics.
+        sp, cp = np.sin(pitch), np.cos(pitch)
+        sr, cr = np.sin(roll), np.cos(roll)
+        omega = np.stack(
+            [
+                roll_rate - yaw_rate * sp,
+                pitch_rate * cr + yaw_rate * sr * cp,
+                -pitch_rate * sr + yaw_rate * cr * cp,
+            ],
+            axis=1,
+        )
+        alpha = np.stack([acc[:, 2], acc[:, 1], a_eff * kappa], axis=1)
+        rot = Rotation.from_euler("ZYX", np.stack([heading, pitch, roll], axis=1))
+        r = self.imu_position_m
+        lever = np.cross(alpha, r) + np.cross(omega, np.cross(omega, r))
+        a_base = np.stack([a_eff * ch - a_lat * sh, a_eff * sh + a_lat * ch, z_base_acc], axis=1)
+        a_imu = a_base + rot.apply(lever)
+        a_imu[:, 2] += GRAVITY_MPS2
+        f_body = rot.apply(a_imu, inverse=True)
+
+        # Wheel speeds: each wheel's ground speed along its own heading.
+        front = v * np.sqrt(1.0 + (p.wheelbase_m * kappa) ** 2)
+        wheel = np.stack(
+            [front - yaw_rate * half, front + yaw_rate * half, v - yaw_rate * half, v + yaw_rate * half],
+            axis=1,
+        )
+
+        # The reactive controller reads the shock it just felt and slows down.
+        hp, self._shock_zi = sosfilt(self._shock_sos, f_body[:, 2], zi=self._shock_zi)
+        self.controller.on_shock(float(np.abs(hp).max()) / GRAVITY_MPS2, float(v[-1]))
+        v_end = max(self.speed_mps + a * n * self.dt_s, 0.0)
+        distance = float(sigma[-1] - self.sigma_m) + 0.5 * (v[-1] + v_end) * self.dt_s
+        self.controller.recover(distance)
+
+        block = TrueBlock(
+            t_ns=self.t_ns + k.astype(np.int64) * self.dt_ns,
+            sigma_m=sigma,
+            s_m=kin["s_m"],
+            d_m=kin["d_m"],
+            position_m=np.stack([kin["x_m"], kin["y_m"], z_base], axis=1),
+            roll_rad=roll,
+            pitch_rad=pitch,
+            yaw_rad=heading,
+            roll_rate_radps=roll_rate,
+            pitch_rate_radps=pitch_rate,
+            speed_mps=v,
+            accel_mps2=a_eff,
+            curvature_per_m=kappa,
+            velocity_world_mps=np.stack([v * ch, v * sh, z_base_rate], axis=1),
+            omega_body_radps=omega,
+            specific_force_body_mps2=f_body,
+            wheel_speed_mps=wheel,
+        )
+        self.t_ns += n * self.dt_ns
+        self.sigma_m = float(sigma[-1]) + 0.5 * (v[-1] + v_end) * self.dt_s
+        self.speed_mps = v_end
+        return block

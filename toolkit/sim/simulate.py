@@ -1,0 +1,620 @@
+"""``terrain sim``: drive the simulated vehicle and write what its sensors saw as ROS 2 MCAP.
+
+The loop advances the true state one 0.1 s block at a time (:class:`~toolkit.sim.drive.Driver`),
+samples every sensor from it (:class:`SensorSuite`), encodes each sensor's messages of the
+block in one vectorised batch, and writes them in log-time order. Memory stays bounded: only
+the current block, its predecessor and a few terrain tiles are alive at any time.
+
+Topics (standard ROS 2 types where one fits):
+
+========================  ===============================  ===========
+topic                     type                             rate
+========================  ===============================  ===========
+/laser/front_1 .. _5      sensor_msgs/msg/LaserScan        75 Hz each
+/imu/data                 sensor_msgs/msg/Imu              100 Hz
+/gps/fix                  sensor_msgs/msg/NavSatFix        10 Hz
+/gps/heading              terrain_msgs/msg/GpsHeading      10 Hz
+/vehicle/wheel_speeds     terrain_msgs/msg/WheelSpeeds     100 Hz
+/tf_static                tf2_msgs/msg/TFMessage           once
+/truth/odom               nav_msgs/msg/Odometry            100 Hz
+/truth/features           terrain_msgs/msg/RoughFeatureArray  once
+========================  ===============================  ===========
+
+The MCAP metadata record ``terrain_sim`` holds the profile, seed and every parameter needed to
+rebuild the world and check each stage against the truth (clock offsets, noise levels).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+import toolkit
+from toolkit.geodesy import enu_to_geodetic
+from toolkit.mcapio.cdr import encode_batch, encode_message
+from toolkit.mcapio.writer import LogWriter
+from toolkit.progress import progress
+from toolkit.sim.drive import Driver, TrueBlock, make_driven_path
+from toolkit.sim.profiles import SimProfile, make_profile
+from toolkit.sim.sensors import Mount, RayCaster, SensorParams, gauss_markov
+from toolkit.sim.world import World, make_world
+
+FloatArray = NDArray[np.float64]
+
+BLOCK_SAMPLES = 100  # 0.1 s at the 1 kHz dynamics rate
+HISTORY_SAMPLES = 20  # of the previous block, for IMU averaging and scans across blocks
+WARMUP_BLOCKS = 30  # let the suspension settle before recording
+
+TOPIC_LASER = "/laser/front_{}"
+TOPIC_IMU = "/imu/data"
+TOPIC_GPS = "/gps/fix"
+TOPIC_HEADING = "/gps/heading"
+TOPIC_WHEELS = "/vehicle/wheel_speeds"
+TOPIC_TF_STATIC = "/tf_static"
+TOPIC_TRUTH_ODOM = "/truth/odom"
+TOPIC_TRUTH_FEATURES = "/truth/features"
+
+WORLD_FRAME = "enu"
+BASE_FRAME = "base_link"
+
+NAVSAT_STATUS_NO_FIX = -1
+NAVSAT_STATUS_GBAS_FIX = 2
+NAVSAT_SERVICE_GPS = 1
+COVARIANCE_TYPE_UNKNOWN = 0
+COVARIANCE_TYPE_DIAGONAL_KNOWN = 2
+
+
+@dataclass(frozen=True)
+class SimResult:
+    """What ``simulate`` wrote."""
+
+    path: Path
+    profile: str
+    seed: int
+    duration_s: float
+    distance_m: float
+    message_counts: dict[str, int]
+    feature_count: int
+
+    def summary(self) -> str:
+        total = sum(self.message_counts.values())
+        return (
+            f"{self.path}: profile {self.profile}, seed {self.seed}, {self.duration_s:.1f} s, "
+            f"{self.distance_m:.0f} m, {total} messages on {len(self.message_counts)} topics, "
+            f"{self.feature_count} rough features"
+        )
+
+
+def header_columns(stamp_ns: NDArray[np.int64], frame_id: str) -> dict[str, object]:
+    """``std_msgs/Header`` columns from nanosecond stamps."""
+    return {
+        "header.stamp.sec": (stamp_ns // 1_000_000_000).astype(np.int32),
+        "header.stamp.nanosec": (stamp_ns % 1_000_000_000).astype(np.uint32),
+        "header.frame_id": frame_id,
+    }
+
+
+def _vector_columns(prefix: str, xyz: FloatArray) -> dict[str, object]:
+    return {f"{prefix}.x": xyz[:, 0], f"{prefix}.y": xyz[:, 1], f"{prefix}.z": xyz[:, 2]}
+
+
+def _quat_columns(prefix: str, quat_xyzw: FloatArray) -> dict[str, object]:
+    return {
+        f"{prefix}.x": quat_xyzw[:, 0],
+        f"{prefix}.y": quat_xyzw[:, 1],
+        f"{prefix}.z": quat_xyzw[:, 2],
+        f"{prefix}.w": quat_xyzw[:, 3],
+    }
+
+
+def wrap_angle(a: FloatArray) -> FloatArray:
+    """Angles wrapped to ``[-pi, pi)``."""
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+@dataclass
+class _Clock:
+    """One sensor's clock: a fixed offset, stamp jitter and transport latency (ns)."""
+
+    offset_ns: int
+    jitter_ns: float
+    latency_ns: tuple[int, int]
+
+    def stamps(self, rng: np.random.Generator, t_true_ns: NDArray[np.int64]) -> NDArray[np.int64]:
+        jitter = np.clip(rng.normal(0.0, self.jitter_ns, t_true_ns.size), -3 * self.jitter_ns,
+                         3 * self.jitter_ns)
+        return t_true_ns + self.offset_ns + np.round(jitter).astype(np.int64)
+
+    def log_times(self, rng: np.random.Generator, t_true_ns: NDArray[np.int64]) -> NDArray[np.int64]:
+        lo, hi = self.latency_ns
+        return t_true_ns + rng.integers(lo, hi, t_true_ns.size, endpoint=True)
+
+
+@dataclass
+class _Outbox:
+    """Collects a block's encoded messages and releases them in global log-time order.
+
+    A message whose log time (true time plus latency) reaches into the next block is held
+    back, so the file's messages are sorted by log time across the whole log.
+    """
+
+    writer: LogWriter
+    counts: dict[str, int] = field(default_factory=dict)
+    _pending: list[tuple[int, int, str, bytes]] = field(default_factory=list)
+    _order: dict[str, int] = field(default_factory=dict)
+
+    def add(self, topic: str, log_time_ns: NDArray[np.int64], payloads: list[bytes]) -> None:
+        rank = self._order.setdefault(topic, len(self._order))
+        self._pending.extend(
+            zip(log_time_ns.tolist(), [rank] * len(payloads), [topic] * len(payloads), payloads,
+                strict=True)
+        )
+        self.counts[topic] = self.counts.get(topic, 0) + len(payloads)
+
+    def flush(self, before_ns: int | None) -> None:
+        self._pending.sort(key=lambda r: (r[0], r[1]))
+        cut = len(self._pending)
+        if before_ns is not None:
+            cut = next((i for i, r in enumerate(self._pending) if r[0] >= before_ns), cut)
+        for log_time, _, topic, payload in self._pending[:cut]:
+            self.writer.write(topic, log_time, payload)
+        del self._pending[:cut]
+
+
+class SensorSuite:
+    """Samples every sensor from the true state, with the errors of :class:`SensorParams`."""
+
+    def __init__(self, profile: SimProfile, world: World, seed: int, start_ns: int) -> None:
+        self.p: SensorParams = profile.sensors
+        self.profile = profile
+        self.world = world
+        self.start_ns = start_ns
+        self.rng = np.random.default_rng([seed, 11])
+        clock_rng = np.random.default_rng([seed, 12])
+        c = self.p.clock
+        self.clocks: dict[str, _Clock] = {}
+        self.topics_laser = [TOPIC_LASER.format(i + 1) for i in range(len(self.p.laser.mounts))]
+        for topic in [*self.topics_laser, TOPIC_IMU, TOPIC_GPS, TOPIC_HEADING, TOPIC_WHEELS]:
+            self.clocks[topic] = _Clock(
+                offset_ns=int(round(clock_rng.uniform(-c.offset_max_s, c.offset_max_s) * 1e9)),
+                jitter_ns=c.jitter_std_s * 1e9,
+                latency_ns=(int(c.latency_range_s[0] * 1e9), int(c.latency_range_s[1] * 1e9)),
+            )
+        self.clocks[TOPIC_TRUTH_ODOM] = _Clock(0, 0.0, (0, 0))
+        period = 1e9 / self.p.laser.rate_hz
+        self.laser_phase_ns = clock_rng.uniform(0, period, len(self.p.laser.mounts))
+        self.raycaster = RayCaster(world.route, world.terrain.crossfall, max_range_m=self.p.laser.range_max_m,
+                                   min_range_m=self.p.laser.range_min_m)
+        imu = self.p.imu
+        bias_rng = np.random.default_rng([seed, 13])
+        self.accel_bias = bias_rng.normal(0, imu.accel_bias_initial_mps2, 3)
+        self.gyro_bias = bias_rng.normal(0, imu.gyro_bias_initial_radps, 3)
+        self.wheel_scale = 1.0 + bias_rng.normal(0, self.p.wheels.scale_error_std, 4)
+        self.gps_drift = bias_rng.normal(0, self.p.gps.drift_std_m, 3)
+        self.dropouts = self._dropouts(np.random.default_rng([seed, 14]))
+        beams = self.p.laser.beams
+        angles = self.p.laser.angle_min_rad + np.arange(beams) * self.p.laser.angle_increment_rad
+        dirs = np.stack([np.cos(angles), np.sin(angles), np.zeros(beams)])
+        self._beam_dirs_base = [m.rotation() @ dirs for m in self.p.laser.mounts]  # (3, beams)
+
+    # -- schedules --------------------------------------------------------------------------
+
+    def _dropouts(self, rng: np.random.Generator) -> list[tuple[int, int]]:
+        """GPS dropout intervals [start, end) in true time (ns), for up to 3 hours of log."""
+        g = self.p.gps
+        out: list[tuple[int, int]] = []
+        if g.dropouts_per_hour <= 0:
+            return out
+        t = 0.0
+        while t < 3 * 3600.0:
+            t += rng.exponential(3600.0 / g.dropouts_per_hour)
+            dur = rng.uniform(*g.dropout_duration_s)
+            out.append((self.start_ns + int(t * 1e9), self.start_ns + int((t + dur) * 1e9)))
+            t += dur
+        return out
+
+    def in_dropout(self, t_ns: NDArray[np.int64]) -> NDArray[np.bool_]:
+        mask = np.zeros(t_ns.size, dtype=bool)
+        for lo, hi in self.dropouts:
+            if lo > t_ns[-1]:
+                break
+            mask |= (t_ns >= lo) & (t_ns < hi)
+        return mask
+
+    def _ticks(self, block: TrueBlock, rate_hz: float) -> NDArray[np.intp]:
+        """Indices of the block's samples that fall on a ``rate_hz`` tick."""
+        period_ns = int(round(1e9 / rate_hz))
+        return np.flatnonzero((block.t_ns - self.start_ns) % period_ns == 0)
+
+    # -- sensors ----------------------------------------------------------------------------
+
+    def imu(self, ext: TrueBlock, first: int, out: _Outbox) -> None:
+        """100 Hz samples, each the mean over its 10 ms (what an integrating IMU reports)."""
+        p = self.p.imu
+        cur_t = ext.t_ns[first:]
+        ticks = self._ticks_of(cur_t, p.rate_hz) + first
+        if ticks.size == 0:
+            return
+        per = int(round(1e9 / p.rate_hz / (ext.t_ns[1] - ext.t_ns[0])))
+        idx = ticks[:, None] - np.arange(per)[None, ::-1]
+        f = ext.specific_force_body_mps2[idx].mean(axis=1)
+        w = ext.omega_body_radps[idx].mean(axis=1)
+        n = ticks.size
+        dt = 1.0 / p.rate_hz
+        a_walk = np.cumsum(self.rng.normal(0, p.accel_bias_walk_mps2_per_sqrt_s * np.sqrt(dt), (n, 3)), 0)
+        g_walk = np.cumsum(self.rng.normal(0, p.gyro_bias_walk_radps_per_sqrt_s * np.sqrt(dt), (n, 3)), 0)
+        accel = f + self.accel_bias + a_walk + self.rng.normal(0, p.accel_noise_mps2, (n, 3))
+        gyro = w + self.gyro_bias + g_walk + self.rng.normal(0, p.gyro_noise_radps, (n, 3))
+        self.accel_bias = self.accel_bias + a_walk[-1]
+        self.gyro_bias = self.gyro_bias + g_walk[-1]
+        t_true = ext.t_ns[ticks]
+        clock = self.clocks[TOPIC_IMU]
+        cols = {
+            **header_columns(clock.stamps(self.rng, t_true), p.mount.frame_id),
+            # No orientation estimate: covariance[0] = -1 by the sensor_msgs/Imu convention.
+            "orientation_covariance": np.array([-1.0, 0, 0, 0, 0, 0, 0, 0, 0]),
+            **_vector_columns("angular_velocity", gyro),
+            "angular_velocity_covariance": np.diag([p.gyro_noise_radps**2] * 3).ravel(),
+            **_vector_columns("linear_acceleration", accel),
+            "linear_acceleration_covariance": np.diag([p.accel_noise_mps2**2] * 3).ravel(),
+        }
+        out.add(TOPIC_IMU, clock.log_times(self.rng, t_true),
+                encode_batch("sensor_msgs/msg/Imu", cols))
+
+    def _ticks_of(self, t_ns: NDArray[np.int64], rate_hz: float) -> NDArray[np.intp]:
+        period_ns = int(round(1e9 / rate_hz))
+        return np.flatnonzero((t_ns - self.start_ns) % period_ns == 0)
+
+    def wheels(self, block: TrueBlock, out: _Outbox) -> None:
+        p = self.p.wheels
+        ticks = self._ticks(block, p.rate_hz)
+        if ticks.size == 0:
+            return
+        speeds = block.wheel_speed_mps[ticks] * self.wheel_scale
+        speeds = speeds + self.rng.normal(0, p.noise_mps, speeds.shape)
+        t_true = block.t_ns[ticks]
+        clock = self.clocks[TOPIC_WHEELS]
+        cols = {
+            **header_columns(clock.stamps(self.rng, t_true), BASE_FRAME),
+            "front_left": speeds[:, 0],
+            "front_right": speeds[:, 1],
+            "rear_left": speeds[:, 2],
+            "rear_right": speeds[:, 3],
+        }
+        out.add(TOPIC_WHEELS, clock.log_times(self.rng, t_true),
+                encode_batch("terrain_msgs/msg/WheelSpeeds", cols))
+
+    def gps(self, block: TrueBlock, out: _Outbox) -> None:
+        g = self.p.gps
+        ticks = self._ticks(block, g.rate_hz)
+        if ticks.size == 0:
+            return
+        n = ticks.size
+        rot = block.world_from_base()[ticks]
+        antenna = block.position_m[ticks] + rot.apply(np.asarray(g.mount.xyz_m))
+        drift = gauss_markov(self.rng, n, 1.0 / g.rate_hz, g.drift_std_m, g.drift_tau_s,
+                             self.gps_drift)
+        self.gps_drift = drift[-1]
+        white = self.rng.normal(0, 1, (n, 3)) * np.array(
+            [g.horizontal_noise_m, g.horizontal_noise_m, g.vertical_noise_m]
+        )
+        enu = antenna + drift + white
+        lat, lon, alt = enu_to_geodetic(enu, self.profile.origin)
+        t_true = block.t_ns[ticks]
+        lost = self.in_dropout(t_true)
+        var_h = g.horizontal_noise_m**2 + g.drift_std_m**2
+        var_v = g.vertical_noise_m**2 + g.drift_std_m**2
+        cov = np.tile([var_h, 0, 0, 0, var_h, 0, 0, 0, var_v], (n, 1))
+        cov[lost] = 0.0
+        clock = self.clocks[TOPIC_GPS]
+        cols = {
+            **header_columns(clock.stamps(self.rng, t_true), g.mount.frame_id),
+            "status.status": np.where(lost, NAVSAT_STATUS_NO_FIX, NAVSAT_STATUS_GBAS_FIX).astype(np.int8),
+            "status.service": np.uint16(NAVSAT_SERVICE_GPS),
+            "latitude": np.where(lost, np.nan, lat),
+            "longitude": np.where(lost, np.nan, lon),
+            "altitude": np.where(lost, np.nan, alt),
+            "position_covariance": cov,
+            "position_covariance_type": np.where(
+                lost, COVARIANCE_TYPE_UNKNOWN, COVARIANCE_TYPE_DIAGONAL_KNOWN
+            ).astype(np.uint8),
+        }
+        out.add(TOPIC_GPS, clock.log_times(self.rng, t_true),
+                encode_batch("sensor_msgs/msg/NavSatFix", cols))
+
+        ticks_h = self._ticks(block, g.heading_rate_hz)
+        t_h = block.t_ns[ticks_h]
+        ticks_h = ticks_h[~self.in_dropout(t_h)] if ticks_h.size else ticks_h
+        if ticks_h.size == 0:
+            return
+        t_true = block.t_ns[ticks_h]
+        yaw = wrap_angle(block.yaw_rad[ticks_h] + self.rng.normal(0, g.heading_noise_rad, ticks_h.size))
+        clock = self.clocks[TOPIC_HEADING]
+        cols = {
+            **header_columns(clock.stamps(self.rng, t_true), BASE_FRAME),
+            "yaw": yaw,
+            "yaw_std": np.full(ticks_h.size, g.heading_noise_rad),
+        }
+        out.add(TOPIC_HEADING, clock.log_times(self.rng, t_true),
+                encode_batch("terrain_msgs/msg/GpsHeading", cols))
+
+    def truth(self, block: TrueBlock, out: _Outbox) -> None:
+        ticks = self._ticks(block, self.p.truth_rate_hz)
+        if ticks.size == 0:
+            return
+        rot = block.world_from_base()[ticks]
+        v_body = rot.apply(block.velocity_world_mps[ticks], inverse=True)
+        t_true = block.t_ns[ticks]
+        cols = {
+            **header_columns(t_true, WORLD_FRAME),
+            "child_frame_id": BASE_FRAME,
+            **_vector_columns("pose.pose.position", block.position_m[ticks]),
+            **_quat_columns("pose.pose.orientation", rot.as_quat()),
+            **_vector_columns("twist.twist.linear", v_body),
+            **_vector_columns("twist.twist.angular", block.omega_body_radps[ticks]),
+        }
+        out.add(TOPIC_TRUTH_ODOM, t_true, encode_batch("nav_msgs/msg/Odometry", cols))
+
+    def lasers(self, ext: TrueBlock, first: int, out: _Outbox) -> None:
+        """Every scan that ends within this block; each beam cast from the pose at its time."""
+        lp = self.p.laser
+        period_ns = 1e9 / lp.rate_hz
+        span_ns = (lp.beams - 1) * lp.time_increment_s * 1e9
+        t0 = int(ext.t_ns[first])
+        t_last = int(ext.t_ns[-1])
+        dt_ns = int(ext.t_ns[1] - ext.t_ns[0])
+        t_ext = (ext.t_ns - t0).astype(np.float64)
+        frac = np.arange(lp.beams) / (lp.beams - 1)
+        origins, dirs, scans = [], [], []
+        for i, mount in enumerate(lp.mounts):
+            # Scans whose last beam falls in (t0 - dt, t_last].
+            base = self.start_ns + self.laser_phase_ns[i] + span_ns
+            n_lo = int(np.floor((t0 - dt_ns - base) / period_ns)) + 1
+            n_hi = int(np.floor((t_last - base) / period_ns))
+            for n in range(max(n_lo, 0), n_hi + 1):
+                start = self.start_ns + self.laser_phase_ns[i] + n * period_ns
+                scans.append((i, int(round(start))))
+        if not scans:
+            return
+        starts = np.array([s for _, s in scans], dtype=np.int64)
+        lasers_idx = np.array([i for i, _ in scans])
+        t_start = (starts - t0).astype(np.float64)
+        t_end = t_start + span_ns
+        rot0, pos0 = self._pose_at(ext, t_ext, t_start)
+        rot1, pos1 = self._pose_at(ext, t_ext, t_end)
+        # Beams sweep during the scan: interpolate the sensor's pose between the scan's
+        # first and last beam (rotations of a few mrad, so linear is exact to 1e-5).
+        origin = np.empty((len(scans), lp.beams, 3))
+        direction = np.empty((len(scans), lp.beams, 3))
+        for i, mount in enumerate(lp.mounts):
+            rows = np.flatnonzero(lasers_idx == i)
+            if rows.size == 0:
+                continue
+            m = np.asarray(mount.xyz_m)
+            v = self._beam_dirs_base[i]  # (3, beams)
+            o0 = pos0[rows] + rot0[rows] @ m
+            o1 = pos1[rows] + rot1[rows] @ m
+            d0 = np.einsum("kij,jb->kbi", rot0[rows], v)
+            d1 = np.einsum("kij,jb->kbi", rot1[rows], v)
+            origin[rows] = o0[:, None, :] + (o1 - o0)[:, None, :] * frac[None, :, None]
+            direction[rows] = d0 + (d1 - d0) * frac[None, :, None]
+        direction /= np.linalg.norm(direction, axis=2, keepdims=True)
+        origin = origin.reshape(-1, 3)
+        direction = direction.reshape(-1, 3)
+        s_hint = float(ext.s_m[first + BLOCK_SAMPLES // 2] if ext.s_m.size > first + 50 else ext.s_m[-1])
+        ranges = self.raycaster.cast(self._window, origin, direction, s_hint + 15.0)
+        ranges = ranges + self.rng.normal(0, lp.range_noise_m, ranges.size)
+        ranges[self.rng.random(ranges.size) < lp.dropout_probability] = np.inf
+        ranges[(ranges < lp.range_min_m) | (ranges > lp.range_max_m)] = np.inf
+        # The scanner reports ranges in steps of range_resolution_m; a power-of-two step is
+        # exact in float32, which also lets the log's compression see the quantisation.
+        ranges = np.round(ranges / lp.range_resolution_m) * lp.range_resolution_m
+        ranges = ranges.astype(np.float32).reshape(len(scans), lp.beams)
+        for i, mount in enumerate(lp.mounts):
+            rows = np.flatnonzero(lasers_idx == i)
+            if rows.size == 0:
+                continue
+            topic = self.topics_laser[i]
+            clock = self.clocks[topic]
+            t_true = starts[rows]
+            cols = {
+                **header_columns(clock.stamps(self.rng, t_true), mount.frame_id),
+                "angle_min": lp.angle_min_rad,
+                "angle_max": lp.angle_min_rad + (lp.beams - 1) * lp.angle_increment_rad,
+                "angle_increment": lp.angle_increment_rad,
+                "time_increment": lp.time_increment_s,
+                "scan_time": 1.0 / lp.rate_hz,
+                "range_min": lp.range_min_m,
+                "range_max": lp.range_max_m,
+                "ranges": ranges[rows],
+            }
+            # The scan is published once complete.
+            out.add(topic, clock.log_times(self.rng, t_true + int(span_ns)),
+                    encode_batch("sensor_msgs/msg/LaserScan", cols))
+
+    @staticmethod
+    def _pose_at(
+        ext: TrueBlock, t_ext: FloatArray, t: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """``world_from_base`` rotations (k, 3, 3) and positions (k, 3) at times ``t``."""
+        pos = np.stack([np.interp(t, t_ext, ext.position_m[:, j]) for j in range(3)], axis=1)
+        ypr = np.stack(
+            [np.interp(t, t_ext, a) for a in (ext.yaw_rad, ext.pitch_rad, ext.roll_rad)], axis=1
+        )
+        return Rotation.from_euler("ZYX", ypr).as_matrix(), pos
+
+    _window = None
+
+    def set_window(self, window: object) -> None:
+        self._window = window
+
+
+def _concat_blocks(a: TrueBlock, b: TrueBlock, tail: int) -> TrueBlock:
+    values = {}
+    for f in dataclasses.fields(TrueBlock):
+        x, y = getattr(a, f.name), getattr(b, f.name)
+        values[f.name] = np.concatenate([x[-tail:], y], axis=0)
+    return TrueBlock(**values)
+
+
+def static_transforms(params: SensorParams, stamp_ns: int) -> dict[str, object]:
+    """``/tf_static``: ``base_link`` to every sensor frame."""
+    mounts: list[Mount] = [*params.laser.mounts, params.imu.mount, params.gps.mount]
+    transforms = []
+    for m in mounts:
+        r, p, y = m.rpy_rad
+        qx, qy, qz, qw = Rotation.from_euler("ZYX", [y, p, r]).as_quat()
+        transforms.append(
+            {
+                "header": {
+                    "stamp": {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000},
+                    "frame_id": BASE_FRAME,
+                },
+                "child_frame_id": m.frame_id,
+                "transform": {
+                    "translation": {"x": m.xyz_m[0], "y": m.xyz_m[1], "z": m.xyz_m[2]},
+                    "rotation": {"x": qx, "y": qy, "z": qz, "w": qw},
+                },
+            }
+        )
+    return {"transforms": transforms}
+
+
+def feature_message(world: World, stamp_ns: int) -> dict[str, object]:
+    feats = []
+    for f in world.features:
+        sc = 0.5 * (f.s_start_m + f.s_end_m)
+        x, y = world.route.to_world(np.array([sc]), np.array([f.d_center_m]))
+        feats.append(
+            {
+                "kind": f.kind,
+                "s_start_m": f.s_start_m,
+                "s_end_m": f.s_end_m,
+                "d_center_m": f.d_center_m,
+                "width_m": f.width_m,
+                "height_m": f.height_m,
+                "wavelength_m": f.wavelength_m,
+                "x_m": float(x[0]),
+                "y_m": float(y[0]),
+            }
+        )
+    return {
+        "header": {
+            "stamp": {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000},
+            "frame_id": WORLD_FRAME,
+        },
+        "features": feats,
+    }
+
+
+def _jsonable(obj: object) -> object:
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: _jsonable(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, tuple | list):
+        return [_jsonable(x) for x in obj]
+    return obj
+
+
+def sim_metadata(profile: SimProfile, seed: int, suite: SensorSuite) -> dict[str, str]:
+    """The ``terrain_sim`` metadata record: enough to rebuild the world and every truth."""
+    return {
+        "profile": profile.name,
+        "seed": str(seed),
+        "toolkit_version": toolkit.__version__,
+        "length_m": repr(profile.world.length_m),
+        "start_time_ns": str(profile.start_time_ns),
+        "origin": json.dumps(_jsonable(profile.origin)),
+        "world": json.dumps(_jsonable(profile.world)),
+        "vehicle": json.dumps(_jsonable(profile.vehicle)),
+        "sensors": json.dumps(_jsonable(profile.sensors)),
+        "controller": json.dumps(_jsonable(profile.controller)),
+        "clock_offsets_ns": json.dumps({t: c.offset_ns for t, c in suite.clocks.items()}),
+        "gps_dropouts_ns": json.dumps(suite.dropouts),
+        "wheel_scale": json.dumps(suite.wheel_scale.tolist()),
+    }
+
+
+def simulate(
+    out_path: Path,
+    *,
+    profile: str = "sample",
+    distance_m: float | None = None,
+    seed: int = 0,
+    show_progress: bool = False,
+) -> SimResult:
+    """Simulate a drive and write it to ``out_path`` (complete, or not at all)."""
+    prof = make_profile(profile, distance_m)
+    world = make_world(prof.world, seed)
+    path = make_driven_path(world.route, np.random.default_rng([seed, 4]), prof.lane_wander_m)
+    driver = Driver(
+        world.route,
+        world.terrain,
+        path,
+        prof.vehicle,
+        prof.controller,
+        prof.sensors.imu.mount.xyz_m,
+        prof.start_time_ns - WARMUP_BLOCKS * BLOCK_SAMPLES * 1_000_000,
+        prof.initial_speed_mps,
+        prof.speed_schedule,
+    )
+    prev = None
+    for _ in range(WARMUP_BLOCKS):
+        prev = driver.step(BLOCK_SAMPLES)
+    assert prev is not None
+    suite = SensorSuite(prof, world, seed, prof.start_time_ns)
+    start_sigma = driver.sigma_m
+    expected_blocks = int((driver.end_sigma_m - start_sigma) / max(np.mean(prev.speed_mps), 1.0) / 0.1)
+
+    with LogWriter(out_path) as writer:
+        topics = {
+            TOPIC_IMU: "sensor_msgs/msg/Imu",
+            TOPIC_GPS: "sensor_msgs/msg/NavSatFix",
+            TOPIC_HEADING: "terrain_msgs/msg/GpsHeading",
+            TOPIC_WHEELS: "terrain_msgs/msg/WheelSpeeds",
+            TOPIC_TF_STATIC: "tf2_msgs/msg/TFMessage",
+            TOPIC_TRUTH_ODOM: "nav_msgs/msg/Odometry",
+            TOPIC_TRUTH_FEATURES: "terrain_msgs/msg/RoughFeatureArray",
+            **{t: "sensor_msgs/msg/LaserScan" for t in suite.topics_laser},
+        }
+        for topic, type_name in topics.items():
+            writer.register(topic, type_name)
+        writer.add_metadata("terrain_sim", sim_metadata(prof, seed, suite))
+        out = _Outbox(writer)
+        t0 = np.array([prof.start_time_ns], dtype=np.int64)
+        out.add(TOPIC_TF_STATIC, t0,
+                [encode_message("tf2_msgs/msg/TFMessage", static_transforms(prof.sensors, prof.start_time_ns))])
+        out.add(TOPIC_TRUTH_FEATURES, t0,
+                [encode_message("terrain_msgs/msg/RoughFeatureArray", feature_message(world, prof.start_time_ns))])
+        bar = progress(total=expected_blocks, desc="sim", unit="block") if show_progress else None
+        while driver.sigma_m < driver.end_sigma_m:
+            block = driver.step(BLOCK_SAMPLES)
+            ext = _concat_blocks(prev, block, HISTORY_SAMPLES)
+            suite.set_window(driver.window(float(block.s_m[0]) - 5.0, float(block.s_m[-1]) + 100.0))
+            suite.imu(ext, HISTORY_SAMPLES, out)
+            suite.wheels(block, out)
+            suite.gps(block, out)
+            suite.truth(block, out)
+            suite.lasers(ext, HISTORY_SAMPLES, out)
+            out.flush(before_ns=int(block.t_ns[-1]) + driver.dt_ns)
+            prev = block
+            if bar is not None:
+                bar.update(1)
+        out.flush(before_ns=None)
+        if bar is not None:
+            bar.close()
+        duration_s = (driver.t_ns - prof.start_time_ns) * 1e-9
+    return SimResult(
+        path=out_path,
+        profile=prof.name,
+        seed=seed,
+        duration_s=duration_s,
+        distance_m=driver.sigma_m - start_sigma,
+        message_counts=dict(out.counts),
+        feature_count=len(world.features),
+    )

@@ -1,0 +1,623 @@
+"""The simulated world: a desert route and the terrain it crosses.
+
+The world is described in *route coordinates* ``(s, d)``: ``s`` is horizontal distance along
+the route's centreline in metres and ``d`` the lateral offset from it, left positive. The
+height of the ground is the sum of
+
+* a smooth part: the route's hills ``z0(s)`` plus a cross profile ``crossfall(d)`` (a crowned
+  road, shoulders and low graded berms beside it);
+* fine random roughness on the road with an ISO 8608 displacement spectrum
+  ``Gd(n) = Gd(n0) (n / n0)^-2`` with ``n0 = 0.1`` cycles/m (class D on the dirt road, E-F in
+  rough stretches), synthesised on a 5 cm grid;
+* coarser, rougher terrain beside the road on a 20 cm grid;
+* sparse discrete rough features (washboard, potholes, rocks, ruts, cattle guards).
+
+The grids are generated lazily in tiles along ``s`` from seeds derived from the world seed and
+the tile index, so a 60-minute route costs no more memory than a one-minute one and any part
+of the world can be regenerated on its own, bit for bit. Neighbouring tiles are joined by a
+variance-preserving cross-fade, so the field has no seams.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from functools import lru_cache
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+ISO8608_N0_CYCLES_PER_M = 0.1
+# Geometric mean of each ISO 8608 class's Gd(n0), in m^3.
+ISO8608_CLASS_GD_N0_M3 = {
+    "A": 16e-6,
+    "B": 64e-6,
+    "C": 256e-6,
+    "D": 1024e-6,
+    "E": 4096e-6,
+    "F": 16384e-6,
+    "G": 65536e-6,
+    "H": 262144e-6,
+}
+
+FEATURE_KINDS = ("washboard", "pothole", "rock", "rut", "cattle_guard")
+# Height (peak-to-peak, or depth) range of each kind, metres: washboard corrugations are
+# shallow but periodic; ruts and cattle-guard decks are bounded by what traffic leaves.
+FEATURE_HEIGHT_RANGE_M = {
+    "washboard": (0.015, 0.04),
+    "pothole": (0.03, 0.15),
+    "rock": (0.03, 0.15),
+    "rut": (0.02, 0.08),
+    "cattle_guard": (0.03, 0.08),
+}
+# "ridge" is placed only on purpose (calibration obstacles), never at random.
+
+
+@dataclass(frozen=True)
+class WorldParams:
+    """Everything that decides the world, besides the seed.
+
+    Lengths in metres. ``feature_rate_per_km`` is the mean number of discrete rough features
+    per kilometre of road; ``rough_stretch_fraction`` the share of the road that is rougher
+    (ISO class ``rough_class``) than the base ``road_class``.
+    """
+
+    length_m: float
+    road_half_width_m: float = 3.5
+    road_class: str = "D"
+    rough_class: str = "E"
+    rough_stretch_fraction: float = 0.15
+    offroad_class: str = "F"
+    feature_rate_per_km: float = 6.0
+    feature_kinds: tuple[str, ...] = FEATURE_KINDS
+    feature_height_range_m: tuple[float, float] = (0.02, 0.15)
+    max_curvature_per_m: float = 1.0 / 180.0
+    max_grade: float = 0.05
+    straight: bool = False
+    # Fixed features (kind, s_center_m, height_m) placed in addition to random ones; the
+    # calibration profile uses this for its obstacles.
+    fixed_features: tuple[tuple[str, float, float], ...] = ()
+
+
+@dataclass(frozen=True)
+class RoughFeature:
+    """One discrete rough feature, as published on the ground-truth topic."""
+
+    kind: str
+    s_start_m: float
+    s_end_m: float
+    d_center_m: float
+    width_m: float
+    height_m: float
+    wavelength_m: float = 0.0
+
+
+# --------------------------------------------------------------------------------------------
+# Route
+
+
+@dataclass(frozen=True)
+class Route:
+    """The route's centreline, sampled every ``ds_m`` metres of horizontal distance.
+
+    Arrays have shape (n,): ``s_m`` distance, ``x_m``/``y_m`` ENU position, ``heading_rad``
+    (counter-clockwise from east), ``curvature_per_m`` (left turns positive), ``z0_m`` the
+    centreline elevation and ``speed_limit_mps`` the segment's speed limit.
+    """
+
+    s_m: FloatArray
+    x_m: FloatArray
+    y_m: FloatArray
+    heading_rad: FloatArray
+    curvature_per_m: FloatArray
+    z0_m: FloatArray
+    speed_limit_mps: FloatArray
+
+    @property
+    def ds_m(self) -> float:
+        return float(self.s_m[1] - self.s_m[0])
+
+    @property
+    def length_m(self) -> float:
+        return float(self.s_m[-1])
+
+    def sample(self, s_m: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray]:
+        """Centreline (x, y, heading) at distances ``s_m``, any shape."""
+        x = np.interp(s_m, self.s_m, self.x_m)
+        y = np.interp(s_m, self.s_m, self.y_m)
+        heading = np.interp(s_m, self.s_m, self.heading_rad)
+        return x, y, heading
+
+    def to_world(self, s_m: FloatArray, d_m: FloatArray) -> tuple[FloatArray, FloatArray]:
+        """Route coordinates to ENU (x, y)."""
+        x, y, heading = self.sample(s_m)
+        return x - d_m * np.sin(heading), y + d_m * np.cos(heading)
+
+    def to_route(
+        self, x_m: FloatArray, y_m: FloatArray, s_guess_m: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        """ENU (x, y) to route coordinates, by Newton steps from a nearby ``s_guess_m``.
+
+        Valid within a few tens of metres of the centreline, where the projection onto the
+        centreline is unique (curvature radius is at least 180 m).
+        """
+        s = np.asarray(s_guess_m, dtype=np.float64)
+        for _ in range(3):
+            cx, cy, heading = self.sample(s)
+            ex, ey = x_m - cx, y_m - cy
+            s = s + ex * np.cos(heading) + ey * np.sin(heading)
+        cx, cy, heading = self.sample(s)
+        d = -(x_m - cx) * np.sin(heading) + (y_m - cy) * np.cos(heading)
+        return s, d
+
+
+def _smooth_noise(rng: np.random.Generator, n: int, ds_m: float, wavelengths_m: Sequence[float]
+                  ) -> FloatArray:
+    """A sum of sinusoids with random phases and the given wavelengths, unit peak amplitude."""
+    s = np.arange(n) * ds_m
+    out = np.zeros(n)
+    for wavelength in wavelengths_m:
+        out += np.sin(2 * np.pi * s / wavelength + rng.uniform(0, 2 * np.pi)) * rng.uniform(0.5, 1)
+    return out / max(len(wavelengths_m), 1)
+
+
+def make_route(params: WorldParams, rng: np.random.Generator, ds_m: float = 1.0) -> Route:
+    """Lay out a route of gentle curves, hills and speed-limit segments."""
+    n = int(np.ceil(params.length_m / ds_m)) + 2
+    s = np.arange(n) * ds_m
+    if params.straight:
+        curvature = np.zeros(n)
+        z0 = np.zeros(n)
+    else:
+        curvature = params.max_curvature_per_m * _smooth_noise(
+            rng, n, ds_m, rng.uniform(250.0, 1500.0, size=4)
+        )
+        # Long straights between the bends, as on desert tracks.
+        curvature *= np.clip(np.abs(_smooth_noise(rng, n, ds_m, [2000.0])) * 2.5, 0, 1)
+        # Grade g(s) integrates to elevation; bounded by max_grade.
+        grade = params.max_grade * _smooth_noise(rng, n, ds_m, rng.uniform(300.0, 2500.0, size=3))
+        z0 = np.concatenate([[0.0], np.cumsum(0.5 * (grade[1:] + grade[:-1])) * ds_m])
+    heading0 = rng.uniform(-np.pi, np.pi) if not params.straight else 0.0
+    heading = heading0 + np.concatenate(
+        [[0.0], np.cumsum(0.5 * (curvature[1:] + curvature[:-1])) * ds_m]
+    )
+    # Midpoint-rule integration keeps the centreline within millimetres of the exact curve.
+    mid_heading = 0.5 * (heading[1:] + heading[:-1])
+    x = np.concatenate([[0.0], np.cumsum(np.cos(mid_heading)) * ds_m])
+    y = np.concatenate([[0.0], np.cumsum(np.sin(mid_heading)) * ds_m])
+    # Segment speed limits between 5 and 17 m/s, each segment 200-800 m long.
+    limits = np.empty(n)
+    i = 0
+    while i < n:
+        seg = int(rng.uniform(200.0, 800.0) / ds_m)
+        limits[i : i + seg] = rng.choice([8.0, 10.0, 12.0, 13.5, 15.0, 17.0])
+        i += seg
+    return Route(
+        s_m=s,
+        x_m=x,
+        y_m=y,
+        heading_rad=heading,
+        curvature_per_m=curvature,
+        z0_m=z0,
+        speed_limit_mps=limits,
+    )
+
+
+# --------------------------------------------------------------------------------------------
+# Random fields
+
+
+def iso8608_field(
+    rng: np.random.Generator,
+    shape: tuple[int, int],
+    spacing_m: tuple[float, float],
+    gd_n0_m3: float,
+    n_band: tuple[float, float] = (0.02, 10.0),
+) -> NDArray[np.float32]:
+    """An isotropic Gaussian height field whose profiles follow ISO 8608, shape ``shape``.
+
+    A profile of an isotropic field with 2-D spectrum ``S2(k) = C |k|^-3`` has the one-sided
+    1-D spectrum ``Gd(n) = 4 C / n^2`` (integrate ``S2`` across the other axis), so
+    ``C = Gd(n0) n0^2 / 4`` gives the ISO 8608 slope ``w = 2``. White noise is shaped by
+    ``sqrt(S2 / (ds dd))`` in the Fourier domain; the field is periodic over the grid.
+    """
+    ns, nd = shape
+    ds, dd = spacing_m
+    ks = np.fft.fftfreq(ns, ds)[:, None]
+    kd = np.fft.rfftfreq(nd, dd)[None, :]
+    k = np.hypot(ks, kd)
+    c = gd_n0_m3 * ISO8608_N0_CYCLES_PER_M**2 / 4.0
+    with np.errstate(divide="ignore"):
+        gain = np.sqrt(c / (ds * dd)) * np.where(k > 0, k, np.inf) ** -1.5
+    gain[(k < n_band[0]) | (k > n_band[1])] = 0.0
+    white = rng.standard_normal(shape)
+    spectrum = np.fft.rfft2(white) * gain
+    return np.fft.irfft2(spectrum, s=shape).astype(np.float32)
+
+
+# --------------------------------------------------------------------------------------------
+# Terrain
+
+
+@dataclass(frozen=True)
+class Grid:
+    """A height grid over route coordinates: ``heights[i, j]`` at ``s0 + i*ds, d0 + j*dd``."""
+
+    s0_m: float
+    d0_m: float
+    ds_m: float
+    dd_m: float
+    heights_m: NDArray[np.float32]
+
+    def bilinear(self, s_m: FloatArray, d_m: FloatArray) -> FloatArray:
+        """Bilinear interpolation; points outside the grid are clamped to its edge."""
+        ns, nd = self.heights_m.shape
+        u = np.clip((s_m - self.s0_m) / self.ds_m, 0.0, ns - 1.000001)
+        v = np.clip((d_m - self.d0_m) / self.dd_m, 0.0, nd - 1.000001)
+        i = u.astype(np.intp)
+        j = v.astype(np.intp)
+        fu = u - i
+        fv = v - j
+        flat = self.heights_m.ravel()
+        base = i * nd + j
+        h00 = flat[base]
+        h01 = flat[base + 1]
+        h10 = flat[base + nd]
+        h11 = flat[base + nd + 1]
+        return (h00 + (h01 - h00) * fv) * (1 - fu) + (h10 + (h11 - h10) * fv) * fu
+
+
+@dataclass
+class Terrain:
+    """Ground height over the whole route, generated tile by tile.
+
+    ``height(s, d)`` comes from the fine grid within ``fine_half_width_m`` of the centreline
+    (everything: smooth shape, ISO 8608 road roughness, rough features) and from the coarse
+    grid beyond (smooth shape plus the rougher terrain beside the road). Tiles are cached; ``window`` assembles a contiguous
+    pair of grids for a stretch of road so hot loops index plain arrays.
+    """
+
+    params: WorldParams
+    seed: int
+    route: Route
+    features: tuple[RoughFeature, ...]
+    tile_length_m: float = 51.2
+    fine_spacing_m: float = 0.05
+    fine_half_width_m: float = 6.0
+    coarse_spacing_m: float = 0.2
+    coarse_half_width_m: float = 45.0
+    overlap_m: float = 3.2
+    _roughness_scale_cache: FloatArray | None = field(default=None, repr=False)
+
+    # -- the smooth part -------------------------------------------------------------------
+
+    def crossfall(self, d_m: FloatArray) -> FloatArray:
+        """Cross profile of the road corridor relative to the centreline, metres.
+
+        A 2 % crowned road, a shallow ditch beyond the edge and a graded berm (about 0.3 m
+        high, 1.8 m wide) further out; then open desert at ditch level.
+        """
+        half = self.params.road_half_width_m
+        ad = np.abs(d_m)
+        crown = -0.02 * np.minimum(ad, half)
+        ditch = -0.12 * np.clip((ad - half) / 0.8, 0, 1)
+        berm_center = half + 2.2
+        berm = 0.3 * np.clip(1 - ((ad - berm_center) / 0.9) ** 2, 0, 1)
+        return crown + ditch + berm
+
+    def roughness_scale(self, s_m: FloatArray) -> FloatArray:
+        """Amplitude multiplier of the road roughness: 1 on ordinary road, more in rough
+        stretches (the ratio of the two ISO classes' amplitudes), smoothly blended."""
+        if self._roughness_scale_cache is None:
+            rng = np.random.default_rng([self.seed, 7])
+            n = self.route.s_m.size
+            scale = np.ones(n)
+            ratio = np.sqrt(
+                ISO8608_CLASS_GD_N0_M3[self.params.rough_class]
+                / ISO8608_CLASS_GD_N0_M3[self.params.road_class]
+            )
+            mean_len = 150.0
+            n_stretch = int(self.params.length_m * self.params.rough_stretch_fraction / mean_len)
+            s = self.route.s_m
+            for _ in range(n_stretch):
+                center = rng.uniform(0, self.params.length_m)
+                half = rng.uniform(0.25, 0.75) * mean_len
+                ramp = np.clip((half - np.abs(s - center)) / 20.0 + 1.0, 0.0, 1.0)
+                scale = np.maximum(scale, 1 + (ratio - 1) * np.clip(ramp, 0, 1))
+            self._roughness_scale_cache = scale
+        return np.interp(s_m, self.route.s_m, self._roughness_scale_cache)
+
+    # -- tiles ------------------------------------------------------------------------------
+
+    def _raw_tile(self, kind: str, index: int) -> NDArray[np.float32]:
+        return _raw_field(
+            self.seed,
+            kind,
+            index,
+            self._rows(kind, self.tile_length_m + 2 * self.overlap_m),
+            self._cols(kind),
+            self._spacing(kind),
+            self._class_gd(kind),
+        )
+
+    def _spacing(self, kind: str) -> float:
+        return self.fine_spacing_m if kind == "fine" else self.coarse_spacing_m
+
+    def _half_width(self, kind: str) -> float:
+        return self.fine_half_width_m if kind == "fine" else self.coarse_half_width_m
+
+    def _class_gd(self, kind: str) -> float:
+        cls = self.params.road_class if kind == "fine" else self.params.offroad_class
+        return ISO8608_CLASS_GD_N0_M3[cls]
+
+    def _rows(self, kind: str, length_m: float) -> int:
+        return int(round(length_m / self._spacing(kind)))
+
+    def _cols(self, kind: str) -> int:
+        return int(round(2 * self._half_width(kind) / self._spacing(kind))) + 1
+
+    def tile(self, kind: str, index: int) -> Grid:
+        """Tile ``index`` of the ``"fine"`` or ``"coarse"`` grid, rows ``[s0, s0 + L)``."""
+        return _tile_cached(self, kind, index)
+
+    def _build_tile(self, kind: str, index: int) -> Grid:
+        sp = self._spacing(kind)
+        rows = self._rows(kind, self.tile_length_m)
+        s0 = index * self.tile_length_m
+        d = -self._half_width(kind) + np.arange(self._cols(kind)) * sp
+        if kind == "coarse":
+            heights = self._coarse_heights(index)[:rows]
+        else:
+            s = s0 + np.arange(rows) * sp
+            # The fine grid carries the *whole* height within the road corridor (the coarse
+            # grid resampled, plus the detail), so a query needs a single lookup.
+            coarse_ext = self._coarse_heights(index)
+            under = Grid(s0, -self.coarse_half_width_m, self.coarse_spacing_m,
+                         self.coarse_spacing_m, coarse_ext)
+            ss, dd = np.meshgrid(s, d, indexing="ij")
+            base = under.bilinear(ss.ravel(), dd.ravel()).reshape(ss.shape)
+            road = self.roughness_scale(s)[:, None] * self._blended_field("fine", index)
+            # Roughness fades out over the shoulder; beyond it the coarse terrain rules.
+            taper = np.clip((self.fine_half_width_m - np.abs(d)) / 1.5, 0, 1)[None, :]
+            heights = base + road * taper + self._render_features(s, d)
+        return Grid(
+            s0_m=s0,
+            d0_m=-self._half_width(kind),
+            ds_m=sp,
+            dd_m=sp,
+            heights_m=np.ascontiguousarray(heights, dtype=np.float32),
+        )
+
+    def _coarse_heights(self, index: int) -> FloatArray:
+        """Coarse heights of tile ``index`` with one extra row (the next tile's first), so
+        that resampling it near the tile's end needs no neighbour."""
+        cache: dict[int, FloatArray] = self.__dict__.setdefault("_coarse_ext", {})
+        if index in cache:
+            return cache[index]
+        sp = self.coarse_spacing_m
+        rows = self._rows("coarse", self.tile_length_m)
+        s = index * self.tile_length_m + np.arange(rows + 1) * sp
+        d = -self.coarse_half_width_m + np.arange(self._cols("coarse")) * sp
+        rough = self._blended_field("coarse", index)
+        rough = np.concatenate([rough, self._blended_field("coarse", index + 1)[:1]], axis=0)
+        offroad_weight = np.clip((np.abs(d) - (self.fine_half_width_m - 1.5)) / 1.5, 0, 1)
+        z0 = np.interp(s, self.route.s_m, self.route.z0_m)
+        heights = z0[:, None] + self.crossfall(d)[None, :] + rough * offroad_weight[None, :]
+        cache[index] = heights
+        while len(cache) > 8:
+            cache.pop(next(iter(cache)))
+        return heights
+
+    def _blended_field(self, kind: str, index: int) -> FloatArray:
+        """The seamless random field over tile ``index``, shape (rows, cols).
+
+        Raw tile k spans ``[s0 - o, s0 + L + o)``; across each seam the two raw fields are
+        mixed with weights ``(cos t, sin t)``, ``t: 0 -> pi/2``, which keeps the variance.
+        """
+        rows = self._rows(kind, self.tile_length_m)
+        margin = self._rows(kind, self.overlap_m)
+        raw = self._raw_tile(kind, index).astype(np.float64)
+        out = raw[margin : margin + rows].copy()
+        ramp = np.pi / 4 * np.arange(margin) / margin  # 0 .. pi/4 over half the seam
+        prev = self._raw_tile(kind, index - 1)[rows + margin : rows + 2 * margin]
+        t_in = np.pi / 4 + ramp
+        out[:margin] = np.sin(t_in)[:, None] * out[:margin] + np.cos(t_in)[:, None] * prev
+        nxt = self._raw_tile(kind, index + 1)[:margin]
+        out[rows - margin :] = (
+            np.cos(ramp)[:, None] * out[rows - margin :] + np.sin(ramp)[:, None] * nxt
+        )
+        return out
+
+    def _render_features(self, s: FloatArray, d: FloatArray) -> FloatArray:
+        out = np.zeros((s.size, d.size))
+        lo, hi = s[0], s[-1]
+        for f in self.features:
+            if f.s_end_m < lo - 1 or f.s_start_m > hi + 1:
+                continue
+            i0 = max(int(np.searchsorted(s, f.s_start_m - 0.5)), 0)
+            i1 = int(np.searchsorted(s, f.s_end_m + 0.5))
+            if i1 <= i0:
+                continue
+            out[i0:i1] += feature_height(f, s[i0:i1, None], d[None, :])
+        return out
+
+    # -- queries ----------------------------------------------------------------------------
+
+    def window(self, s_lo_m: float, s_hi_m: float) -> TerrainWindow:
+        """Contiguous fine and coarse grids covering ``[s_lo, s_hi]``."""
+        k0 = int(np.floor(s_lo_m / self.tile_length_m))
+        k1 = int(np.floor(s_hi_m / self.tile_length_m)) + 1
+        grids = []
+        for kind in ("fine", "coarse"):
+            tiles = [self.tile(kind, k) for k in range(k0, k1 + 1)]
+            heights = np.concatenate([t.heights_m for t in tiles], axis=0)
+            t0 = tiles[0]
+            grids.append(Grid(t0.s0_m, t0.d0_m, t0.ds_m, t0.dd_m, heights))
+        return TerrainWindow(fine=grids[0], coarse=grids[1], fine_half_width_m=self.fine_half_width_m)
+
+    def height(self, s_m: FloatArray, d_m: FloatArray) -> FloatArray:
+        """Ground height (ENU z, metres) at route coordinates; any shapes that broadcast."""
+        s_m, d_m = np.broadcast_arrays(np.asarray(s_m, float), np.asarray(d_m, float))
+        flat_s, flat_d = s_m.ravel(), d_m.ravel()
+        if flat_s.size == 0:
+            return np.zeros(s_m.shape)
+        win = self.window(float(flat_s.min()), float(flat_s.max()))
+        return win.height(flat_s, flat_d).reshape(s_m.shape)
+
+
+@dataclass(frozen=True)
+class TerrainWindow:
+    """A contiguous stretch of terrain, for fast repeated queries."""
+
+    fine: Grid
+    coarse: Grid
+    fine_half_width_m: float
+
+    def height(self, s_m: FloatArray, d_m: FloatArray) -> FloatArray:
+        """Ground height at route coordinates (1-D arrays of equal length)."""
+        on_road = np.abs(d_m) < self.fine_half_width_m
+        if on_road.all():
+            return self.fine.bilinear(s_m, d_m)
+        h = self.coarse.bilinear(s_m, d_m)
+        if on_road.any():
+            h[on_road] = self.fine.bilinear(s_m[on_road], d_m[on_road])
+        return h
+
+
+@lru_cache(maxsize=64)
+def _raw_field(
+    seed: int,
+    kind: str,
+    index: int,
+    rows: int,
+    cols: int,
+    spacing_m: float,
+    gd_n0_m3: float,
+) -> NDArray[np.float32]:
+    rng = np.random.default_rng([seed, 1 if kind == "fine" else 2, index + (1 << 20)])
+    return iso8608_field(rng, (rows, cols), (spacing_m, spacing_m), gd_n0_m3)
+
+
+def _tile_cached(terrain: Terrain, kind: str, index: int) -> Grid:
+    cache: dict[tuple[str, int], Grid] = terrain.__dict__.setdefault("_tiles", {})
+    key = (kind, index)
+    grid = cache.get(key)
+    if grid is None:
+        grid = terrain._build_tile(kind, index)
+        cache[key] = grid
+        # Bounded memory: the vehicle and its lasers only ever need a few tiles around
+        # the current position, so drop the oldest beyond a small budget.
+        while len(cache) > 16:
+            cache.pop(next(iter(cache)))
+    return grid
+
+
+# --------------------------------------------------------------------------------------------
+# Rough features
+
+
+def feature_height(f: RoughFeature, s: FloatArray, d: FloatArray) -> FloatArray:
+    """Height added by feature ``f`` at route coordinates (broadcasting arrays), metres."""
+    half_w = f.width_m / 2
+    lateral = np.clip(1 - ((d - f.d_center_m) / half_w) ** 2, 0, 1) ** 0.25
+    length = f.s_end_m - f.s_start_m
+    u = (s - f.s_start_m) / length  # 0..1 along the feature
+    inside = (u >= 0) & (u <= 1)
+    if f.kind == "washboard":
+        # Corrugations across the road, faded in and out over two wavelengths.
+        ramp = np.clip(np.minimum(u, 1 - u) * length / (2 * f.wavelength_m), 0, 1)
+        wave = 0.5 * f.height_m * np.sin(2 * np.pi * (s - f.s_start_m) / f.wavelength_m)
+        return np.where(inside, wave * ramp * lateral, 0.0)
+    if f.kind in ("pothole", "rock"):
+        sc = 0.5 * (f.s_start_m + f.s_end_m)
+        r = np.hypot((s - sc) / (length / 2), (d - f.d_center_m) / half_w)
+        bowl = np.where(r < 1, np.cos(np.pi / 2 * np.minimum(r, 1)) ** 2, 0.0)
+        if f.kind == "rock":
+            # Rocks are steep-sided: a flattened top over a sharp flank.
+            return f.height_m * np.minimum(bowl * 1.6, 1.0)
+        return -f.height_m * np.minimum(bowl * 1.3, 1.0)
+    if f.kind == "ridge":
+        # A smooth ridge across the road (a calibration obstacle, like a log or kerb).
+        bump = np.where(inside, np.sin(np.pi * np.clip(u, 0, 1)) ** 2, 0.0)
+        return f.height_m * bump * lateral
+    if f.kind == "rut":
+        ramp = np.clip(np.minimum(u, 1 - u) * length / 2.0, 0, 1)
+        groove = np.clip(1 - ((d - f.d_center_m) / half_w) ** 2, 0, 1)
+        return np.where(inside, -f.height_m * groove * ramp, 0.0)
+    if f.kind == "cattle_guard":
+        # A raised deck of steel rails with gaps between them, across the whole road.
+        ramp = np.clip(np.minimum(u, 1 - u) * length / 0.25, 0, 1)
+        rails = 0.3 * (0.5 + 0.5 * np.cos(2 * np.pi * (s - f.s_start_m) / f.wavelength_m))
+        return np.where(inside, f.height_m * ramp * (0.7 + rails) * lateral, 0.0)
+    raise ValueError(f"unknown rough feature kind {f.kind!r}")
+
+
+def make_features(
+    params: WorldParams, route: Route, rng: np.random.Generator, track_m: float = 1.65
+) -> tuple[RoughFeature, ...]:
+    """Scatter discrete rough features along the road, Poisson in ``s``.
+
+    Potholes, rocks and ruts sit mostly in or near the wheel tracks, where traffic leaves
+    them; washboard and cattle guards span the road.
+    """
+    count = rng.poisson(params.feature_rate_per_km * params.length_m / 1000.0)
+    starts = np.sort(rng.uniform(30.0, max(params.length_m - 30.0, 31.0), size=count))
+    lo, hi = params.feature_height_range_m
+    out: list[RoughFeature] = []
+    half_road = params.road_half_width_m
+    for s0 in starts:
+        kind = str(rng.choice(params.feature_kinds))
+        # Heights are log-uniform within the kind's range (clipped to the profile's): small
+        # features are much more common than large ones.
+        k_lo, k_hi = FEATURE_HEIGHT_RANGE_M[kind]
+        h_lo, h_hi = max(lo, k_lo), max(min(hi, k_hi), max(lo, k_lo))
+        height = float(np.exp(rng.uniform(np.log(h_lo), np.log(h_hi))))
+        track = rng.choice([-1.0, 1.0]) * track_m / 2 + rng.normal(0, 0.35)
+        if kind == "washboard":
+            wavelength = float(rng.uniform(0.4, 1.0))
+            length = float(rng.uniform(6.0, 30.0))
+            out.append(RoughFeature(kind, s0, s0 + length, 0.0, 2 * half_road, height, wavelength))
+        elif kind == "pothole":
+            diameter = float(rng.uniform(0.4, 1.4))
+            out.append(RoughFeature(kind, s0, s0 + diameter, track, diameter, height))
+        elif kind == "rock":
+            size = float(rng.uniform(0.2, 0.5))
+            out.append(RoughFeature(kind, s0, s0 + size, track, size, height))
+        elif kind == "rut":
+            length = float(rng.uniform(8.0, 40.0))
+            width = float(rng.uniform(0.25, 0.5))
+            out.append(RoughFeature(kind, s0, s0 + length, track, width, height))
+        else:  # cattle guard
+            length = float(rng.uniform(2.0, 3.0))
+            out.append(RoughFeature(kind, s0, s0 + length, 0.0, 2 * half_road, height, 0.2))
+    for kind, s_center, height in params.fixed_features:
+        size = 0.5
+        out.append(
+            RoughFeature(kind, s_center - size / 2, s_center + size / 2, 0.0, 2 * half_road, height)
+        )
+    out.sort(key=lambda f: f.s_start_m)
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class World:
+    """Route, terrain and features, all decided by ``(params, seed)``."""
+
+    params: WorldParams
+    seed: int
+    route: Route
+    terrain: Terrain
+
+    @property
+    def features(self) -> tuple[RoughFeature, ...]:
+        return self.terrain.features
+
+
+def make_world(params: WorldParams, seed: int) -> World:
+    """Build the world for ``params`` and ``seed``; same inputs, same world, bit for bit."""
+    route = make_route(params, np.random.default_rng([seed, 0]))
+    features = make_features(params, route, np.random.default_rng([seed, 3]))
+    terrain = Terrain(params=params, seed=seed, route=route, features=features)
+    return World(params=params, seed=seed, route=route, terrain=terrain)

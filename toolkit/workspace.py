@@ -1,0 +1,535 @@
+"""The workspace: its paths, per-log manifests, atomic writes, the lock, up-to-date checks.
+
+Layout (see the contract)::
+
+    WS/config.toml                   the configuration in force
+    WS/manifest.json                 stages that span logs (tables, learn, evaluate, ...)
+    WS/logs/<log_id>/manifest.json   per-log stages (ingest, pose, project, label, ...)
+    WS/logs/<log_id>/<table>.parquet
+    WS/tables/events.parquet, WS/tables/event_points.parquet
+    WS/model.json
+    WS/report/...
+
+The workspace and its manifests are the only state shared between stages. Files appear
+only when complete (:func:`atomic_write_bytes`, :func:`atomic_output`), a manifest is
+updated by read-modify-write under a lock on its directory, and one process at a time
+works on a workspace (:meth:`Workspace.lock`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import datetime as _dt
+import fcntl
+import hashlib
+import json
+import os
+import re
+import uuid
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from toolkit.config import PipelineConfig, dump_toml, load_config
+from toolkit.errors import WorkspaceError
+
+#: Version of the manifest's JSON layout.
+MANIFEST_FORMAT = 1
+
+_HASH_CHUNK_BYTES = 1 << 20
+_LOG_ID_HASH_CHARS = 12
+_LOG_ID_STEM_CHARS = 48
+
+
+# --------------------------------------------------------------------------------------
+# Hashing and log ids
+# --------------------------------------------------------------------------------------
+
+
+def file_sha256(path: str | Path) -> str:
+    """sha256 (hex) of a file's content, read in 1 MiB chunks (logs may be many GB)."""
+    path = Path(path)
+    digest = hashlib.sha256()
+    try:
+        with path.open("rb") as fh:
+            while chunk := fh.read(_HASH_CHUNK_BYTES):
+                digest.update(chunk)
+    except OSError as exc:
+        raise WorkspaceError(f"cannot read: {exc.strerror or exc}", path=path) from exc
+    return digest.hexdigest()
+
+
+def make_log_id(stem: str, sha256_hex: str) -> str:
+    """``<stem>-<first 12 hex of sha256>``, the stem reduced to ``[A-Za-z0-9._-]``."""
+    clean = re.sub(r"[^A-Za-z0-9._-]+", "_", stem).strip("._-")[:_LOG_ID_STEM_CHARS]
+    return f"{clean or 'log'}-{sha256_hex[:_LOG_ID_HASH_CHARS].lower()}"
+
+
+def log_id_for(path: str | Path) -> str:
+    """The stable id of a log file: its name's stem plus a prefix of its content hash.
+
+    The same file gives the same id wherever it lives; a renamed copy keeps its hash
+    prefix, and two different files with the same name differ by their hash.
+    """
+    path = Path(path)
+    return make_log_id(path.stem, file_sha256(path))
+
+
+# --------------------------------------------------------------------------------------
+# Atomic writes
+# --------------------------------------------------------------------------------------
+
+
+def _fsync_dir(directory: Path) -> None:
+    """Make a rename durable (best effort: some filesystems refuse fsync on directories)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+@contextlib.contextmanager
+def atomic_output(path: str | Path) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; on success it is fsynced and renamed over it.
+
+    On any exception the temporary file is removed and ``path`` is left as it was, so a
+    reader never sees a half-written file. Parent directories are created as needed.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
+    try:
+        yield tmp
+        if not tmp.exists():
+            raise WorkspaceError("nothing was written to the temporary file", path=tmp)
+        fd = os.open(tmp, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp.unlink()
+        raise
+    _fsync_dir(path.parent)
+
+
+def atomic_write_bytes(path: str | Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically (write aside, fsync, rename)."""
+    path = Path(path)
+    try:
+        with atomic_output(path) as tmp, tmp.open("wb") as fh:
+            fh.write(data)
+    except OSError as exc:
+        raise WorkspaceError(f"cannot write: {exc.strerror or exc}", path=path) from exc
+
+
+def atomic_write_text(path: str | Path, text: str, encoding: str = "utf-8") -> None:
+    """Write ``text`` to ``path`` atomically."""
+    atomic_write_bytes(path, text.encode(encoding))
+
+
+def atomic_write_json(path: str | Path, obj: Any) -> None:
+    """Write ``obj`` as indented, key-sorted JSON atomically."""
+    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n")
+
+
+# --------------------------------------------------------------------------------------
+# Manifest
+# --------------------------------------------------------------------------------------
+
+
+def _now_utc() -> str:
+    return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
+
+
+@dataclass(frozen=True)
+class StageRecord:
+    """What one stage run used and produced, as kept in a manifest.
+
+    ``inputs`` maps an input's name (a table name, or ``"log"``) to its sha256;
+    ``outputs`` lists output paths relative to the manifest's directory (or the workspace
+    root for workspace-level stages); ``row_counts`` is rows per output table;
+    ``rejects`` counts dropped records by reason; ``timings_s`` seconds per step.
+    """
+
+    inputs: Mapping[str, str]
+    config_hash: str
+    outputs: tuple[str, ...] = ()
+    row_counts: Mapping[str, int] = field(default_factory=dict)
+    rejects: Mapping[str, int] = field(default_factory=dict)
+    timings_s: Mapping[str, float] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    toolkit_version: str = ""
+    finished_utc: str = ""
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready dict."""
+        return {
+            "inputs": dict(self.inputs),
+            "config_hash": self.config_hash,
+            "outputs": list(self.outputs),
+            "row_counts": dict(self.row_counts),
+            "rejects": dict(self.rejects),
+            "timings_s": dict(self.timings_s),
+            "warnings": list(self.warnings),
+            "toolkit_version": self.toolkit_version,
+            "finished_utc": self.finished_utc,
+        }
+
+    @classmethod
+    def from_json(cls, obj: Mapping[str, Any]) -> StageRecord:
+        """Inverse of :meth:`to_json` (raises KeyError/TypeError on a malformed record)."""
+        return cls(
+            inputs={str(k): str(v) for k, v in obj["inputs"].items()},
+            config_hash=str(obj["config_hash"]),
+            outputs=tuple(str(o) for o in obj.get("outputs", ())),
+            row_counts={str(k): int(v) for k, v in obj.get("row_counts", {}).items()},
+            rejects={str(k): int(v) for k, v in obj.get("rejects", {}).items()},
+            timings_s={str(k): float(v) for k, v in obj.get("timings_s", {}).items()},
+            warnings=tuple(str(w) for w in obj.get("warnings", ())),
+            toolkit_version=str(obj.get("toolkit_version", "")),
+            finished_utc=str(obj.get("finished_utc", "")),
+        )
+
+
+@contextlib.contextmanager
+def _dir_lock(directory: Path) -> Iterator[None]:
+    """An exclusive flock on a directory (no lock file left behind), blocking."""
+    fd = os.open(directory, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)  # closing releases the lock
+
+
+class Manifest:
+    """A manifest file: stage name -> :class:`StageRecord`, plus free-form header fields.
+
+    Reads tolerate a missing file (no stages yet). Updates are read-modify-write under an
+    exclusive lock on the manifest's directory and land with an atomic rename, so two
+    processes updating different stages of the same log do not lose each other's records.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+
+    def _load(self) -> dict[str, Any]:
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return {"format": MANIFEST_FORMAT, "stages": {}}
+        except OSError as exc:
+            raise WorkspaceError(f"cannot read manifest: {exc.strerror or exc}", self.path) from exc
+        try:
+            obj = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise WorkspaceError(f"manifest is not valid JSON: {exc}", path=self.path) from exc
+        if not isinstance(obj, dict) or not isinstance(obj.get("stages"), dict):
+            raise WorkspaceError("manifest has no 'stages' table", path=self.path)
+        if obj.get("format") != MANIFEST_FORMAT:
+            raise WorkspaceError(
+                f"manifest format {obj.get('format')!r} is not {MANIFEST_FORMAT}", path=self.path
+            )
+        return obj
+
+    def read(self) -> dict[str, Any]:
+        """The whole manifest as JSON (``{"format", "stages", ...header fields}``)."""
+        return self._load()
+
+    def stages(self) -> dict[str, StageRecord]:
+        """Every recorded stage."""
+        raw = self._load()["stages"]
+        return {name: self._record(name, rec) for name, rec in raw.items()}
+
+    def stage(self, name: str) -> StageRecord | None:
+        """The record of one stage, or None if it never completed."""
+        rec = self._load()["stages"].get(name)
+        return None if rec is None else self._record(name, rec)
+
+    def _record(self, name: str, rec: Any) -> StageRecord:
+        try:
+            return StageRecord.from_json(rec)
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise WorkspaceError(f"malformed record for stage {name!r}: {exc}", self.path) from exc
+
+    def record_stage(self, name: str, record: StageRecord) -> None:
+        """Store (replace) one stage's record, stamping the time and toolkit version."""
+        from toolkit import __version__
+
+        stamped = dataclasses.replace(
+            record,
+            toolkit_version=record.toolkit_version or __version__,
+            finished_utc=record.finished_utc or _now_utc(),
+        )
+        self.update(lambda m: m["stages"].__setitem__(name, stamped.to_json()))
+
+    def remove_stage(self, name: str) -> None:
+        """Forget a stage (e.g. before re-running it, so a failure leaves it not current)."""
+        self.update(lambda m: m["stages"].pop(name, None))
+
+    def set_header(self, **fields: Any) -> None:
+        """Set free-form top-level fields (e.g. ``source={"path": ..., "sha256": ...}``)."""
+        reserved = {"format", "stages"} & fields.keys()
+        if reserved:
+            raise ValueError(f"reserved manifest fields: {sorted(reserved)}")
+        self.update(lambda m: m.update(fields))
+
+    def update(self, change: Callable[[dict[str, Any]], object]) -> None:
+        """Apply ``change(manifest_dict)`` under the directory lock and write atomically."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with _dir_lock(self.path.parent):
+            obj = self._load()
+            change(obj)
+            atomic_write_json(self.path, obj)
+
+
+# --------------------------------------------------------------------------------------
+# Up-to-date checks
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Freshness:
+    """Whether a stage's outputs are current; ``reason`` says why not (for -v logs)."""
+
+    current: bool
+    reason: str
+
+    def __bool__(self) -> bool:
+        return self.current
+
+
+def check_up_to_date(
+    record: StageRecord | None,
+    *,
+    inputs: Mapping[str, str],
+    config_hash: str,
+    outputs: Iterable[str | Path],
+) -> Freshness:
+    """A stage is current when every output exists and its record has the same inputs
+    (names and hashes) and the same config hash."""
+    if record is None:
+        return Freshness(False, "never ran")
+    missing = [str(p) for p in outputs if not Path(p).exists()]
+    if missing:
+        return Freshness(False, f"output missing: {missing[0]}")
+    old, new = dict(record.inputs), dict(inputs)
+    if old != new:
+        changed = sorted(k for k in old.keys() | new.keys() if old.get(k) != new.get(k))
+        return Freshness(False, f"inputs changed: {', '.join(changed)}")
+    if record.config_hash != config_hash:
+        return Freshness(False, "configuration changed")
+    return Freshness(True, "up to date")
+
+
+# --------------------------------------------------------------------------------------
+# The workspace
+# --------------------------------------------------------------------------------------
+
+
+class WorkspaceLock:
+    """An exclusive, non-blocking flock on ``WS/.lock``; a second holder gets WorkspaceError.
+
+    The lock belongs to the open file: it is released on :meth:`release`, on exit from the
+    ``with`` block, or when the process dies. The file itself stays (deleting lock files
+    races with other processes opening them).
+    """
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._fd: int | None = None
+
+    def acquire(self) -> None:
+        """Take the lock or raise WorkspaceError naming the holder's pid."""
+        if self._fd is not None:
+            raise WorkspaceError("workspace lock already held by this object", path=self.path)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip() or "unknown"
+            os.close(fd)
+            raise WorkspaceError(
+                f"workspace is in use by another terrain process (pid {holder})",
+                path=self.path.parent,
+            ) from None
+        except BaseException:
+            os.close(fd)
+            raise
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+        self._fd = fd
+
+    def release(self) -> None:
+        """Release the lock (idempotent)."""
+        if self._fd is not None:
+            fd, self._fd = self._fd, None
+            with contextlib.suppress(OSError):
+                os.ftruncate(fd, 0)
+            os.close(fd)
+
+    def __enter__(self) -> WorkspaceLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
+class Workspace:
+    """Paths of a workspace and the operations on its shared state."""
+
+    CONFIG_NAME = "config.toml"
+    MANIFEST_NAME = "manifest.json"
+    LOCK_NAME = ".lock"
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+
+    def __repr__(self) -> str:
+        return f"Workspace({str(self.root)!r})"
+
+    # -- paths -------------------------------------------------------------------------
+
+    @property
+    def config_path(self) -> Path:
+        """``WS/config.toml``: the configuration in force."""
+        return self.root / self.CONFIG_NAME
+
+    @property
+    def manifest_path(self) -> Path:
+        """``WS/manifest.json``: records of the stages that span logs."""
+        return self.root / self.MANIFEST_NAME
+
+    @property
+    def lock_path(self) -> Path:
+        """``WS/.lock``."""
+        return self.root / self.LOCK_NAME
+
+    @property
+    def logs_dir(self) -> Path:
+        """``WS/logs``."""
+        return self.root / "logs"
+
+    def log_dir(self, log_id: str) -> Path:
+        """``WS/logs/<log_id>``."""
+        if not log_id or "/" in log_id or log_id in (".", ".."):
+            raise WorkspaceError(f"invalid log id {log_id!r}", path=self.root)
+        return self.logs_dir / log_id
+
+    def log_table(self, log_id: str, table: str) -> Path:
+        """``WS/logs/<log_id>/<table>.parquet`` (imu, gps, pose, points, events, ...)."""
+        return self.log_dir(log_id) / f"{table}.parquet"
+
+    def log_manifest_path(self, log_id: str) -> Path:
+        """``WS/logs/<log_id>/manifest.json``."""
+        return self.log_dir(log_id) / self.MANIFEST_NAME
+
+    @property
+    def tables_dir(self) -> Path:
+        """``WS/tables``."""
+        return self.root / "tables"
+
+    @property
+    def events_table(self) -> Path:
+        """``WS/tables/events.parquet`` (schema ``tables_events``)."""
+        return self.tables_dir / "events.parquet"
+
+    @property
+    def event_points_table(self) -> Path:
+        """``WS/tables/event_points.parquet``."""
+        return self.tables_dir / "event_points.parquet"
+
+    @property
+    def model_path(self) -> Path:
+        """``WS/model.json``."""
+        return self.root / "model.json"
+
+    @property
+    def report_dir(self) -> Path:
+        """``WS/report``."""
+        return self.root / "report"
+
+    @property
+    def scores_table(self) -> Path:
+        """``WS/report/scores.parquet``."""
+        return self.report_dir / "scores.parquet"
+
+    @property
+    def summary_path(self) -> Path:
+        """``WS/report/summary.json``."""
+        return self.report_dir / "summary.json"
+
+    # -- state -------------------------------------------------------------------------
+
+    def create(self) -> Workspace:
+        """Make the root and ``logs/`` if missing; returns self."""
+        try:
+            self.logs_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise WorkspaceError(
+                f"cannot create workspace: {exc.strerror or exc}", self.root
+            ) from exc
+        return self
+
+    def require(self) -> Workspace:
+        """Raise WorkspaceError unless this is an existing workspace (has config.toml)."""
+        if not self.root.is_dir():
+            raise WorkspaceError("no such workspace directory", path=self.root)
+        if not self.config_path.is_file():
+            raise WorkspaceError(
+                f"not a workspace: no {self.CONFIG_NAME} (run 'terrain ingest' first)",
+                path=self.root,
+            )
+        return self
+
+    def log_ids(self) -> list[str]:
+        """Ids of the logs in the workspace, sorted."""
+        if not self.logs_dir.is_dir():
+            return []
+        return sorted(p.name for p in self.logs_dir.iterdir() if p.is_dir())
+
+    def lock(self) -> WorkspaceLock:
+        """The workspace's exclusive lock; use as ``with ws.lock(): ...``."""
+        self.create()
+        return WorkspaceLock(self.lock_path)
+
+    def manifest(self, log_id: str | None = None) -> Manifest:
+        """A log's manifest, or with no id the workspace-level one."""
+        if log_id is None:
+            return Manifest(self.manifest_path)
+        return Manifest(self.log_manifest_path(log_id))
+
+    def read_config(self) -> PipelineConfig:
+        """The configuration in force (``WS/config.toml``)."""
+        self.require()
+        return load_config(self.config_path)
+
+    def write_config(self, cfg: PipelineConfig) -> None:
+        """Record ``cfg`` as the configuration in force."""
+        self.create()
+        atomic_write_text(self.config_path, dump_toml(cfg))
+
+    def is_up_to_date(
+        self,
+        stage: str,
+        *,
+        log_id: str | None,
+        inputs: Mapping[str, str],
+        config_hash: str,
+        outputs: Iterable[str | Path],
+    ) -> Freshness:
+        """:func:`check_up_to_date` against this workspace's manifest for ``log_id``."""
+        record = self.manifest(log_id).stage(stage)
+        return check_up_to_date(record, inputs=inputs, config_hash=config_hash, outputs=outputs)
