@@ -191,14 +191,24 @@ def test_sim_passes_arguments_and_prints_summary(
     assert result.exit_code == 0, result.output
     assert result.stdout.strip() == "wrote 1200 m, 5 lasers"
     assert calls == [
-        (out, {"profile": "race", "distance_m": 1200.0, "seed": 7, "show_progress": False})
+        (
+            out,
+            {
+                "profile": "race",
+                "distance_m": 1200.0,
+                "seed": 7,
+                "show_progress": False,
+                "workers": None,
+            },
+        )
     ]
-    result = runner.invoke(main, ["sim", str(out)])
+    result = runner.invoke(main, ["sim", str(out), "--workers", "0"])
     assert calls[-1][1] == {
         "profile": "sample",
         "distance_m": None,
         "seed": 0,
         "show_progress": False,
+        "workers": 0,
     }
 
 

@@ -10,6 +10,7 @@ dynamics rate (1 kHz) and returns the true state at every dynamics sample.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,9 +24,9 @@ from toolkit.sim.vehicle import (
     VehicleParams,
     safe_speed_profile,
 )
-from toolkit.sim.world import Route, Terrain, TerrainWindow
+from toolkit.sim.world import Route, Terrain, WindowCache
 
-FloatArray = NDArray[np.float64]
+FloatArray = NDArray[np.floating[Any]]
 
 GRAVITY_MPS2 = 9.80665
 # A tyre of 0.38 m radius envelops short bumps: average the road over its contact length.
@@ -121,7 +122,14 @@ class TrueBlock:
     wheel_speed_mps: FloatArray
 
     def world_from_base(self) -> Rotation:
-        return Rotation.from_euler("ZYX", np.stack([self.yaw_rad, self.pitch_rad, self.roll_rad], 1))
+        """Attitude of ``base_link`` at every sample (computed once, then cached)."""
+        cached = self.__dict__.get("_world_from_base")
+        if cached is None:
+            cached = Rotation.from_euler(
+                "ZYX", np.stack([self.yaw_rad, self.pitch_rad, self.roll_rad], 1)
+            )
+            self.__dict__["_world_from_base"] = cached
+        return cached
 
     def __len__(self) -> int:
         return int(self.t_ns.size)
@@ -172,23 +180,11 @@ class Driver:
         # The controller's shock meter: 10 Hz high-pass of the vertical specific force.
         self._shock_sos = butter(2, 10.0, "highpass", fs=1.0 / self.dt_s, output="sos")
         self._shock_zi = sosfilt_zi(self._shock_sos) * GRAVITY_MPS2
-        self._window: TerrainWindow | None = None
-        self._window_range = (0.0, -1.0)
+        self.windows = WindowCache(terrain)
 
     @property
     def end_sigma_m(self) -> float:
         return float(self.path.sigma_m[-1]) - 60.0
-
-    def window(self, s_lo_m: float, s_hi_m: float) -> TerrainWindow:
-        """A terrain window covering ``[s_lo, s_hi]``, rebuilt only when it must grow."""
-        lo, hi = self._window_range
-        if self._window is None or s_lo_m < lo or s_hi_m > hi:
-            lo = max(0.0, s_lo_m - 10.0)
-            hi = s_hi_m + self.terrain.tile_length_m
-            self._window = self.terrain.window(lo, hi)
-            tile = self.terrain.tile_length_m
-            self._window_range = (np.floor(lo / tile) * tile, (np.floor(hi / tile) + 1) * tile)
-        return self._window
 
     def step(self, n: int) -> TrueBlock:
         """Advance ``n`` dynamics samples; the block's first sample is the current time."""
@@ -203,7 +199,9 @@ class Driver:
             a_eff = np.where(v > 0, a, 0.0)
         else:
             a_eff = np.full(n, a)
-        sigma = self.sigma_m + np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]))]) * self.dt_s
+        sigma = (
+            self.sigma_m + np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]))]) * self.dt_s
+        )
         kin = self.path.at_sigma(sigma)
         heading = kin["heading_rad"]
         kappa = kin["curvature_per_m"]
@@ -214,11 +212,19 @@ class Driver:
         lateral = np.array([half, -half, half, -half])
         forward = np.array([p.wheelbase_m, p.wheelbase_m, 0.0, 0.0])
         fwd = forward[None, :, None] + TYRE_CONTACT_OFFSETS_M[None, None, :]
-        wx = kin["x_m"][:, None, None] + fwd * ch[:, None, None] - lateral[None, :, None] * sh[:, None, None]
-        wy = kin["y_m"][:, None, None] + fwd * sh[:, None, None] + lateral[None, :, None] * ch[:, None, None]
+        wx = (
+            kin["x_m"][:, None, None]
+            + fwd * ch[:, None, None]
+            - lateral[None, :, None] * sh[:, None, None]
+        )
+        wy = (
+            kin["y_m"][:, None, None]
+            + fwd * sh[:, None, None]
+            + lateral[None, :, None] * ch[:, None, None]
+        )
         guess = kin["s_m"][:, None, None] + fwd + 0.0 * wx
         ws, wd = self.route.to_route(wx.ravel(), wy.ravel(), guess.ravel())
-        win = self.window(float(ws.min()), float(ws.max()) + 100.0)
+        win = self.windows.covering(float(ws.min()), float(ws.max()) + 100.0)
         road = win.height(ws, wd).reshape(wx.shape).mean(axis=2)  # (n, 4)
 
         a_lat = v**2 * kappa
@@ -248,7 +254,9 @@ class Driver:
             axis=1,
         )
         alpha = np.stack([acc[:, 2], acc[:, 1], a_eff * kappa], axis=1)
-        rot = Rotation.from_euler("ZYX", np.stack([heading, pitch, roll], axis=1))
+        rot = Rotation.from_euler(
+            "ZYX", np.stack([heading, pitch, roll], axis=1)
+        )  # world_from_base
         r = self.imu_position_m
         lever = np.cross(alpha, r) + np.cross(omega, np.cross(omega, r))
         a_base = np.stack([a_eff * ch - a_lat * sh, a_eff * sh + a_lat * ch, z_base_acc], axis=1)
@@ -259,7 +267,12 @@ class Driver:
         # Wheel speeds: each wheel's ground speed along its own heading.
         front = v * np.sqrt(1.0 + (p.wheelbase_m * kappa) ** 2)
         wheel = np.stack(
-            [front - yaw_rate * half, front + yaw_rate * half, v - yaw_rate * half, v + yaw_rate * half],
+            [
+                front - yaw_rate * half,
+                front + yaw_rate * half,
+                v - yaw_rate * half,
+                v + yaw_rate * half,
+            ],
             axis=1,
         )
 
@@ -289,6 +302,7 @@ class Driver:
             specific_force_body_mps2=f_body,
             wheel_speed_mps=wheel,
         )
+        block.__dict__["_world_from_base"] = rot
         self.t_ns += n * self.dt_ns
         self.sigma_m = float(sigma[-1]) + 0.5 * (v[-1] + v_end) * self.dt_s
         self.speed_mps = v_end

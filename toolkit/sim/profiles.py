@@ -60,12 +60,18 @@ def make_profile(name: str, distance_m: float | None = None) -> SimProfile:
         return SimProfile(
             name=name,
             world=WorldParams(
-                length_m=distance_m or 700.0,
-                feature_rate_per_km=45.0,
-                feature_height_range_m=(0.04, 0.15),
+                length_m=distance_m or 540.0,
+                feature_rate_per_km=60.0,
+                feature_height_range_m=(0.06, 0.15),
                 rough_stretch_fraction=0.25,
             ),
-            sensors=replace(SensorParams(), gps=replace(GpsParams(), dropouts_per_hour=60.0)),
+            # One GPS dropout for certain, so every sample log exercises the filter's coasting.
+            sensors=replace(
+                SensorParams(),
+                gps=replace(
+                    GpsParams(), dropouts_per_hour=30.0, scheduled_dropouts_s=((30.0, 5.0),)
+                ),
+            ),
         )
     if name == "race":
         return SimProfile(

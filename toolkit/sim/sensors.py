@@ -9,14 +9,16 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
 from toolkit.sim.world import Route, TerrainWindow
 
-FloatArray = NDArray[np.float64]
+FloatArray = NDArray[np.floating[Any]]
 
 
 @dataclass(frozen=True)
@@ -42,8 +44,11 @@ def laser_mounts(
     ahead of the rear axle (pitch positive is nose-down)."""
     spread = np.linspace(-0.3, 0.3, len(reach_m))
     return tuple(
-        Mount(f"laser_{i + 1}", (x_m, float(spread[i]), height_m),
-              (0.0, float(np.arctan2(height_m, reach - x_m)), 0.0))
+        Mount(
+            f"laser_{i + 1}",
+            (x_m, float(spread[i]), height_m),
+            (0.0, float(np.arctan2(height_m, reach - x_m)), 0.0),
+        )
         for i, reach in enumerate(reach_m)
     )
 
@@ -97,6 +102,8 @@ class GpsParams:
     drift_tau_s: float = 120.0
     dropouts_per_hour: float = 20.0
     dropout_duration_s: tuple[float, float] = (3.0, 12.0)
+    # Dropouts at fixed times (start_s after the log starts, duration_s), besides the random ones.
+    scheduled_dropouts_s: tuple[tuple[float, float], ...] = ()
     heading_rate_hz: float = 10.0
     heading_noise_rad: float = 0.005
 
@@ -153,10 +160,11 @@ class RayCaster:
 
     route: Route
     crossfall: Callable[[FloatArray], FloatArray]
-    step_dz_m: float = 0.08
+    step_dz_m: float = 0.1
     up_margin_m: float = 0.35
     down_margin_m: float = 0.35
-    refine_iterations: int = 5
+    refine_iterations: int = 16
+    tolerance_m: float = 0.0005
     max_range_m: float = 80.0
     min_range_m: float = 0.5
 
@@ -180,18 +188,12 @@ class RayCaster:
         along = u[:, 0] * np.cos(h0[0]) + u[:, 1] * np.sin(h0[0])
         along_o = (o[:, 0] - x0[0]) * np.cos(h0[0]) + (o[:, 1] - y0[0]) * np.sin(h0[0])
         t = np.full(idx.size, 10.0)
-        for _ in range(4):
+        for _ in range(3):
             z0 = np.interp(s_hint_m + along_o + t * along, self.route.s_m, self.route.z0_m)
             t = np.clip((o[:, 2] - z0) / -uz, self.min_range_m, self.max_range_m)
-        # ... then once more with the cross profile at the ray's lateral offset.
+        # Route coordinates along each ray: a second-order expansion about this point.
         p = o + t[:, None] * u
         s_s, d_s = self.route.to_route(p[:, 0], p[:, 1], s_hint_m + along_o + t * along)
-        z_smooth = np.interp(s_s, self.route.s_m, self.route.z0_m) + self.crossfall(d_s)
-        t = np.clip((o[:, 2] - z_smooth) / -uz, self.min_range_m, self.max_range_m)
-
-        # Route coordinates and their first and second derivatives along each ray at t_s.
-        p = o + t[:, None] * u
-        s_s, d_s = self.route.to_route(p[:, 0], p[:, 1], s_s)
         _, _, heading = self.route.sample(s_s)
         kappa = np.interp(s_s, self.route.s_m, self.route.curvature_per_m)
         a1 = u[:, 0] * np.cos(heading) + u[:, 1] * np.sin(heading)
@@ -201,9 +203,16 @@ class RayCaster:
         s1 = a1 * scale
         s2 = kappa * a1 * b1 * scale**2
         d2 = -0.5 * kappa * a1**2 * scale
+        t_expansion = t
+
+        # ... then refine the estimate once with the cross profile at the ray's offset.
+        tau = t - t_expansion
+        d_est = d_s + tau * (b1 + tau * d2)
+        z_smooth = np.interp(s_s, self.route.s_m, self.route.z0_m) + self.crossfall(d_est)
+        t = np.clip((o[:, 2] - z_smooth) / -uz, self.min_range_m, self.max_range_m)
 
         def g(rows: NDArray[np.intp], tt: FloatArray) -> FloatArray:
-            tau = tt - t[rows]
+            tau = tt - t_expansion[rows]
             s = s_s[rows] + tau * (s1[rows] + tau * s2[rows])
             d = d_s[rows] + tau * (b1[rows] + tau * d2[rows])
             return o[rows, 2] + tt * uz[rows] - window.height(s, d)
@@ -218,8 +227,9 @@ class RayCaster:
             under = np.flatnonzero(g_lo <= 0)
             if under.size == 0:
                 break
-            t_lo[under] = np.maximum(t_lo[under] - 3 * self.up_margin_m / -uz[under],
-                                     self.min_range_m)
+            t_lo[under] = np.maximum(
+                t_lo[under] - 3 * self.up_margin_m / -uz[under], self.min_range_m
+            )
             g_lo[under] = g(under, t_lo[under])
         step = self.step_dz_m / -uz
         t_end = np.minimum(t + self.down_margin_m / -uz, self.max_range_m)
@@ -241,24 +251,35 @@ class RayCaster:
             keep = ~done
             active, cur_t, cur_g = active[keep], nxt_t[keep], nxt_g[keep]
 
-        # 3. Illinois refinement of each bracket [t_lo (g>0), t_hi (g<=0)].
-        found = np.flatnonzero(np.isfinite(t_hi) & (g_hi < 0))
+        # 3. Illinois refinement of each bracket [t_lo (g>0), t_hi (g<=0)], until the
+        # vertical miss is below ``tolerance_m`` times the ray's slope (a range error
+        # under ``tolerance_m``), for at most ``refine_iterations`` steps.
+        found = np.flatnonzero(np.isfinite(t_hi))
         a, fa = t_lo[found], g_lo[found]
         b, fb = t_hi[found], g_hi[found]
         side = np.zeros(found.size)
+        best = np.where(np.abs(fa) < np.abs(fb), a, b)
+        live = np.arange(found.size)
+        tol = self.tolerance_m * -uz[found]
         for _ in range(self.refine_iterations):
-            c = b - fb * (b - a) / (fb - fa)
-            fc = g(found, c)
+            fa_l, fb_l, a_l, b_l = fa[live], fb[live], a[live], b[live]
+            c = b_l - fb_l * (b_l - a_l) / (fb_l - fa_l)
+            fc = g(found[live], c)
+            best[live] = c
             left = fc > 0
             # The end that stays twice in a row has its value halved (Illinois).
-            fb = np.where(left & (side == 1), fb * 0.5, fb)
-            fa = np.where(~left & (side == -1), fa * 0.5, fa)
-            a = np.where(left, c, a)
-            fa = np.where(left, fc, fa)
-            b = np.where(left, b, c)
-            fb = np.where(left, fb, fc)
-            side = np.where(left, 1, -1)
-        ranges[idx[found]] = np.where(np.abs(fa) < np.abs(fb), a, b)
+            side_l = side[live]
+            fb_l = np.where(left & (side_l == 1), fb_l * 0.5, fb_l)
+            fa_l = np.where(~left & (side_l == -1), fa_l * 0.5, fa_l)
+            a[live] = np.where(left, c, a_l)
+            fa[live] = np.where(left, fc, fa_l)
+            b[live] = np.where(left, b_l, c)
+            fb[live] = np.where(left, fb_l, fc)
+            side[live] = np.where(left, 1, -1)
+            live = live[np.abs(fc) > tol[live]]
+            if live.size == 0:
+                break
+        ranges[idx[found]] = best
         return ranges
 
 
@@ -270,8 +291,6 @@ def gauss_markov(
     rng: np.random.Generator, n: int, dt_s: float, std: float, tau_s: float, x0: FloatArray
 ) -> FloatArray:
     """First-order Gauss-Markov samples (n, k) with stationary std ``std``, starting at x0."""
-    from scipy.signal import lfilter
-
     phi = np.exp(-dt_s / tau_s)
     w = rng.standard_normal((n, x0.size)) * std * np.sqrt(1 - phi**2)
     out, _ = lfilter([1.0], [1.0, -phi], w, axis=0, zi=phi * x0[None, :])

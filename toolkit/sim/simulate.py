@@ -28,8 +28,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+from collections import deque
+from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,15 +41,15 @@ from scipy.spatial.transform import Rotation
 
 import toolkit
 from toolkit.geodesy import enu_to_geodetic
-from toolkit.mcapio.cdr import encode_batch, encode_message
+from toolkit.mcapio.cdr import Column, encode_batch, encode_message
 from toolkit.mcapio.writer import LogWriter
 from toolkit.progress import progress
 from toolkit.sim.drive import Driver, TrueBlock, make_driven_path
 from toolkit.sim.profiles import SimProfile, make_profile
-from toolkit.sim.sensors import Mount, RayCaster, SensorParams, gauss_markov
-from toolkit.sim.world import World, make_world
+from toolkit.sim.sensors import LaserParams, Mount, RayCaster, SensorParams, gauss_markov
+from toolkit.sim.world import WindowCache, World, WorldParams, make_world
 
-FloatArray = NDArray[np.float64]
+FloatArray = NDArray[np.floating[Any]]
 
 BLOCK_SAMPLES = 100  # 0.1 s at the 1 kHz dynamics rate
 HISTORY_SAMPLES = 20  # of the previous block, for IMU averaging and scans across blocks
@@ -91,7 +95,7 @@ class SimResult:
         )
 
 
-def header_columns(stamp_ns: NDArray[np.int64], frame_id: str) -> dict[str, object]:
+def header_columns(stamp_ns: NDArray[np.int64], frame_id: str) -> dict[str, Column]:
     """``std_msgs/Header`` columns from nanosecond stamps."""
     return {
         "header.stamp.sec": (stamp_ns // 1_000_000_000).astype(np.int32),
@@ -100,11 +104,11 @@ def header_columns(stamp_ns: NDArray[np.int64], frame_id: str) -> dict[str, obje
     }
 
 
-def _vector_columns(prefix: str, xyz: FloatArray) -> dict[str, object]:
+def _vector_columns(prefix: str, xyz: FloatArray) -> dict[str, Column]:
     return {f"{prefix}.x": xyz[:, 0], f"{prefix}.y": xyz[:, 1], f"{prefix}.z": xyz[:, 2]}
 
 
-def _quat_columns(prefix: str, quat_xyzw: FloatArray) -> dict[str, object]:
+def _quat_columns(prefix: str, quat_xyzw: FloatArray) -> dict[str, Column]:
     return {
         f"{prefix}.x": quat_xyzw[:, 0],
         f"{prefix}.y": quat_xyzw[:, 1],
@@ -118,6 +122,57 @@ def wrap_angle(a: FloatArray) -> FloatArray:
     return (a + np.pi) % (2 * np.pi) - np.pi
 
 
+@dataclass(frozen=True)
+class LaserRays:
+    """One block's laser rays: ``origin`` and unit ``direction`` (n_scans * beams, 3) in ENU,
+    with the scans' true start times and laser indices (n_scans,), and the stretch of route
+    (``s_lo_m`` .. ``s_hi_m``) the rays can reach."""
+
+    starts_ns: NDArray[np.int64]
+    laser_index: NDArray[np.intp]
+    origin: FloatArray
+    direction: FloatArray
+    s_hint_m: float
+    s_lo_m: float
+    s_hi_m: float
+
+
+class LaserCaster:
+    """Casts a block's rays into the world; lives in the main process or in a worker.
+
+    A worker rebuilds the world from ``(params, seed)``, which is deterministic, so only the
+    rays and ranges cross the process boundary.
+    """
+
+    def __init__(self, world_params: WorldParams, seed: int, laser: LaserParams) -> None:
+        world = make_world(world_params, seed)
+        self.windows = WindowCache(world.terrain)
+        self.caster = RayCaster(
+            world.route,
+            world.terrain.crossfall,
+            max_range_m=laser.range_max_m,
+            min_range_m=laser.range_min_m,
+        )
+
+    def __call__(self, rays: LaserRays) -> FloatArray:
+        window = self.windows.covering(rays.s_lo_m, rays.s_hi_m)
+        return self.caster.cast(window, rays.origin, rays.direction, rays.s_hint_m)
+
+
+_WORKER_CASTER: LaserCaster | None = None
+
+
+def _init_caster_worker(world_params: WorldParams, seed: int, laser: LaserParams) -> None:
+    global _WORKER_CASTER
+    _WORKER_CASTER = LaserCaster(world_params, seed, laser)
+
+
+def _cast_in_worker(rays: LaserRays) -> FloatArray:
+    if _WORKER_CASTER is None:
+        raise RuntimeError("laser worker used before its initialiser ran")
+    return _WORKER_CASTER(rays)
+
+
 @dataclass
 class _Clock:
     """One sensor's clock: a fixed offset, stamp jitter and transport latency (ns)."""
@@ -127,11 +182,14 @@ class _Clock:
     latency_ns: tuple[int, int]
 
     def stamps(self, rng: np.random.Generator, t_true_ns: NDArray[np.int64]) -> NDArray[np.int64]:
-        jitter = np.clip(rng.normal(0.0, self.jitter_ns, t_true_ns.size), -3 * self.jitter_ns,
-                         3 * self.jitter_ns)
+        jitter = np.clip(
+            rng.normal(0.0, self.jitter_ns, t_true_ns.size), -3 * self.jitter_ns, 3 * self.jitter_ns
+        )
         return t_true_ns + self.offset_ns + np.round(jitter).astype(np.int64)
 
-    def log_times(self, rng: np.random.Generator, t_true_ns: NDArray[np.int64]) -> NDArray[np.int64]:
+    def log_times(
+        self, rng: np.random.Generator, t_true_ns: NDArray[np.int64]
+    ) -> NDArray[np.int64]:
         lo, hi = self.latency_ns
         return t_true_ns + rng.integers(lo, hi, t_true_ns.size, endpoint=True)
 
@@ -152,8 +210,13 @@ class _Outbox:
     def add(self, topic: str, log_time_ns: NDArray[np.int64], payloads: list[bytes]) -> None:
         rank = self._order.setdefault(topic, len(self._order))
         self._pending.extend(
-            zip(log_time_ns.tolist(), [rank] * len(payloads), [topic] * len(payloads), payloads,
-                strict=True)
+            zip(
+                log_time_ns.tolist(),
+                [rank] * len(payloads),
+                [topic] * len(payloads),
+                payloads,
+                strict=True,
+            )
         )
         self.counts[topic] = self.counts.get(topic, 0) + len(payloads)
 
@@ -189,8 +252,6 @@ class SensorSuite:
         self.clocks[TOPIC_TRUTH_ODOM] = _Clock(0, 0.0, (0, 0))
         period = 1e9 / self.p.laser.rate_hz
         self.laser_phase_ns = clock_rng.uniform(0, period, len(self.p.laser.mounts))
-        self.raycaster = RayCaster(world.route, world.terrain.crossfall, max_range_m=self.p.laser.range_max_m,
-                                   min_range_m=self.p.laser.range_min_m)
         imu = self.p.imu
         bias_rng = np.random.default_rng([seed, 13])
         self.accel_bias = bias_rng.normal(0, imu.accel_bias_initial_mps2, 3)
@@ -208,16 +269,19 @@ class SensorSuite:
     def _dropouts(self, rng: np.random.Generator) -> list[tuple[int, int]]:
         """GPS dropout intervals [start, end) in true time (ns), for up to 3 hours of log."""
         g = self.p.gps
-        out: list[tuple[int, int]] = []
+        out = [
+            (self.start_ns + int(t * 1e9), self.start_ns + int((t + dur) * 1e9))
+            for t, dur in g.scheduled_dropouts_s
+        ]
         if g.dropouts_per_hour <= 0:
-            return out
+            return sorted(out)
         t = 0.0
         while t < 3 * 3600.0:
             t += rng.exponential(3600.0 / g.dropouts_per_hour)
             dur = rng.uniform(*g.dropout_duration_s)
             out.append((self.start_ns + int(t * 1e9), self.start_ns + int((t + dur) * 1e9)))
             t += dur
-        return out
+        return sorted(out)
 
     def in_dropout(self, t_ns: NDArray[np.int64]) -> NDArray[np.bool_]:
         mask = np.zeros(t_ns.size, dtype=bool)
@@ -247,15 +311,19 @@ class SensorSuite:
         w = ext.omega_body_radps[idx].mean(axis=1)
         n = ticks.size
         dt = 1.0 / p.rate_hz
-        a_walk = np.cumsum(self.rng.normal(0, p.accel_bias_walk_mps2_per_sqrt_s * np.sqrt(dt), (n, 3)), 0)
-        g_walk = np.cumsum(self.rng.normal(0, p.gyro_bias_walk_radps_per_sqrt_s * np.sqrt(dt), (n, 3)), 0)
+        a_walk = np.cumsum(
+            self.rng.normal(0, p.accel_bias_walk_mps2_per_sqrt_s * np.sqrt(dt), (n, 3)), 0
+        )
+        g_walk = np.cumsum(
+            self.rng.normal(0, p.gyro_bias_walk_radps_per_sqrt_s * np.sqrt(dt), (n, 3)), 0
+        )
         accel = f + self.accel_bias + a_walk + self.rng.normal(0, p.accel_noise_mps2, (n, 3))
         gyro = w + self.gyro_bias + g_walk + self.rng.normal(0, p.gyro_noise_radps, (n, 3))
         self.accel_bias = self.accel_bias + a_walk[-1]
         self.gyro_bias = self.gyro_bias + g_walk[-1]
         t_true = ext.t_ns[ticks]
         clock = self.clocks[TOPIC_IMU]
-        cols = {
+        cols: dict[str, Column] = {
             **header_columns(clock.stamps(self.rng, t_true), p.mount.frame_id),
             # No orientation estimate: covariance[0] = -1 by the sensor_msgs/Imu convention.
             "orientation_covariance": np.array([-1.0, 0, 0, 0, 0, 0, 0, 0, 0]),
@@ -264,8 +332,9 @@ class SensorSuite:
             **_vector_columns("linear_acceleration", accel),
             "linear_acceleration_covariance": np.diag([p.accel_noise_mps2**2] * 3).ravel(),
         }
-        out.add(TOPIC_IMU, clock.log_times(self.rng, t_true),
-                encode_batch("sensor_msgs/msg/Imu", cols))
+        out.add(
+            TOPIC_IMU, clock.log_times(self.rng, t_true), encode_batch("sensor_msgs/msg/Imu", cols)
+        )
 
     def _ticks_of(self, t_ns: NDArray[np.int64], rate_hz: float) -> NDArray[np.intp]:
         period_ns = int(round(1e9 / rate_hz))
@@ -280,15 +349,18 @@ class SensorSuite:
         speeds = speeds + self.rng.normal(0, p.noise_mps, speeds.shape)
         t_true = block.t_ns[ticks]
         clock = self.clocks[TOPIC_WHEELS]
-        cols = {
+        cols: dict[str, Column] = {
             **header_columns(clock.stamps(self.rng, t_true), BASE_FRAME),
             "front_left": speeds[:, 0],
             "front_right": speeds[:, 1],
             "rear_left": speeds[:, 2],
             "rear_right": speeds[:, 3],
         }
-        out.add(TOPIC_WHEELS, clock.log_times(self.rng, t_true),
-                encode_batch("terrain_msgs/msg/WheelSpeeds", cols))
+        out.add(
+            TOPIC_WHEELS,
+            clock.log_times(self.rng, t_true),
+            encode_batch("terrain_msgs/msg/WheelSpeeds", cols),
+        )
 
     def gps(self, block: TrueBlock, out: _Outbox) -> None:
         g = self.p.gps
@@ -298,8 +370,9 @@ class SensorSuite:
         n = ticks.size
         rot = block.world_from_base()[ticks]
         antenna = block.position_m[ticks] + rot.apply(np.asarray(g.mount.xyz_m))
-        drift = gauss_markov(self.rng, n, 1.0 / g.rate_hz, g.drift_std_m, g.drift_tau_s,
-                             self.gps_drift)
+        drift = gauss_markov(
+            self.rng, n, 1.0 / g.rate_hz, g.drift_std_m, g.drift_tau_s, self.gps_drift
+        )
         self.gps_drift = drift[-1]
         white = self.rng.normal(0, 1, (n, 3)) * np.array(
             [g.horizontal_noise_m, g.horizontal_noise_m, g.vertical_noise_m]
@@ -313,9 +386,11 @@ class SensorSuite:
         cov = np.tile([var_h, 0, 0, 0, var_h, 0, 0, 0, var_v], (n, 1))
         cov[lost] = 0.0
         clock = self.clocks[TOPIC_GPS]
-        cols = {
+        cols: dict[str, Column] = {
             **header_columns(clock.stamps(self.rng, t_true), g.mount.frame_id),
-            "status.status": np.where(lost, NAVSAT_STATUS_NO_FIX, NAVSAT_STATUS_GBAS_FIX).astype(np.int8),
+            "status.status": np.where(lost, NAVSAT_STATUS_NO_FIX, NAVSAT_STATUS_GBAS_FIX).astype(
+                np.int8
+            ),
             "status.service": np.uint16(NAVSAT_SERVICE_GPS),
             "latitude": np.where(lost, np.nan, lat),
             "longitude": np.where(lost, np.nan, lon),
@@ -325,8 +400,11 @@ class SensorSuite:
                 lost, COVARIANCE_TYPE_UNKNOWN, COVARIANCE_TYPE_DIAGONAL_KNOWN
             ).astype(np.uint8),
         }
-        out.add(TOPIC_GPS, clock.log_times(self.rng, t_true),
-                encode_batch("sensor_msgs/msg/NavSatFix", cols))
+        out.add(
+            TOPIC_GPS,
+            clock.log_times(self.rng, t_true),
+            encode_batch("sensor_msgs/msg/NavSatFix", cols),
+        )
 
         ticks_h = self._ticks(block, g.heading_rate_hz)
         t_h = block.t_ns[ticks_h]
@@ -334,15 +412,20 @@ class SensorSuite:
         if ticks_h.size == 0:
             return
         t_true = block.t_ns[ticks_h]
-        yaw = wrap_angle(block.yaw_rad[ticks_h] + self.rng.normal(0, g.heading_noise_rad, ticks_h.size))
+        yaw = wrap_angle(
+            block.yaw_rad[ticks_h] + self.rng.normal(0, g.heading_noise_rad, ticks_h.size)
+        )
         clock = self.clocks[TOPIC_HEADING]
         cols = {
             **header_columns(clock.stamps(self.rng, t_true), BASE_FRAME),
             "yaw": yaw,
             "yaw_std": np.full(ticks_h.size, g.heading_noise_rad),
         }
-        out.add(TOPIC_HEADING, clock.log_times(self.rng, t_true),
-                encode_batch("terrain_msgs/msg/GpsHeading", cols))
+        out.add(
+            TOPIC_HEADING,
+            clock.log_times(self.rng, t_true),
+            encode_batch("terrain_msgs/msg/GpsHeading", cols),
+        )
 
     def truth(self, block: TrueBlock, out: _Outbox) -> None:
         ticks = self._ticks(block, self.p.truth_rate_hz)
@@ -351,7 +434,7 @@ class SensorSuite:
         rot = block.world_from_base()[ticks]
         v_body = rot.apply(block.velocity_world_mps[ticks], inverse=True)
         t_true = block.t_ns[ticks]
-        cols = {
+        cols: dict[str, Column] = {
             **header_columns(t_true, WORLD_FRAME),
             "child_frame_id": BASE_FRAME,
             **_vector_columns("pose.pose.position", block.position_m[ticks]),
@@ -361,8 +444,9 @@ class SensorSuite:
         }
         out.add(TOPIC_TRUTH_ODOM, t_true, encode_batch("nav_msgs/msg/Odometry", cols))
 
-    def lasers(self, ext: TrueBlock, first: int, out: _Outbox) -> None:
-        """Every scan that ends within this block; each beam cast from the pose at its time."""
+    def plan_lasers(self, ext: TrueBlock, first: int) -> LaserRays | None:
+        """The rays of every scan that ends within this block, each beam cast from the
+        sensor's pose at the beam's own time."""
         lp = self.p.laser
         period_ns = 1e9 / lp.rate_hz
         span_ns = (lp.beams - 1) * lp.time_increment_s * 1e9
@@ -371,8 +455,8 @@ class SensorSuite:
         dt_ns = int(ext.t_ns[1] - ext.t_ns[0])
         t_ext = (ext.t_ns - t0).astype(np.float64)
         frac = np.arange(lp.beams) / (lp.beams - 1)
-        origins, dirs, scans = [], [], []
-        for i, mount in enumerate(lp.mounts):
+        scans: list[tuple[int, int]] = []
+        for i in range(len(lp.mounts)):
             # Scans whose last beam falls in (t0 - dt, t_last].
             base = self.start_ns + self.laser_phase_ns[i] + span_ns
             n_lo = int(np.floor((t0 - dt_ns - base) / period_ns)) + 1
@@ -381,7 +465,7 @@ class SensorSuite:
                 start = self.start_ns + self.laser_phase_ns[i] + n * period_ns
                 scans.append((i, int(round(start))))
         if not scans:
-            return
+            return None
         starts = np.array([s for _, s in scans], dtype=np.int64)
         lasers_idx = np.array([i for i, _ in scans])
         t_start = (starts - t0).astype(np.float64)
@@ -405,17 +489,29 @@ class SensorSuite:
             origin[rows] = o0[:, None, :] + (o1 - o0)[:, None, :] * frac[None, :, None]
             direction[rows] = d0 + (d1 - d0) * frac[None, :, None]
         direction /= np.linalg.norm(direction, axis=2, keepdims=True)
-        origin = origin.reshape(-1, 3)
-        direction = direction.reshape(-1, 3)
-        s_hint = float(ext.s_m[first + BLOCK_SAMPLES // 2] if ext.s_m.size > first + 50 else ext.s_m[-1])
-        ranges = self.raycaster.cast(self._window, origin, direction, s_hint + 15.0)
+        s_mid = float(ext.s_m[min(first + BLOCK_SAMPLES // 2, ext.s_m.size - 1)])
+        return LaserRays(
+            starts_ns=starts,
+            laser_index=lasers_idx,
+            origin=origin.reshape(-1, 3),
+            direction=direction.reshape(-1, 3),
+            s_hint_m=s_mid + 15.0,
+            s_lo_m=float(ext.s_m[first]) - 5.0,
+            s_hi_m=float(ext.s_m[-1]) + lp.range_max_m + 20.0,
+        )
+
+    def finish_lasers(self, rays: LaserRays, ranges: FloatArray, out: _Outbox) -> None:
+        """Noise, dropouts and quantisation on the exact ranges; then encode the scans."""
+        lp = self.p.laser
+        span_ns = (lp.beams - 1) * lp.time_increment_s * 1e9
+        starts, lasers_idx = rays.starts_ns, rays.laser_index
         ranges = ranges + self.rng.normal(0, lp.range_noise_m, ranges.size)
         ranges[self.rng.random(ranges.size) < lp.dropout_probability] = np.inf
         ranges[(ranges < lp.range_min_m) | (ranges > lp.range_max_m)] = np.inf
         # The scanner reports ranges in steps of range_resolution_m; a power-of-two step is
         # exact in float32, which also lets the log's compression see the quantisation.
         ranges = np.round(ranges / lp.range_resolution_m) * lp.range_resolution_m
-        ranges = ranges.astype(np.float32).reshape(len(scans), lp.beams)
+        ranges = ranges.astype(np.float32).reshape(starts.size, lp.beams)
         for i, mount in enumerate(lp.mounts):
             rows = np.flatnonzero(lasers_idx == i)
             if rows.size == 0:
@@ -435,24 +531,20 @@ class SensorSuite:
                 "ranges": ranges[rows],
             }
             # The scan is published once complete.
-            out.add(topic, clock.log_times(self.rng, t_true + int(span_ns)),
-                    encode_batch("sensor_msgs/msg/LaserScan", cols))
+            out.add(
+                topic,
+                clock.log_times(self.rng, t_true + int(span_ns)),
+                encode_batch("sensor_msgs/msg/LaserScan", cols),
+            )
 
     @staticmethod
-    def _pose_at(
-        ext: TrueBlock, t_ext: FloatArray, t: FloatArray
-    ) -> tuple[FloatArray, FloatArray]:
+    def _pose_at(ext: TrueBlock, t_ext: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray]:
         """``world_from_base`` rotations (k, 3, 3) and positions (k, 3) at times ``t``."""
         pos = np.stack([np.interp(t, t_ext, ext.position_m[:, j]) for j in range(3)], axis=1)
         ypr = np.stack(
             [np.interp(t, t_ext, a) for a in (ext.yaw_rad, ext.pitch_rad, ext.roll_rad)], axis=1
         )
         return Rotation.from_euler("ZYX", ypr).as_matrix(), pos
-
-    _window = None
-
-    def set_window(self, window: object) -> None:
-        self._window = window
 
 
 def _concat_blocks(a: TrueBlock, b: TrueBlock, tail: int) -> TrueBlock:
@@ -473,7 +565,10 @@ def static_transforms(params: SensorParams, stamp_ns: int) -> dict[str, object]:
         transforms.append(
             {
                 "header": {
-                    "stamp": {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000},
+                    "stamp": {
+                        "sec": stamp_ns // 1_000_000_000,
+                        "nanosec": stamp_ns % 1_000_000_000,
+                    },
                     "frame_id": BASE_FRAME,
                 },
                 "child_frame_id": m.frame_id,
@@ -547,8 +642,15 @@ def simulate(
     distance_m: float | None = None,
     seed: int = 0,
     show_progress: bool = False,
+    workers: int | None = None,
 ) -> SimResult:
-    """Simulate a drive and write it to ``out_path`` (complete, or not at all)."""
+    """Simulate a drive and write it to ``out_path`` (complete, or not at all).
+
+    ``workers`` processes cast the laser rays (default: one when the machine has more than
+    one core, else none); the log does not depend on it.
+    """
+    if workers is None:
+        workers = 1 if (os.cpu_count() or 1) > 1 else 0
     prof = make_profile(profile, distance_m)
     world = make_world(prof.world, seed)
     path = make_driven_path(world.route, np.random.default_rng([seed, 4]), prof.lane_wander_m)
@@ -563,13 +665,14 @@ def simulate(
         prof.initial_speed_mps,
         prof.speed_schedule,
     )
-    prev = None
-    for _ in range(WARMUP_BLOCKS):
+    prev = driver.step(BLOCK_SAMPLES)
+    for _ in range(WARMUP_BLOCKS - 1):
         prev = driver.step(BLOCK_SAMPLES)
-    assert prev is not None
     suite = SensorSuite(prof, world, seed, prof.start_time_ns)
     start_sigma = driver.sigma_m
-    expected_blocks = int((driver.end_sigma_m - start_sigma) / max(np.mean(prev.speed_mps), 1.0) / 0.1)
+    expected_blocks = int(
+        (driver.end_sigma_m - start_sigma) / max(float(np.mean(prev.speed_mps)), 1.0) / 0.1
+    )
 
     with LogWriter(out_path) as writer:
         topics = {
@@ -587,24 +690,74 @@ def simulate(
         writer.add_metadata("terrain_sim", sim_metadata(prof, seed, suite))
         out = _Outbox(writer)
         t0 = np.array([prof.start_time_ns], dtype=np.int64)
-        out.add(TOPIC_TF_STATIC, t0,
-                [encode_message("tf2_msgs/msg/TFMessage", static_transforms(prof.sensors, prof.start_time_ns))])
-        out.add(TOPIC_TRUTH_FEATURES, t0,
-                [encode_message("terrain_msgs/msg/RoughFeatureArray", feature_message(world, prof.start_time_ns))])
+        out.add(
+            TOPIC_TF_STATIC,
+            t0,
+            [
+                encode_message(
+                    "tf2_msgs/msg/TFMessage", static_transforms(prof.sensors, prof.start_time_ns)
+                )
+            ],
+        )
+        out.add(
+            TOPIC_TRUTH_FEATURES,
+            t0,
+            [
+                encode_message(
+                    "terrain_msgs/msg/RoughFeatureArray", feature_message(world, prof.start_time_ns)
+                )
+            ],
+        )
         bar = progress(total=expected_blocks, desc="sim", unit="block") if show_progress else None
-        while driver.sigma_m < driver.end_sigma_m:
-            block = driver.step(BLOCK_SAMPLES)
-            ext = _concat_blocks(prev, block, HISTORY_SAMPLES)
-            suite.set_window(driver.window(float(block.s_m[0]) - 5.0, float(block.s_m[-1]) + 100.0))
+        # Laser casting is most of the work; with workers it runs a few blocks ahead in other
+        # processes while this one drives. Every random draw happens here, in block order,
+        # so the log is the same whatever the number of workers.
+        pool: Executor | None = None
+        local_caster: LaserCaster | None = None
+        if workers > 0:
+            pool = ProcessPoolExecutor(
+                max_workers=workers,
+                initializer=_init_caster_worker,
+                initargs=(prof.world, seed, prof.sensors.laser),
+            )
+        else:
+            local_caster = LaserCaster(prof.world, seed, prof.sensors.laser)
+        pending: deque[tuple[TrueBlock, TrueBlock, LaserRays | None, Future[FloatArray] | None]] = (
+            deque()
+        )
+
+        def finish_oldest() -> None:
+            block, ext, rays, future = pending.popleft()
             suite.imu(ext, HISTORY_SAMPLES, out)
             suite.wheels(block, out)
             suite.gps(block, out)
             suite.truth(block, out)
-            suite.lasers(ext, HISTORY_SAMPLES, out)
+            if rays is not None:
+                if future is not None:
+                    ranges = future.result()
+                else:
+                    assert local_caster is not None
+                    ranges = local_caster(rays)
+                suite.finish_lasers(rays, ranges, out)
             out.flush(before_ns=int(block.t_ns[-1]) + driver.dt_ns)
-            prev = block
             if bar is not None:
                 bar.update(1)
+
+        try:
+            while driver.sigma_m < driver.end_sigma_m:
+                block = driver.step(BLOCK_SAMPLES)
+                ext = _concat_blocks(prev, block, HISTORY_SAMPLES)
+                rays = suite.plan_lasers(ext, HISTORY_SAMPLES)
+                future = pool.submit(_cast_in_worker, rays) if pool and rays else None
+                pending.append((block, ext, rays, future))
+                if len(pending) > 2 * workers:
+                    finish_oldest()
+                prev = block
+            while pending:
+                finish_oldest()
+        finally:
+            if pool is not None:
+                pool.shutdown(cancel_futures=True)
         out.flush(before_ns=None)
         if bar is not None:
             bar.close()

@@ -27,13 +27,14 @@ dynamics rate) and diagonalised: each mode is then a first-order complex recursi
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import expm
 from scipy.signal import lfilter
 
-FloatArray = NDArray[np.float64]
+FloatArray = NDArray[np.floating[Any]]
 
 
 @dataclass(frozen=True)
@@ -172,10 +173,10 @@ class ReactiveSpeedParams:
     recovers at ``recovery_mps_per_m`` per metre driven.
     """
 
-    shock_threshold_g: float = 0.25
+    shock_threshold_g: float = 0.35
     slowdown_fraction: float = 0.3
     min_speed_mps: float = 4.0
-    recovery_mps_per_m: float = 0.02
+    recovery_mps_per_m: float = 0.05
     accel_mps2: float = 1.2
     brake_mps2: float = 2.5
     lateral_accel_mps2: float = 2.0
@@ -191,7 +192,9 @@ class ReactiveSpeedController:
 
     def on_shock(self, shock_g: float, speed_mps: float) -> None:
         if self.params.enabled and shock_g > self.params.shock_threshold_g:
-            new_cap = max(self.params.min_speed_mps, speed_mps * (1 - self.params.slowdown_fraction))
+            new_cap = max(
+                self.params.min_speed_mps, speed_mps * (1 - self.params.slowdown_fraction)
+            )
             self.cap_mps = min(self.cap_mps, new_cap)
 
     def recover(self, distance_m: float) -> None:
@@ -214,7 +217,9 @@ def safe_speed_profile(
     ``v <= sqrt(a_lat / |kappa|)`` in bends, and a backward pass so that the vehicle can
     brake at ``brake_mps2`` (with margin) to every lower limit ahead.
     """
-    v = np.minimum(limit_mps, np.sqrt(p.lateral_accel_mps2 / np.maximum(np.abs(curvature_per_m), 1e-9)))
+    v = np.minimum(
+        limit_mps, np.sqrt(p.lateral_accel_mps2 / np.maximum(np.abs(curvature_per_m), 1e-9))
+    )
     ds = np.diff(s_m)
     a = 0.5 * p.brake_mps2
     out = v.copy()
