@@ -76,7 +76,7 @@ def make_profile(name: str, distance_m: float | None = None) -> SimProfile:
     if name == "race":
         return SimProfile(
             name=name,
-            world=WorldParams(length_m=distance_m or 8000.0, feature_rate_per_km=6.0),
+            world=WorldParams(length_m=distance_m or 8000.0, feature_rate_per_km=16.0),
         )
     n = len(CALIBRATION_SPEEDS_MPS)
     length = distance_m or CALIBRATION_FIRST_M + n * CALIBRATION_SPACING_M

@@ -50,7 +50,7 @@ class VehicleParams:
     roll_inertia_kgm2: float = 850.0
     unsprung_mass_kg: float = 55.0
     spring_n_per_m: float = 37000.0
-    damper_ns_per_m: float = 3200.0
+    damper_ns_per_m: float = 4500.0
     tyre_n_per_m: float = 260000.0
     wheel_radius_m: float = 0.38
 

@@ -69,7 +69,7 @@ class WorldParams:
     length_m: float
     road_half_width_m: float = 3.5
     road_class: str = "D"
-    rough_class: str = "E"
+    rough_class: str = "F"
     rough_stretch_fraction: float = 0.15
     offroad_class: str = "F"
     feature_rate_per_km: float = 6.0
@@ -640,7 +640,7 @@ def make_features(
         k_lo, k_hi = FEATURE_HEIGHT_RANGE_M[kind]
         h_lo, h_hi = max(lo, k_lo), max(min(hi, k_hi), max(lo, k_lo))
         height = float(np.exp(rng.uniform(np.log(h_lo), np.log(h_hi))))
-        track = rng.choice([-1.0, 1.0]) * track_m / 2 + rng.normal(0, 0.35)
+        track = rng.choice([-1.0, 1.0]) * track_m / 2 + rng.normal(0, 0.2)
         if kind == "washboard":
             wavelength = float(rng.uniform(0.4, 1.0))
             length = float(rng.uniform(6.0, 30.0))

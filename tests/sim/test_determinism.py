@@ -1,0 +1,73 @@
+"""Same seed, same log; another seed, another world and another log."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from toolkit.sim.profiles import make_profile
+from toolkit.sim.simulate import simulate
+from toolkit.sim.world import make_world
+
+DISTANCE_M = 150.0
+SEED_A = 3
+SEED_B = 4
+
+
+@pytest.fixture(scope="module")
+def short_logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    d = tmp_path_factory.mktemp("determinism")
+    runs = {"a1": (SEED_A, None), "a2": (SEED_A, None), "b": (SEED_B, None), "a0": (SEED_A, 0)}
+    return {
+        name: simulate(
+            d / f"{name}.mcap", profile="sample", distance_m=DISTANCE_M, seed=seed, workers=workers
+        ).path
+        for name, (seed, workers) in runs.items()
+    }
+
+
+def test_same_seed_gives_byte_identical_log(short_logs: dict[str, Path]) -> None:
+    a1 = short_logs["a1"].read_bytes()
+    a2 = short_logs["a2"].read_bytes()
+    assert len(a1) > 100_000
+    assert a1 == a2
+
+
+def test_log_does_not_depend_on_laser_workers(short_logs: dict[str, Path]) -> None:
+    """Casting the lasers in the main process (workers=0) or in worker processes (the
+    default on a multi-core machine) writes the same bytes."""
+    assert short_logs["a0"].read_bytes() == short_logs["a1"].read_bytes()
+
+
+def test_other_seed_gives_other_log(short_logs: dict[str, Path]) -> None:
+    assert short_logs["a1"].read_bytes() != short_logs["b"].read_bytes()
+
+
+def test_same_seed_same_world_other_seed_other_world() -> None:
+    params = make_profile("sample", DISTANCE_M).world
+    a1, a2, b = make_world(params, SEED_A), make_world(params, SEED_A), make_world(params, SEED_B)
+
+    s = np.linspace(20.0, DISTANCE_M - 20.0, 400)
+    d = np.linspace(-3.0, 3.0, 400)
+    ha1, ha2, hb = (w.terrain.height(s, d) for w in (a1, a2, b))
+
+    # Same seed: the same route, features and heights, bit for bit.
+    np.testing.assert_array_equal(a1.route.x_m, a2.route.x_m)
+    np.testing.assert_array_equal(a1.route.y_m, a2.route.y_m)
+    np.testing.assert_array_equal(a1.route.z0_m, a2.route.z0_m)
+    assert a1.features == a2.features
+    np.testing.assert_array_equal(ha1, ha2)
+
+    # Another seed: another route, other features, other terrain.
+    n = min(a1.route.s_m.size, b.route.s_m.size)
+    gap = np.hypot(a1.route.x_m[:n] - b.route.x_m[:n], a1.route.y_m[:n] - b.route.y_m[:n])
+    assert gap.max() > 10.0
+    assert np.max(np.abs(a1.route.z0_m[:n] - b.route.z0_m[:n])) > 0.1
+    assert a1.features != b.features
+    assert {f.s_start_m for f in a1.features}.isdisjoint({f.s_start_m for f in b.features})
+    # Heights relative to the route's own elevation, so only the roughness is compared.
+    rel_a = ha1 - np.interp(s, a1.route.s_m, a1.route.z0_m)
+    rel_b = hb - np.interp(s, b.route.s_m, b.route.z0_m)
+    assert np.mean(np.abs(rel_a - rel_b) > 1e-3) > 0.9
