@@ -7,6 +7,7 @@ decoder, never through the code under test.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -184,8 +185,11 @@ def rng() -> np.random.Generator:
 
 @pytest.fixture
 def conformance_files() -> list[Path]:
-    root = Path(__file__).resolve().parents[3] / "shared" / "mcap-conformance"
+    """The MCAP project's conformance corpus: ``shared/`` beside the repository (as in CI),
+    or wherever ``TERRAIN_MCAP_CONFORMANCE`` points. Its absence is a failure, not a skip."""
+    default = Path(__file__).resolve().parents[3] / "shared" / "mcap-conformance"
+    root = Path(os.environ.get("TERRAIN_MCAP_CONFORMANCE", default))
     files = sorted(root.glob("*/*.mcap"))
     if not files:
-        pytest.skip(f"MCAP conformance corpus not found under {root}")
+        pytest.fail(f"MCAP conformance corpus not found under {root}")
     return files
