@@ -24,6 +24,8 @@ from scipy.spatial.transform import Rotation, Slerp
 from toolkit.mcapio.cdr import decode_batch
 from toolkit.sim.world import World, WorldParams, make_world
 
+from .reference_labeller import Events, label_events
+
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
@@ -190,3 +192,22 @@ def load_log(path: Path) -> SimLog:
     }
     log_times = {t: np.asarray(v, dtype=np.int64) for t, v in times.items()}
     return SimLog(Path(path), columns, log_times, schemas, meta["terrain_sim"])
+
+
+def label_log(log: SimLog, imu_rate_hz: float) -> Events:
+    """The reference labeller's events for a simulated log: IMU z at its true sample times,
+    rear-axle travel and speed from the truth."""
+    t = on_grid_true_times(
+        log.stamps("/imu/data"),
+        log.clock_offsets["/imu/data"],
+        log.start_ns,
+        int(round(1e9 / imu_rate_hz)),
+    )
+    return label_events(
+        t,
+        np.asarray(log.columns["/imu/data"]["linear_acceleration.z"], dtype=np.float64),
+        log.truth.t_ns,
+        log.truth.position[:, :2],
+        log.truth.speed,
+        imu_rate_hz=imu_rate_hz,
+    )

@@ -9,28 +9,13 @@ import pytest
 
 from toolkit.sim.profiles import make_profile
 
-from .logdata import SimLog, on_grid_true_times
-from .reference_labeller import Events, label_events
+from .logdata import SimLog, label_log
+from .reference_labeller import Events
 
 
 @pytest.fixture(scope="module")
 def events(race_log: SimLog) -> Events:
-    rate = make_profile("race").sensors.imu.rate_hz
-    t = on_grid_true_times(
-        race_log.stamps("/imu/data"),
-        race_log.clock_offsets["/imu/data"],
-        race_log.start_ns,
-        int(round(1e9 / rate)),
-    )
-    tr = race_log.truth
-    ev = label_events(
-        t,
-        np.asarray(race_log.columns["/imu/data"]["linear_acceleration.z"], dtype=np.float64),
-        tr.t_ns,
-        tr.position[:, :2],
-        tr.speed,
-        imu_rate_hz=rate,
-    )
+    ev = label_log(race_log, make_profile("race").sensors.imu.rate_hz)
     pos = ev.positive
     p1, p50, p99 = np.percentile(ev.shock_g, [1, 50, 99])
     print(

@@ -6,13 +6,10 @@ import hashlib
 import re
 from pathlib import Path
 
-import numpy as np
-
 from toolkit.sim.profiles import make_profile
 from toolkit.sim.simulate import simulate
 
-from .logdata import load_log, on_grid_true_times
-from .reference_labeller import label_events
+from .logdata import label_log, load_log
 
 REPO = Path(__file__).resolve().parents[2]
 SAMPLE = REPO / "sample_logs" / "sample.mcap"
@@ -36,21 +33,7 @@ def test_sample_is_a_minute_small_and_has_rough_events() -> None:
     """About 60 s, at most 15 MB, and at least 10 events of 0.02 G/mph or more."""
     assert SAMPLE.stat().st_size <= 15 * 1024 * 1024
     log = load_log(SAMPLE)
-    rate = make_profile("sample").sensors.imu.rate_hz
-    t = on_grid_true_times(
-        log.stamps("/imu/data"),
-        log.clock_offsets["/imu/data"],
-        log.start_ns,
-        int(round(1e9 / rate)),
-    )
-    duration_s = (t[-1] - t[0]) * 1e-9
+    ev = label_log(log, make_profile("sample").sensors.imu.rate_hz)
+    duration_s = (log.truth.t_ns[-1] - log.truth.t_ns[0]) * 1e-9
     assert 50.0 <= duration_s <= 70.0
-    ev = label_events(
-        t,
-        np.asarray(log.columns["/imu/data"]["linear_acceleration.z"], dtype=np.float64),
-        log.truth.t_ns,
-        log.truth.position[:, :2],
-        log.truth.speed,
-        imu_rate_hz=rate,
-    )
     assert int(ev.positive.sum()) >= 10

@@ -32,6 +32,7 @@ import os
 from collections import deque
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -165,6 +166,13 @@ _WORKER_CASTER: LaserCaster | None = None
 def _init_caster_worker(world_params: WorldParams, seed: int, laser: LaserParams) -> None:
     global _WORKER_CASTER
     _WORKER_CASTER = LaserCaster(world_params, seed, laser)
+
+
+def _cast_now(caster: LaserCaster, rays: LaserRays) -> Future[FloatArray]:
+    """Cast in this process; a completed future, so both paths look alike to the caller."""
+    done: Future[FloatArray] = Future()
+    done.set_result(caster(rays))
+    return done
 
 
 def _cast_in_worker(rays: LaserRays) -> FloatArray:
@@ -713,15 +721,15 @@ def simulate(
         # processes while this one drives. Every random draw happens here, in block order,
         # so the log is the same whatever the number of workers.
         pool: Executor | None = None
-        local_caster: LaserCaster | None = None
         if workers > 0:
             pool = ProcessPoolExecutor(
                 max_workers=workers,
                 initializer=_init_caster_worker,
                 initargs=(prof.world, seed, prof.sensors.laser),
             )
+            start_cast = partial(pool.submit, _cast_in_worker)
         else:
-            local_caster = LaserCaster(prof.world, seed, prof.sensors.laser)
+            start_cast = partial(_cast_now, LaserCaster(prof.world, seed, prof.sensors.laser))
         pending: deque[tuple[TrueBlock, TrueBlock, LaserRays | None, Future[FloatArray] | None]] = (
             deque()
         )
@@ -732,13 +740,8 @@ def simulate(
             suite.wheels(block, out)
             suite.gps(block, out)
             suite.truth(block, out)
-            if rays is not None:
-                if future is not None:
-                    ranges = future.result()
-                else:
-                    assert local_caster is not None
-                    ranges = local_caster(rays)
-                suite.finish_lasers(rays, ranges, out)
+            if rays is not None and future is not None:
+                suite.finish_lasers(rays, future.result(), out)
             out.flush(before_ns=int(block.t_ns[-1]) + driver.dt_ns)
             if bar is not None:
                 bar.update(1)
@@ -748,7 +751,7 @@ def simulate(
                 block = driver.step(BLOCK_SAMPLES)
                 ext = _concat_blocks(prev, block, HISTORY_SAMPLES)
                 rays = suite.plan_lasers(ext, HISTORY_SAMPLES)
-                future = pool.submit(_cast_in_worker, rays) if pool and rays else None
+                future = start_cast(rays) if rays is not None else None
                 pending.append((block, ext, rays, future))
                 if len(pending) > 2 * workers:
                     finish_oldest()
