@@ -30,6 +30,7 @@ import dataclasses
 import json
 import os
 from collections import deque
+from collections.abc import Callable
 from concurrent.futures import Executor, Future, ProcessPoolExecutor
 from dataclasses import dataclass, field
 from functools import partial
@@ -721,13 +722,17 @@ def simulate(
         # processes while this one drives. Every random draw happens here, in block order,
         # so the log is the same whatever the number of workers.
         pool: Executor | None = None
+        start_cast: Callable[[LaserRays], Future[FloatArray]]
         if workers > 0:
-            pool = ProcessPoolExecutor(
+            executor = ProcessPoolExecutor(
                 max_workers=workers,
                 initializer=_init_caster_worker,
                 initargs=(prof.world, seed, prof.sensors.laser),
             )
-            start_cast = partial(pool.submit, _cast_in_worker)
+            pool = executor
+
+            def start_cast(rays: LaserRays) -> Future[FloatArray]:
+                return executor.submit(_cast_in_worker, rays)
         else:
             start_cast = partial(_cast_now, LaserCaster(prof.world, seed, prof.sensors.laser))
         pending: deque[tuple[TrueBlock, TrueBlock, LaserRays | None, Future[FloatArray] | None]] = (
