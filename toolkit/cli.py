@@ -189,3 +189,108 @@ def info(log: Path, as_json: bool, full: bool) -> None:
         click.echo(json.dumps(log_info.to_dict(), indent=2, sort_keys=False))
     else:
         click.echo(render_table(log_info))
+
+
+@main.command()
+@click.argument(
+    "logs", metavar="LOG.mcap...", nargs=-1, required=True, type=click.Path(path_type=Path)
+)
+@click.option(
+    "-w",
+    "--workspace",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Workspace directory (created if missing).",
+)
+@click.option(
+    "-c",
+    "--config",
+    "config_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Pipeline configuration (TOML). Default: the workspace's config.toml if it has "
+    "one, else the built-in default (pipelines/stanley2005.toml).",
+)
+@click.option("--overwrite", is_flag=True, help="Re-ingest logs that are already up to date.")
+@click.option(
+    "--executor",
+    "executor_kind",
+    type=click.Choice(["local", "dask"]),
+    default="local",
+    show_default=True,
+    help="local: a process pool on this machine; dask: a Dask cluster (needs --scheduler "
+    "and the 'distributed' extra).",
+)
+@click.option("--scheduler", default=None, help="Dask scheduler address, e.g. tcp://host:8786.")
+@click.option(
+    "--workers",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Local worker processes (default: one per CPU; 0 runs in this process, for debugging).",
+)
+@click.option(
+    "--shard-index",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="This job's shard (0-based), for job arrays.",
+)
+@click.option(
+    "--num-shards",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="How many jobs share the logs; each takes every K-th log of the sorted list.",
+)
+@click.pass_context
+def ingest(
+    ctx: click.Context,
+    logs: tuple[Path, ...],
+    workspace: Path,
+    config_path: Path | None,
+    overwrite: bool,
+    executor_kind: str,
+    scheduler: str | None,
+    workers: int | None,
+    shard_index: int,
+    num_shards: int,
+) -> None:
+    """MCAP logs -> per-sensor Parquet tables under the workspace, several logs in parallel.
+
+    Logs already ingested with the same configuration are skipped (up to date). A log that
+    cannot be ingested does not stop the others; each failure is one line on stderr and
+    the exit code is 1.
+    """
+    if executor_kind == "dask" and not scheduler:
+        raise click.UsageError("--executor dask needs --scheduler ADDR", ctx)
+    if executor_kind != "dask" and scheduler is not None:
+        raise click.UsageError("--scheduler applies only with --executor dask", ctx)
+    if shard_index >= num_shards:
+        raise click.BadParameter(
+            f"{shard_index} is not below --num-shards {num_shards}",
+            ctx,
+            param_hint="'--shard-index'",
+        )
+    from toolkit.batch import run_ingest_batch
+
+    summary = run_ingest_batch(
+        list(logs),
+        workspace,
+        config_path,
+        overwrite=overwrite,
+        executor_kind=executor_kind,
+        scheduler=scheduler,
+        workers=workers,
+        shard_index=shard_index,
+        num_shards=num_shards,
+    )
+    click.echo(summary.render(with_reasons=False))
+    if summary.ok:
+        return
+    for outcome in summary.outcomes:
+        if outcome.status != "failed":
+            continue
+        if outcome.detail and _debug(ctx):
+            click.echo(outcome.detail.rstrip("\n"), err=True)
+        _error_line(f"{outcome.item}: {outcome.reason}")
+    ctx.exit(1)

@@ -262,6 +262,39 @@ def conform_table(table: pa.Table, schema: TableSchema, path: str | Path = "") -
 # --------------------------------------------------------------------------------------
 
 
+def contract_metadata(
+    schema_name: str,
+    schema_version: int,
+    *,
+    source_sha256: str | Sequence[str],
+    config_hash: str,
+    extra_metadata: Mapping[str, str] | None = None,
+) -> dict[str, str]:
+    """The key-value metadata every table carries (the contract's provenance keys).
+
+    Shared by :func:`write_table` and by writers that stream a table in pieces (ingest), so
+    both stamp files the same way. ``extra_metadata`` may not override the provenance keys.
+    """
+    from toolkit import __version__
+
+    extras = dict(extra_metadata or {})
+    clash = RESERVED_METADATA_KEYS & extras.keys()
+    if clash:
+        raise ValueError(f"extra_metadata may not set {sorted(clash)}")
+    bad = [k for k, v in extras.items() if not isinstance(k, str) or not isinstance(v, str)]
+    if bad:
+        raise ValueError(f"extra_metadata keys and values must be str: {bad}")
+    sources = source_sha256 if isinstance(source_sha256, str) else ",".join(sorted(source_sha256))
+    return {
+        **extras,
+        META_SCHEMA_NAME: schema_name,
+        META_SCHEMA_VERSION: str(schema_version),
+        META_TOOLKIT_VERSION: __version__,
+        META_SOURCE_SHA256: sources,
+        META_CONFIG_HASH: config_hash,
+    }
+
+
 def write_table(
     path: str | Path,
     table: pa.Table,
@@ -277,27 +310,16 @@ def write_table(
     sequence of them (stored sorted, comma-separated). ``extra_metadata`` adds key-value
     metadata (e.g. the ENU origin as JSON); it may not override the provenance keys.
     """
-    from toolkit import __version__
-
     path = Path(path)
     schema = load_table_schema(schema_name)
     conformed = conform_table(table, schema, path)
-    extras = dict(extra_metadata or {})
-    clash = RESERVED_METADATA_KEYS & extras.keys()
-    if clash:
-        raise ValueError(f"extra_metadata may not set {sorted(clash)}")
-    bad = [k for k, v in extras.items() if not isinstance(k, str) or not isinstance(v, str)]
-    if bad:
-        raise ValueError(f"extra_metadata keys and values must be str: {bad}")
-    sources = source_sha256 if isinstance(source_sha256, str) else ",".join(sorted(source_sha256))
-    metadata = {
-        **extras,
-        META_SCHEMA_NAME: schema.name,
-        META_SCHEMA_VERSION: str(schema.version),
-        META_TOOLKIT_VERSION: __version__,
-        META_SOURCE_SHA256: sources,
-        META_CONFIG_HASH: config_hash,
-    }
+    metadata = contract_metadata(
+        schema.name,
+        schema.version,
+        source_sha256=source_sha256,
+        config_hash=config_hash,
+        extra_metadata=extra_metadata,
+    )
     conformed = conformed.replace_schema_metadata(metadata)
     try:
         with atomic_output(path) as tmp:

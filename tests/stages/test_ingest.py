@@ -1,0 +1,762 @@
+"""Ingest: MCAP logs to the contract's tables, with faithful accounting.
+
+Small logs are built here with the toolkit's writer, one problem at a time; the committed
+sample log checks the real thing, and damaged copies of it the salvage path.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import os
+import shutil
+from collections import Counter
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from mcap.reader import make_reader
+from scipy.spatial.transform import Rotation
+
+from toolkit.config import PipelineConfig, default_config, load_config, parse_config
+from toolkit.errors import ConfigError, StageError, ToolkitError
+from toolkit.mcapio.cdr import encode_batch
+from toolkit.mcapio.info import scan_log
+from toolkit.mcapio.writer import Batch, LogWriter, Record, merge_by_time
+from toolkit.stages.ingest import IngestResult, ingest_log
+from toolkit.stages.roles import ROLE_SPECS
+from toolkit.tableio import read_table, read_table_metadata
+from toolkit.workspace import Workspace, file_sha256
+
+SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
+NS = 1_000_000_000
+T0 = 1_128_783_600 * NS
+CONTRACT_TABLES = ("imu", "gps", "heading", "wheels", "laser")
+
+
+# --------------------------------------------------------------------------------------
+# Building small logs
+# --------------------------------------------------------------------------------------
+
+
+@dataclasses.dataclass
+class Msgs:
+    """One topic's messages: type, log times (ns) and CDR payloads."""
+
+    topic: str
+    type_name: str
+    log_t: np.ndarray
+    payloads: list[bytes]
+
+    def records(self) -> list[Record]:
+        return [
+            Record(self.topic, int(t), p, int(t))
+            for t, p in zip(self.log_t.tolist(), self.payloads, strict=True)
+        ]
+
+
+def header(stamps: np.ndarray, frame: str = "base_link") -> dict[str, Any]:
+    stamps = np.asarray(stamps, dtype=np.int64)
+    return {
+        "header.stamp.sec": (stamps // NS).astype(np.int32),
+        "header.stamp.nanosec": (stamps % NS).astype(np.uint32),
+        "header.frame_id": frame,
+    }
+
+
+def times(n: int, rate_hz: float, t0: int = T0) -> np.ndarray:
+    return t0 + np.round(np.arange(n) * NS / rate_hz).astype(np.int64)
+
+
+def msgs(topic: str, type_name: str, stamps: np.ndarray, cols: dict[str, Any]) -> Msgs:
+    payloads = encode_batch(type_name, {**header(stamps), **cols}, n=len(stamps))
+    return Msgs(topic, type_name, np.asarray(stamps, dtype=np.int64), payloads)
+
+
+def imu(topic: str = "/imu", n: int = 200, overrides: dict[str, Any] | None = None) -> Msgs:
+    t = times(n, 100.0)
+    cols = {
+        "linear_acceleration.x": np.linspace(-1, 1, n),
+        "linear_acceleration.z": np.full(n, 9.81),
+        "angular_velocity.z": np.linspace(0, 0.1, n),
+        **(overrides or {}),
+    }
+    return msgs(topic, "sensor_msgs/msg/Imu", t, cols)
+
+
+def gps(topic: str = "/gps", n: int = 20, no_fix: Sequence[int] = ()) -> Msgs:
+    t = times(n, 10.0, T0 + 3_000_000)
+    status = np.full(n, 2, dtype=np.int8)
+    lat = 37.0 + np.arange(n) * 1e-6
+    status[list(no_fix)] = -1
+    lat[list(no_fix)] = np.nan
+    cols = {
+        "status.status": status,
+        "latitude": lat,
+        "longitude": np.where(np.isnan(lat), np.nan, -116.0),
+        "altitude": np.where(np.isnan(lat), np.nan, 900.0),
+        "position_covariance": np.array([0.25, 0, 0, 0, 0.25, 0, 0, 0, 1.0]),
+        "position_covariance_type": np.uint8(2),
+    }
+    return msgs(topic, "sensor_msgs/msg/NavSatFix", t, cols)
+
+
+def gps_heading(topic: str = "/heading", n: int = 20) -> Msgs:
+    t = times(n, 10.0, T0 + 4_000_000)
+    cols = {"yaw": np.linspace(0, 1, n), "yaw_std": np.full(n, 0.01)}
+    return msgs(topic, "terrain_msgs/msg/GpsHeading", t, cols)
+
+
+def wheel_speeds(topic: str = "/wheels", n: int = 200, speed: float = 5.0) -> Msgs:
+    t = times(n, 100.0, T0 + 1_000_000)
+    cols = {k: np.full(n, speed) for k in ("front_left", "front_right", "rear_left", "rear_right")}
+    return msgs(topic, "terrain_msgs/msg/WheelSpeeds", t, cols)
+
+
+def scans(
+    topic: str, n: int = 30, beams: int = 31, fov_rad: float = 1.0, rate_hz: float = 15.0, **kw: Any
+) -> Msgs:
+    t = times(n, rate_hz, T0 + 2_000_000)
+    ranges = np.linspace(2.0, 20.0, n * beams, dtype=np.float32).reshape(n, beams)
+    cols = {
+        "angle_min": -fov_rad / 2,
+        "angle_max": fov_rad / 2,
+        "angle_increment": fov_rad / (beams - 1),
+        "time_increment": 1e-5,
+        "range_min": 0.5,
+        "range_max": 60.0,
+        "ranges": ranges,
+        **kw,
+    }
+    return msgs(topic, "sensor_msgs/msg/LaserScan", t, cols)
+
+
+def write_log(
+    path: Path,
+    topics: Iterable[Msgs],
+    *,
+    records: Iterable[Record] | None = None,
+    chunk_size: int = 64 * 1024,
+) -> Path:
+    """Write the topics merged by log time, or ``records`` in the order given."""
+    topics = list(topics)
+    with LogWriter(path, chunk_size=chunk_size) as log:
+        for m in topics:
+            log.register(m.topic, m.type_name)
+        if records is None:
+            records = merge_by_time(Batch(m.topic, m.log_t, m.payloads) for m in topics)
+        log.write_interleaved(records)
+    return path
+
+
+def basic_topics() -> list[Msgs]:
+    return [
+        scans("/laser/a"),
+        scans("/laser/b"),
+        imu(),
+        gps(),
+        gps_heading(),
+        wheel_speeds(),
+    ]
+
+
+def make_config(**topics: str | list[str]) -> PipelineConfig:
+    """The default configuration with these [topics] (unnamed optional roles absent)."""
+    values: dict[str, Any] = {
+        "lasers": ["/laser/a", "/laser/b"],
+        "imu": "/imu",
+        "gps": "/gps",
+        "heading": "/heading",
+        "wheels": "/wheels",
+        "tf_static": "",
+        "truth_pose": "",
+        "truth_features": "",
+    }
+    values.update(topics)
+    lines = ["[topics]"]
+    for key, value in values.items():
+        if isinstance(value, list):
+            lines.append(f"{key} = [{', '.join(repr(v).replace(chr(39), chr(34)) for v in value)}]")
+        else:
+            lines.append(f'{key} = "{value}"')
+    return parse_config("\n".join(lines) + "\n")
+
+
+def log_dir(ws: Workspace, result: IngestResult) -> Path:
+    return ws.log_dir(result.log_id)
+
+
+def detail(ws: Workspace, result: IngestResult) -> dict[str, Any]:
+    return dict(ws.manifest(result.log_id).read()["ingest"])
+
+
+def assert_accounting(ws: Workspace, result: IngestResult) -> None:
+    """For every topic: read = written + sum of rejects; rows = written for per-message roles."""
+    for topic, acc in detail(ws, result)["topics"].items():
+        assert acc["read"] == acc["written"] + sum(acc["rejects"].values()), topic
+        if acc["role"] not in ("tf_static", "truth_features"):
+            assert acc["rows"] == acc["written"], topic
+
+
+def read(ws: Workspace, result: IngestResult, table: str) -> Any:
+    return pq.read_table(ws.log_table(result.log_id, table))
+
+
+def assert_sorted(table: Any) -> None:
+    t = table.column("t_ns").to_numpy()
+    assert np.all(np.diff(t) >= 0)
+
+
+def partial_files(root: Path) -> list[Path]:
+    return [p for p in root.rglob("*") if p.name.endswith((".partial", ".sorted", ".tmp"))]
+
+
+@pytest.fixture
+def ws(tmp_path: Path) -> Workspace:
+    return Workspace(tmp_path / "ws")
+
+
+# --------------------------------------------------------------------------------------
+# The sample log
+# --------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def sample_ingest(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, IngestResult]:
+    ws = Workspace(tmp_path_factory.mktemp("sample") / "ws")
+    return ws, ingest_log(SAMPLE_LOG, ws, default_config())
+
+
+def test_sample_log_row_counts_match_the_log(sample_ingest: tuple[Workspace, IngestResult]) -> None:
+    ws, result = sample_ingest
+    counts = {t.topic: t.message_count for t in scan_log(SAMPLE_LOG).topics}
+    lasers = [f"/laser/front_{i}" for i in range(1, 6)]
+    assert result.status == "ingested"
+    assert result.row_counts["imu"] == 6150  # 61.5 s at 100 Hz
+    assert result.row_counts["imu"] == counts["/imu/data"]
+    assert result.row_counts["gps"] == counts["/gps/fix"]
+    assert result.row_counts["heading"] == counts["/gps/heading"]
+    assert result.row_counts["wheels"] == counts["/vehicle/wheel_speeds"]
+    assert result.row_counts["laser"] == sum(counts[t] for t in lasers)
+    assert result.row_counts["truth_pose"] == counts["/truth/odom"]
+    assert result.row_counts["tf_static"] == 7  # base_link to imu, gps and five lasers
+    assert result.row_counts["truth_features"] > 0
+    assert result.rejects == {} and result.lost == {} and result.warnings == ()
+    assert_accounting(ws, result)
+    for topic, acc in detail(ws, result)["topics"].items():
+        assert acc["read"] == counts[topic]
+
+
+def test_sample_log_tables_follow_the_contract(
+    sample_ingest: tuple[Workspace, IngestResult],
+) -> None:
+    ws, result = sample_ingest
+    sha = file_sha256(SAMPLE_LOG)
+    record = ws.manifest(result.log_id).stage("ingest")
+    assert record is not None
+    for name in (*CONTRACT_TABLES, "truth_pose"):
+        table = read_table(ws.log_table(result.log_id, name), name)
+        assert_sorted(table)
+        meta = read_table_metadata(ws.log_table(result.log_id, name))
+        assert meta["source_sha256"] == sha
+        assert meta["config_hash"] == record.config_hash
+        assert meta["schema_name"] == name
+    assert record.inputs == {"log": sha}
+    assert set(record.outputs) >= {f"{n}.parquet" for n in CONTRACT_TABLES}
+    laser = read(ws, result, "laser")
+    assert set(laser.column("laser").to_pylist()) == {f"/laser/front_{i}" for i in range(1, 6)}
+    tf = json.loads((log_dir(ws, result) / "tf_static.json").read_text())
+    children = {t["child_frame"] for t in tf["transforms"]}
+    assert set(laser.column("frame_id").to_pylist()) <= children  # every laser's mount is known
+    assert "tf_static.json" in record.outputs
+    assert pq.ParquetFile(ws.log_table(result.log_id, "laser")).metadata.row_group(0)
+
+
+def test_sample_log_counts_no_returns_and_gps_dropouts(
+    sample_ingest: tuple[Workspace, IngestResult],
+) -> None:
+    ws, result = sample_ingest
+    totals = detail(ws, result)["counts"]
+    laser = read(ws, result, "laser")
+    ranges = laser.column("ranges").combine_chunks()
+    flat = ranges.values.to_numpy()
+    row = np.repeat(np.arange(len(laser)), np.diff(ranges.offsets.to_numpy()))
+    lo = laser.column("range_min").to_numpy()[row]
+    hi = laser.column("range_max").to_numpy()[row]
+    no_return = ~np.isfinite(flat) | (flat < lo) | (flat > hi)
+    assert totals["laser_no_return"] == int(no_return.sum()) > 0
+    gps_table = read(ws, result, "gps")
+    status = gps_table.column("status").to_numpy()
+    assert totals["gps_no_fix"] == int((status == -1).sum()) > 0  # the sim's dropout
+    lat = gps_table.column("latitude").to_numpy()
+    assert np.isnan(lat[status == -1]).all() and np.isfinite(lat[status >= 0]).all()
+
+
+def test_sample_log_truth_pose_agrees_with_wheels(
+    sample_ingest: tuple[Workspace, IngestResult],
+) -> None:
+    ws, result = sample_ingest
+    truth = read(ws, result, "truth_pose")
+    wheels = read(ws, result, "wheels")
+    speed = np.interp(
+        wheels.column("t_ns").to_numpy(),
+        truth.column("t_ns").to_numpy(),
+        truth.column("speed").to_numpy(),
+    )
+    # The wheel encoders carry a few percent of scale error and noise.
+    np.testing.assert_allclose(wheels.column("speed").to_numpy(), speed, rtol=0.1, atol=0.3)
+    assert read_table_metadata(ws.log_table(result.log_id, "truth_pose"))["frame_id"] == "enu"
+
+
+# --------------------------------------------------------------------------------------
+# Other vehicles: renamed topics, other laser counts, other message types
+# --------------------------------------------------------------------------------------
+
+
+def test_renamed_topics_and_three_lasers_of_361_beams(tmp_path: Path, ws: Workspace) -> None:
+    fov = math.radians(270.0)
+    yaw = np.linspace(-3.0, 3.0, 25)
+    quat = Rotation.from_euler("ZYX", np.stack([yaw, yaw * 0, yaw * 0 + 0.05], axis=1)).as_quat()
+    t_heading = times(25, 10.0, T0 + 5_000_000)
+    heading = msgs(
+        "/vehicle/heading",
+        "geometry_msgs/msg/QuaternionStamped",
+        t_heading,
+        {f"quaternion.{a}": quat[:, i] for i, a in enumerate("xyzw")},
+    )
+    t_twist = times(250, 50.0, T0 + 6_000_000)
+    twist = msgs(
+        "/vehicle/twist",
+        "geometry_msgs/msg/TwistStamped",
+        t_twist,
+        {"twist.linear.x": np.linspace(0.0, 12.0, 250)},
+    )
+    lasers = [scans(f"/scan/{s}", n=40, beams=361, fov_rad=fov, rate_hz=40.0) for s in "lmr"]
+    log = write_log(
+        tmp_path / "other_vehicle.mcap",
+        [*lasers, imu("/vehicle/imu"), gps("/vehicle/fix"), heading, twist],
+    )
+    config_file = tmp_path / "other.toml"
+    config_file.write_text(
+        'name = "other"\n[topics]\n'
+        'lasers = ["/scan/l", "/scan/m", "/scan/r"]\n'
+        'imu = "/vehicle/imu"\ngps = "/vehicle/fix"\nheading = "/vehicle/heading"\n'
+        'wheels = "/vehicle/twist"\ntf_static = ""\ntruth_pose = ""\ntruth_features = ""\n'
+        '[evaluate]\nbaseline_closest_laser = ""\n'
+        "[pose]\nheading_noise_rad = 0.03\n"
+    )
+    config = load_config(config_file)
+    result = ingest_log(log, ws, config)
+    assert result.row_counts == {
+        "imu": 200, "gps": 20, "heading": 25, "wheels": 250, "laser": 120,
+    }  # fmt: skip
+    laser = read_table(ws.log_table(result.log_id, "laser"), "laser")
+    assert_sorted(laser)
+    assert sorted(set(laser.column("laser").to_pylist())) == ["/scan/l", "/scan/m", "/scan/r"]
+    assert {len(r) for r in laser.column("ranges").to_pylist()} == {361}
+    np.testing.assert_allclose(laser.column("angle_increment").to_numpy(), fov / 360, rtol=1e-6)
+    np.testing.assert_allclose(laser.column("angle_min").to_numpy(), -fov / 2, rtol=1e-6)
+    head = read_table(ws.log_table(result.log_id, "heading"), "heading")
+    np.testing.assert_allclose(head.column("yaw").to_numpy(), yaw, atol=1e-9)
+    assert head.column("yaw_std").to_pylist() == [0.03] * 25
+    wheels = read_table(ws.log_table(result.log_id, "wheels"), "wheels")
+    np.testing.assert_allclose(wheels.column("speed").to_numpy(), np.linspace(0.0, 12.0, 250))
+    assert wheels.column("rear_left").null_count == 250
+    assert ws.read_config() == config
+    assert_accounting(ws, result)
+
+
+def test_wheels_from_odometry_twist(tmp_path: Path, ws: Workspace) -> None:
+    t = times(100, 50.0, T0 + 1_000_000)
+    odom = msgs(
+        "/odom",
+        "nav_msgs/msg/Odometry",
+        t,
+        {"twist.twist.linear.x": np.full(100, 7.5), "pose.pose.orientation.w": 1.0},
+    )
+    topics = [m for m in basic_topics() if m.topic != "/wheels"] + [odom]
+    log = write_log(tmp_path / "odom.mcap", topics)
+    result = ingest_log(log, ws, make_config(wheels="/odom"))
+    wheels = read(ws, result, "wheels")
+    assert wheels.column("speed").to_pylist() == [7.5] * 100
+    assert wheels.column("front_right").null_count == 100
+
+
+def test_message_type_a_role_does_not_accept(tmp_path: Path, ws: Workspace) -> None:
+    topics = basic_topics()
+    twist = msgs("/twist", "geometry_msgs/msg/TwistStamped", times(5, 10.0), {})
+    log = write_log(tmp_path / "wrong.mcap", [*topics, twist])
+    with pytest.raises(StageError) as err:
+        ingest_log(log, ws, make_config(imu="/twist"))
+    text = str(err.value)
+    assert "/twist" in text and "geometry_msgs/msg/TwistStamped" in text
+    assert "sensor_msgs/msg/Imu" in text and str(log) in text
+
+
+# --------------------------------------------------------------------------------------
+# Missing roles
+# --------------------------------------------------------------------------------------
+
+
+def test_required_role_missing_names_role_topics_and_found(tmp_path: Path, ws: Workspace) -> None:
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    with pytest.raises(StageError) as err:
+        ingest_log(log, ws, make_config(imu="/imu/nowhere"))
+    text = str(err.value)
+    assert "required role imu" in text and "/imu/nowhere" in text
+    for found in ("/imu", "/gps", "/laser/a", "/wheels"):
+        assert found in text
+    assert not list(ws.logs_dir.rglob("*.parquet"))
+    assert not partial_files(ws.root)
+
+
+def test_optional_role_missing_is_a_warning_in_the_manifest(
+    tmp_path: Path, ws: Workspace, caplog: pytest.LogCaptureFixture
+) -> None:
+    topics = [m for m in basic_topics() if m.topic != "/heading"]
+    log = write_log(tmp_path / "log.mcap", topics)
+    with caplog.at_level(logging.WARNING, logger="toolkit"):
+        result = ingest_log(log, ws, make_config())
+    assert any("heading" in r.getMessage() for r in caplog.records)
+    assert any("optional role heading" in w for w in result.warnings)
+    record = ws.manifest(result.log_id).stage("ingest")
+    assert record is not None and any("heading" in w for w in record.warnings)
+    assert detail(ws, result)["missing_topics"] == {"heading": ["/heading"]}
+    assert read_table(ws.log_table(result.log_id, "heading"), "heading").num_rows == 0
+
+
+def test_one_of_several_lasers_missing_is_a_warning(tmp_path: Path, ws: Workspace) -> None:
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    result = ingest_log(log, ws, make_config(lasers=["/laser/a", "/laser/b", "/laser/c"]))
+    assert result.row_counts["laser"] == 60
+    assert any("/laser/c" in w for w in result.warnings)
+
+
+# --------------------------------------------------------------------------------------
+# Order, duplicates, non-finite values, clock skew
+# --------------------------------------------------------------------------------------
+
+
+def test_out_of_order_messages_are_sorted_beyond_the_buffer(tmp_path: Path, ws: Workspace) -> None:
+    topics = basic_topics()
+    imu_msgs = next(m for m in topics if m.topic == "/imu")
+    others = [m for m in topics if m.topic != "/imu"]
+    records = list(merge_by_time(Batch(m.topic, m.log_t, m.payloads) for m in others))
+    imu_records = imu_msgs.records()
+    # The first 50 IMU messages arrive at the very end, long after later ones were written.
+    records += imu_records[50:] + imu_records[:50]
+    log = write_log(tmp_path / "late.mcap", topics, records=records, chunk_size=2048)
+    result = ingest_log(log, ws, make_config(), reorder_buffer_bytes=2048)
+    table = read_table(ws.log_table(result.log_id, "imu"), "imu")
+    assert table.num_rows == 200
+    np.testing.assert_array_equal(table.column("t_ns").to_numpy(), imu_msgs.log_t)
+    info = detail(ws, result)
+    assert info["topics"]["/imu"]["counts"]["out_of_order"] == 50
+    assert info["resorted_tables"] == ["imu"]
+    meta = read_table_metadata(ws.log_table(result.log_id, "imu"))
+    assert meta["schema_name"] == "imu" and meta["source_sha256"] == file_sha256(log)
+    assert not partial_files(ws.root)
+    assert_accounting(ws, result)
+
+
+def test_slightly_out_of_order_messages_are_sorted_in_the_buffer(
+    tmp_path: Path, ws: Workspace
+) -> None:
+    topics = basic_topics()
+    imu_msgs = next(m for m in topics if m.topic == "/imu")
+    order = np.arange(200)
+    order[10:20] = order[10:20][::-1]  # ten swapped neighbours
+    shuffled = Msgs("/imu", imu_msgs.type_name, imu_msgs.log_t[order],
+                    [imu_msgs.payloads[i] for i in order])  # fmt: skip
+    topics = [shuffled if m.topic == "/imu" else m for m in topics]
+    records = [r for m in topics for r in m.records()]
+    log = write_log(tmp_path / "swap.mcap", topics, records=records)
+    result = ingest_log(log, ws, make_config())
+    table = read(ws, result, "imu")
+    np.testing.assert_array_equal(table.column("t_ns").to_numpy(), imu_msgs.log_t)
+    info = detail(ws, result)
+    assert info["topics"]["/imu"]["counts"]["out_of_order"] == 9
+    assert info["resorted_tables"] == []
+
+
+def test_exact_duplicates_are_dropped_and_counted(tmp_path: Path, ws: Workspace) -> None:
+    topics = basic_topics()
+    records = list(merge_by_time(Batch(m.topic, m.log_t, m.payloads) for m in topics))
+    imu_records = [r for r in records if r.topic == "/imu"]
+    dupes = imu_records[100:110]
+    # Same log time, other bytes: not a duplicate.
+    other = imu(n=200, overrides={"linear_acceleration.y": np.full(200, 0.5)}).records()[120]
+    records += dupes + [other] + dupes[:3]
+    log = write_log(tmp_path / "dup.mcap", topics, records=records)
+    result = ingest_log(log, ws, make_config())
+    acc = detail(ws, result)["topics"]["/imu"]
+    assert acc["read"] == 214
+    assert acc["rejects"]["duplicate"] == 13
+    assert result.rejects["/imu"] == {"duplicate": 13}
+    assert result.row_counts["imu"] == 201
+    again = ingest_log(log, ws, make_config())
+    assert again.status == "up_to_date" and again.rejects == {"/imu": {"duplicate": 13}}
+    assert ws.manifest(result.log_id).stage("ingest").rejects == {"duplicate": 13}  # type: ignore[union-attr]
+    assert_accounting(ws, result)
+
+
+def test_screening_nan_skew_no_fix_and_zero_speed(tmp_path: Path, ws: Workspace) -> None:
+    accel_z = np.full(200, 9.81)
+    accel_z[[5, 6, 7]] = np.nan
+    gyro_x = np.zeros(200)
+    gyro_x[8] = np.inf
+    # Message 50's stamp is 5 s after its log time: beyond time.max_header_skew_ns (1 s).
+    stamps = times(200, 100.0)
+    stamps[50] += 5 * NS
+    skewed = msgs(
+        "/imu",
+        "sensor_msgs/msg/Imu",
+        stamps,
+        {"linear_acceleration.z": accel_z, "angular_velocity.x": gyro_x},
+    )
+    imu_msgs = Msgs("/imu", skewed.type_name, times(200, 100.0), skewed.payloads)
+    ranges = np.full((30, 31), 10.0, dtype=np.float32)
+    ranges[0, :5] = np.nan
+    ranges[1, 0] = np.inf
+    ranges[2, 0] = 100.0  # beyond range_max
+    laser = scans("/laser/a", ranges=ranges)
+    topics = [
+        laser,
+        scans("/laser/b"),
+        imu_msgs,
+        gps(no_fix=[3, 4, 5]),
+        gps_heading(),
+        wheel_speeds(speed=0.0),
+    ]
+    log = write_log(tmp_path / "screen.mcap", topics)
+    result = ingest_log(log, ws, make_config())
+    info = detail(ws, result)["topics"]
+    assert info["/imu"]["rejects"] == {
+        "bad_payload": 0, "clock_skew": 1, "duplicate": 0, "non_finite": 4,
+    }  # fmt: skip
+    assert result.row_counts["imu"] == 195
+    assert info["/laser/a"]["counts"]["laser_no_return"] == 7
+    assert sum(info["/laser/a"]["rejects"].values()) == 0
+    laser_table = read(ws, result, "laser")
+    first = laser_table.filter(
+        laser_table.column("laser").to_numpy(zero_copy_only=False) == "/laser/a"
+    )
+    assert np.isnan(first.column("ranges")[0].values.to_numpy()[:5]).all()
+    assert info["/gps"]["counts"]["gps_no_fix"] == 3
+    gps_table = read(ws, result, "gps")
+    assert gps_table.num_rows == 20
+    assert gps_table.column("status").to_pylist()[3:6] == [-1, -1, -1]
+    wheels = read(ws, result, "wheels")
+    assert wheels.num_rows == 200 and set(wheels.column("speed").to_pylist()) == {0.0}
+    assert_accounting(ws, result)
+
+
+def test_undecodable_payload_is_rejected(tmp_path: Path, ws: Workspace) -> None:
+    topics = basic_topics()
+    imu_msgs = next(m for m in topics if m.topic == "/imu")
+    imu_msgs.payloads[17] = imu_msgs.payloads[17][:40]
+    log = write_log(tmp_path / "bad.mcap", topics)
+    result = ingest_log(log, ws, make_config())
+    assert result.rejects["/imu"] == {"bad_payload": 1}
+    assert result.row_counts["imu"] == 199
+    assert_accounting(ws, result)
+
+
+def test_nothing_usable_is_a_stage_error(tmp_path: Path, ws: Workspace) -> None:
+    topics = [m for m in basic_topics() if m.topic != "/imu"]
+    topics.append(imu(overrides={"linear_acceleration.x": np.full(200, np.nan)}))
+    log = write_log(tmp_path / "nan.mcap", topics)
+    with pytest.raises(StageError, match=r"nothing usable.*imu.*200 rejected \(non_finite\)"):
+        ingest_log(log, ws, make_config())
+    assert not list(ws.logs_dir.rglob("*.parquet"))
+    assert not partial_files(ws.root)
+
+
+# --------------------------------------------------------------------------------------
+# Idempotence, overwrite, failures, configuration
+# --------------------------------------------------------------------------------------
+
+
+def _mtimes(directory: Path) -> dict[str, int]:
+    return {p.name: p.stat().st_mtime_ns for p in directory.iterdir()}
+
+
+def test_rerun_is_up_to_date_and_overwrite_redoes(tmp_path: Path, ws: Workspace) -> None:
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    config = make_config()
+    first = ingest_log(log, ws, config)
+    before = _mtimes(log_dir(ws, first))
+    again = ingest_log(log, ws, config)
+    assert again.status == "up_to_date"
+    assert again.log_id == first.log_id and again.row_counts == first.row_counts
+    assert _mtimes(log_dir(ws, first)) == before
+    redo = ingest_log(log, ws, config, overwrite=True)
+    assert redo.status == "ingested"
+    after = _mtimes(log_dir(ws, first))
+    assert all(after[name] != before[name] for name in before)
+
+
+def test_missing_output_makes_the_log_not_up_to_date(tmp_path: Path, ws: Workspace) -> None:
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    first = ingest_log(log, ws, make_config())
+    ws.log_table(first.log_id, "gps").unlink()
+    assert ingest_log(log, ws, make_config()).status == "ingested"
+    assert ws.log_table(first.log_id, "gps").is_file()
+
+
+def _failing_after(calls: int, real: Callable[..., Any]) -> Callable[..., Any]:
+    count = {"n": 0}
+
+    def convert(*args: Any) -> Any:
+        count["n"] += 1
+        if count["n"] > calls:
+            raise RuntimeError("converter broke midway")
+        return real(*args)
+
+    return convert
+
+
+def test_failure_midway_leaves_no_partial_file(
+    tmp_path: Path, ws: Workspace, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    log = write_log(tmp_path / "log.mcap", basic_topics(), chunk_size=2048)
+    converters = ROLE_SPECS["imu"].converters
+    real = converters["sensor_msgs/msg/Imu"]
+    monkeypatch.setitem(converters, "sensor_msgs/msg/Imu", _failing_after(3, real))
+    with pytest.raises(RuntimeError, match="midway"):
+        ingest_log(log, ws, make_config(), reorder_buffer_bytes=1024)
+    assert not partial_files(ws.root)
+    assert ws.log_ids() == []  # a first ingest that fails leaves no trace
+    # A failed re-run after a good one leaves the old files whole and the stage not current.
+    monkeypatch.setitem(converters, "sensor_msgs/msg/Imu", real)
+    good = ingest_log(log, ws, make_config())
+    monkeypatch.setitem(converters, "sensor_msgs/msg/Imu", _failing_after(3, real))
+    with pytest.raises(RuntimeError):
+        ingest_log(log, ws, make_config(), overwrite=True, reorder_buffer_bytes=1024)
+    assert not partial_files(ws.root)
+    assert ws.manifest(good.log_id).stage("ingest") is None
+    assert read_table(ws.log_table(good.log_id, "imu"), "imu").num_rows == 200
+
+
+def test_config_in_force_is_recorded_and_a_different_one_refused(
+    tmp_path: Path, ws: Workspace
+) -> None:
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    config = make_config()
+    ingest_log(log, ws, config)
+    assert ws.read_config() == config
+    other = dataclasses.replace(config, name="other")
+    with pytest.raises(ConfigError, match="another configuration"):
+        ingest_log(log, ws, other)
+    result = ingest_log(log, ws, other, overwrite=True)
+    assert result.status == "ingested"
+    assert ws.read_config() == other
+
+
+# --------------------------------------------------------------------------------------
+# Damaged logs
+# --------------------------------------------------------------------------------------
+
+
+def test_truncated_sim_log_is_salvaged_with_losses_counted(
+    tmp_path: Path, ws: Workspace, caplog: pytest.LogCaptureFixture
+) -> None:
+    data = SAMPLE_LOG.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    with caplog.at_level(logging.WARNING, logger="toolkit"):
+        result = ingest_log(cut, ws, default_config())
+    assert result.status == "ingested"
+    assert any("damaged log" in w for w in result.warnings)
+    lines = [r.getMessage() for r in caplog.records if "damaged log" in r.getMessage()]
+    assert len(lines) == 1 and str(cut) in lines[0] and "truncated" in lines[0]
+    info = detail(ws, result)
+    assert "truncated" in {d["reason"] for d in info["damage"]}
+    assert info["unknown_lost_bytes"]["truncated"] > 0
+    assert 0 < result.row_counts["imu"] < 6150
+    assert_accounting(ws, result)
+    for name in CONTRACT_TABLES:
+        assert_sorted(read_table(ws.log_table(result.log_id, name), name))
+
+
+def _flip_byte_in_chunk(src: Path, dst: Path, chunk_number: int) -> None:
+    data = bytearray(src.read_bytes())
+    with src.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    index = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)[chunk_number]
+    middle = index.chunk_start_offset + index.chunk_length // 2
+    data[middle] ^= 0xFF
+    dst.write_bytes(bytes(data))
+
+
+def test_corrupt_chunk_is_skipped_and_its_messages_counted_lost(
+    tmp_path: Path, ws: Workspace
+) -> None:
+    bad = tmp_path / "bad_chunk.mcap"
+    _flip_byte_in_chunk(SAMPLE_LOG, bad, 5)
+    result = ingest_log(bad, ws, default_config())
+    assert result.status == "ingested" and result.warnings
+    reasons = {r for by_reason in result.lost.values() for r in by_reason}
+    assert reasons and reasons <= {"chunk_crc", "chunk_decompress"}
+    info = detail(ws, result)
+    counts = {t.topic: t.message_count for t in scan_log(SAMPLE_LOG).topics}
+    for topic, acc in info["topics"].items():
+        assert acc["read"] + sum(acc["lost"].values()) == counts[topic], topic
+    assert_accounting(ws, result)
+
+
+def test_log_without_summary_ingests(tmp_path: Path, ws: Workspace) -> None:
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    with log.open("rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None
+    footer_start = log.stat().st_size - 8 - 29  # cut the summary, footer and closing magic
+    data_end = max(c.chunk_start_offset + c.chunk_length for c in summary.chunk_indexes)
+    shutil.copy(log, tmp_path / "nosummary.mcap")
+    raw = (tmp_path / "nosummary.mcap").read_bytes()
+    assert data_end < footer_start
+    (tmp_path / "nosummary.mcap").write_bytes(raw[:data_end])
+    result = ingest_log(tmp_path / "nosummary.mcap", ws, make_config())
+    assert result.row_counts["imu"] == 200 and result.row_counts["laser"] == 60
+    assert "no_summary" in {d["reason"] for d in detail(ws, result)["damage"]}
+    assert_accounting(ws, result)
+
+
+# --------------------------------------------------------------------------------------
+# The MCAP conformance corpus
+# --------------------------------------------------------------------------------------
+
+
+def _conformance_files() -> list[Path]:
+    default = Path(__file__).resolve().parents[3] / "shared" / "mcap-conformance"
+    root = Path(os.environ.get("TERRAIN_MCAP_CONFORMANCE", default))
+    files = sorted(root.glob("*/*.mcap"))
+    if not files:
+        pytest.fail(f"MCAP conformance corpus not found under {root}")
+    return files
+
+
+def test_conformance_corpus_is_ingested_or_refused_clearly(tmp_path: Path) -> None:
+    """Every corpus file: ingested, or refused with one line naming the file. None holds ROS 2
+    sensor data, so each is refused (no topic for the required roles, or no readable file)."""
+    ws = Workspace(tmp_path / "ws")
+    outcomes: dict[str, str] = {}
+    for path in _conformance_files():
+        try:
+            result = ingest_log(path, ws, default_config())
+        except ToolkitError as exc:
+            message = str(exc)
+            assert "\n" not in message and str(path) in message, path.name
+            outcomes[path.name] = f"refused: {message[len(str(path)) + 2 :]}"
+        else:
+            outcomes[path.name] = f"ingested: {result.row_counts}"
+    reasons = Counter(o.split(":")[0] + ":" + o.split(":")[1][:30] for o in outcomes.values())
+    print("\n".join(f"{name}: {outcome}" for name, outcome in sorted(outcomes.items())))
+    assert len(outcomes) == len(_conformance_files()), reasons
+    assert ws.log_ids() == []  # refused logs leave nothing behind

@@ -1,0 +1,534 @@
+"""The Executor seam: run one task per log on a local process pool or a Dask cluster.
+
+Batch work (ingesting a thousand logs, running every stage over them) goes through a
+:class:`concurrent.futures.Executor`, so the same code runs on one laptop or a cluster:
+
+- :func:`make_executor` opens the executor: ``"local"`` is a process pool on this machine,
+  ``"dask"`` a ``distributed`` client's executor (``pip install 'terrain[distributed]'``).
+- :func:`shard` picks this job's share of the logs, for job arrays (``--shard-index I
+  --num-shards K``): every job sees the same list and takes a disjoint part of it.
+- :func:`run_batch` submits one task per item and collects the outcomes. One failing item
+  never stops the others: its error becomes a one-line reason in the :class:`BatchSummary`.
+- :func:`run_ingest_batch` is ``terrain ingest``: the config loaded once, the logs sharded
+  and ingested by :func:`~toolkit.stages.ingest.ingest_log` in parallel.
+
+Tasks cross process (and machine) boundaries, so a task is a module-level function (or a
+``functools.partial`` of one) whose arguments are plain data: paths and TOML text, not live
+objects. On Dask, every worker must see the logs and the workspace at the same paths (a
+shared filesystem); relative paths are made absolute against the submitting process's cwd.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import logging
+import logging.handlers
+import multiprocessing
+import os
+import time
+import traceback
+from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
+from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field
+from pathlib import Path, PurePath
+from typing import Any, Literal, TypeVar
+
+from toolkit.config import PipelineConfig, default_config, dump_toml, load_config, parse_config
+from toolkit.errors import ConfigError, ToolkitError
+from toolkit.progress import progress
+from toolkit.workspace import Workspace
+
+_log = logging.getLogger(__name__)
+
+#: The executors :func:`make_executor` knows.
+EXECUTOR_KINDS: tuple[str, ...] = ("local", "dask")
+
+#: What a user installs to get the Dask executor.
+DISTRIBUTED_HINT = "pip install 'terrain[distributed]'"
+
+_P = TypeVar("_P", bound="str | os.PathLike[str]")
+
+ItemStatus = Literal["done", "up_to_date", "failed"]
+_STATUS_ORDER: dict[str, int] = {"done": 0, "up_to_date": 1, "failed": 2}
+
+
+# --------------------------------------------------------------------------------------
+# Executors
+# --------------------------------------------------------------------------------------
+
+
+class InlineExecutor(Executor):
+    """Runs each task in this process at ``submit`` time (``workers=0``: for debugging).
+
+    Breakpoints, profilers and ``--debug`` tracebacks work as in a plain loop; there is no
+    isolation and no parallelism.
+    """
+
+    def __init__(self) -> None:
+        self._shutdown = False
+
+    def submit(self, fn: Callable[..., Any], /, *args: Any, **kwargs: Any) -> Future[Any]:
+        """Run ``fn(*args, **kwargs)`` now; return a finished future holding its outcome."""
+        if self._shutdown:
+            raise RuntimeError("cannot schedule new futures after shutdown")
+        future: Future[Any] = Future()
+        try:
+            result = fn(*args, **kwargs)
+        except BaseException as exc:  # the future carries it, as a pool's would
+            future.set_exception(exc)
+        else:
+            future.set_result(result)
+        return future
+
+    def shutdown(self, wait: bool = True, *, cancel_futures: bool = False) -> None:
+        """Refuse further tasks (nothing is ever pending)."""
+        self._shutdown = True
+
+
+class _Relay(logging.Handler):
+    """Hands a record from a pool worker to this process's logger of the same name, so it
+    is filtered and printed by this process's own configuration (the command line's)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        logging.getLogger(record.name).handle(record)
+
+
+def _init_pool_worker(log_queue: Any, level: int) -> None:
+    """Set up a pool process: no progress bars (the parent shows one over the batch) and
+    log records sent to the parent, which prints them with its own handlers and format."""
+    from toolkit.progress import set_quiet
+
+    set_quiet(True)
+    root = logging.getLogger()
+    root.handlers[:] = [logging.handlers.QueueHandler(log_queue)]
+    root.setLevel(level)
+    logging.captureWarnings(True)
+
+
+@contextlib.contextmanager
+def _local_pool(workers: int) -> Iterator[Executor]:
+    """A spawn-started process pool whose workers log through this process.
+
+    ``spawn`` (not ``fork``) starts each worker as a fresh interpreter, as a Dask worker
+    would be: a task that runs here also runs on a cluster, and no lock or thread of the
+    parent (progress bar, logging, workspace lock) is inherited half-held.
+    """
+    ctx = multiprocessing.get_context("spawn")
+    log_queue = ctx.Queue()
+    listener = logging.handlers.QueueListener(log_queue, _Relay())
+    listener.start()
+    pool = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=ctx,
+        initializer=_init_pool_worker,
+        initargs=(log_queue, logging.getLogger().getEffectiveLevel()),
+    )
+    try:
+        yield pool
+    except BaseException:
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    else:
+        pool.shutdown(wait=True)
+    finally:
+        listener.stop()
+        log_queue.close()
+        log_queue.join_thread()
+
+
+def _import_distributed() -> Any:
+    """The ``distributed`` package, or a one-line ConfigError saying how to install it."""
+    try:
+        import distributed
+    except ImportError as exc:
+        raise ConfigError(
+            f"the dask executor needs the 'distributed' package ({exc}): {DISTRIBUTED_HINT}"
+        ) from None
+    return distributed
+
+
+@contextlib.contextmanager
+def _dask_executor(scheduler: str | None, cluster: Any) -> Iterator[Executor]:
+    """A Dask client's executor; the client is closed on exit (a passed cluster is not)."""
+    distributed = _import_distributed()
+    target = cluster if cluster is not None else scheduler
+    try:
+        client = distributed.Client(target, set_as_default=False)
+    except (OSError, TimeoutError) as exc:
+        raise ConfigError(f"cannot connect to the Dask scheduler at {target}: {exc}") from None
+    try:
+        # pure=False: a task has side effects (files in the workspace), so Dask must run
+        # it every time it is submitted, never reuse an earlier result with the same key.
+        executor = client.get_executor(pure=False)
+        try:
+            yield executor
+        finally:
+            executor.shutdown(wait=False)
+    finally:
+        client.close()
+
+
+@contextlib.contextmanager
+def make_executor(
+    kind: str,
+    *,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    cluster: Any = None,
+) -> Iterator[Executor]:
+    """Open the executor a batch runs on; closing the ``with`` block shuts it down.
+
+    ``"local"``: a process pool of ``workers`` processes (default ``os.cpu_count()``).
+    ``workers=0`` runs every task in this process, one after another (:class:`InlineExecutor`,
+    for debugging), as ``terrain sim --workers 0`` does; ``workers=1`` is one worker process,
+    so a crash or a leak in a task still cannot take this process down.
+
+    ``"dask"``: ``distributed.Client(scheduler).get_executor()``; ``scheduler`` is the
+    scheduler's address (``tcp://host:8786``). Tests pass ``cluster`` instead (e.g. an
+    in-process ``distributed.LocalCluster(processes=False)``), which is not closed here.
+    The cluster decides how many tasks run at once, so ``workers`` is ignored.
+
+    Raises ConfigError for an unknown kind, a negative worker count, a Dask executor without
+    a scheduler, a missing ``distributed`` package or an unreachable scheduler.
+    """
+    if kind not in EXECUTOR_KINDS:
+        choices = ", ".join(repr(k) for k in EXECUTOR_KINDS)
+        raise ConfigError(f"executor: expected one of {choices} (got {kind!r})")
+    if workers is not None and (isinstance(workers, bool) or workers < 0):
+        raise ConfigError(f"workers: expected a count of 0 or more (got {workers!r})")
+    if kind == "local":
+        if scheduler is not None or cluster is not None:
+            raise ConfigError(f"a scheduler applies to the dask executor only (got {scheduler!r})")
+        count = (os.cpu_count() or 1) if workers is None else workers
+        if count == 0:
+            inline = InlineExecutor()
+            try:
+                yield inline
+            finally:
+                inline.shutdown()
+        else:
+            with _local_pool(count) as pool:
+                yield pool
+        return
+    if scheduler is None and cluster is None:
+        raise ConfigError("the dask executor needs a scheduler address (--scheduler ADDR)")
+    if workers is not None:
+        _log.warning("--workers %d ignored: the Dask cluster decides how many tasks run", workers)
+    with _dask_executor(scheduler, cluster) as executor:
+        yield executor
+
+
+# --------------------------------------------------------------------------------------
+# Shards
+# --------------------------------------------------------------------------------------
+
+
+def _shard_key(item: str | os.PathLike[str]) -> tuple[str, str]:
+    path = PurePath(item)
+    return (path.name, str(path))
+
+
+def shard(items: Iterable[_P], shard_index: int, num_shards: int) -> list[_P]:
+    """This job's share of ``items`` (log paths): every ``num_shards``-th of the sorted list.
+
+    The items are sorted by file name, then by the whole path, and shard ``i`` takes
+    positions ``i, i + K, i + 2K, ...`` (round-robin). Sorting by name first keeps the split
+    the same on machines that mount the logs under different directories; round-robin keeps
+    the shards within one item of each other in size. Every job of an array must be given the
+    same list: the shards are then disjoint and together hold every item once (repeated
+    items are kept once). A log added between jobs may move others to another shard; a
+    re-run picks up whatever was missed, since finished logs are skipped as up to date.
+
+    Raises ConfigError when ``num_shards < 1`` or ``shard_index`` is not in
+    ``0..num_shards-1``, naming both values.
+    """
+    for name, value in (("shard_index", shard_index), ("num_shards", num_shards)):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{name}: expected an integer (got {value!r})")
+    if num_shards < 1:
+        raise ConfigError(f"num_shards: expected 1 or more (got {num_shards})")
+    if not 0 <= shard_index < num_shards:
+        raise ConfigError(
+            f"shard_index: expected 0..{num_shards - 1} for num_shards={num_shards} "
+            f"(got shard_index={shard_index})"
+        )
+    unique: dict[str, _P] = {}
+    for item in items:
+        unique.setdefault(str(item), item)
+    ordered = sorted(unique.values(), key=_shard_key)
+    return ordered[shard_index::num_shards]
+
+
+# --------------------------------------------------------------------------------------
+# Running a batch
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ItemOutcome:
+    """What became of one item: its status, the task's result or the failure's reason."""
+
+    item: Any
+    status: ItemStatus
+    result: Any = None
+    reason: str = ""
+    detail: str = ""  # the traceback of an unexpected (non-Toolkit) error, for --debug
+
+    @property
+    def label(self) -> str:
+        """The word shown in the summary: the result's own ``status`` when it has one."""
+        if self.status == "failed":
+            return "failed"
+        if self.status == "up_to_date":
+            return "up to date"
+        own = getattr(self.result, "status", None)
+        return own.replace("_", " ") if isinstance(own, str) and own else "done"
+
+
+@dataclass(frozen=True)
+class BatchSummary:
+    """The outcome of a batch, item by item in input order.
+
+    ``done`` and ``up_to_date`` list the items that succeeded (work done, or nothing to do);
+    ``failed`` maps each failed item to a one-line reason. ``render`` gives the text summary.
+    """
+
+    desc: str
+    outcomes: tuple[ItemOutcome, ...]
+    seconds: float
+    unit: str = "item"
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def done(self) -> list[Any]:
+        """Items whose task did its work."""
+        return [o.item for o in self.outcomes if o.status == "done"]
+
+    @property
+    def up_to_date(self) -> list[Any]:
+        """Items that had nothing to do (already current)."""
+        return [o.item for o in self.outcomes if o.status == "up_to_date"]
+
+    @property
+    def failed(self) -> dict[Any, str]:
+        """Failed item -> one-line reason, in input order."""
+        return {o.item: o.reason for o in self.outcomes if o.status == "failed"}
+
+    @property
+    def results(self) -> dict[Any, Any]:
+        """Item -> the task's result, for the items that succeeded."""
+        return {o.item: o.result for o in self.outcomes if o.status != "failed"}
+
+    @property
+    def ok(self) -> bool:
+        """True when no item failed."""
+        return all(o.status != "failed" for o in self.outcomes)
+
+    def render(self, *, with_reasons: bool = True) -> str:
+        """One line per item, then the counts: ``ingest: 3 logs: 1 ingested, 1 up to date, ...``.
+
+        ``with_reasons=False`` leaves the failure reasons out (the command line prints them
+        on stderr instead, so a terminal does not show them twice).
+        """
+        width = max((len(o.label) for o in self.outcomes), default=0)
+        lines = []
+        for o in self.outcomes:
+            line = f"  {o.label:<{width}}  {o.item}"
+            log_id = getattr(o.result, "log_id", None)
+            if isinstance(log_id, str) and log_id:
+                line += f"  [{log_id}]"
+            warnings = getattr(o.result, "warnings", None)
+            if isinstance(warnings, Sequence) and not isinstance(warnings, str) and warnings:
+                line += f"  ({len(warnings)} warning{'s' if len(warnings) != 1 else ''})"
+            if o.status == "failed" and with_reasons:
+                line += f": {o.reason}"
+            lines.append(line)
+        counts: dict[str, int] = {}
+        for o in sorted(self.outcomes, key=lambda o: _STATUS_ORDER[o.status]):
+            counts[o.label] = counts.get(o.label, 0) + 1
+        counts.setdefault("failed", 0)
+        n = len(self.outcomes)
+        noun = self.unit if n == 1 else f"{self.unit}s"
+        text = ", ".join(f"{count} {label}" for label, count in counts.items())
+        lines.append(f"{self.desc}: {n} {noun}: {text} in {self.seconds:.1f} s")
+        lines.extend(self.notes)
+        return "\n".join(lines)
+
+
+def _one_line(text: str) -> str:
+    return " ".join(text.split())
+
+
+def _reason(exc: BaseException, item: Any) -> str:
+    """One line saying why an item failed.
+
+    A ToolkitError gives its message, without the path prefix when it names the item itself
+    (the summary already shows the item); any other exception is prefixed with its type.
+    """
+    if isinstance(exc, ToolkitError):
+        message = str(exc)
+        if exc.path is not None:
+            prefix = f"{exc.path}: "
+            same = str(exc.path) == str(item)
+            with contextlib.suppress(OSError, TypeError, ValueError):
+                same = same or Path(exc.path).resolve() == Path(item).resolve()
+            if same and message.startswith(prefix):
+                message = message[len(prefix) :]
+        return _one_line(message) or type(exc).__name__
+    text = _one_line(str(exc))
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+def _call_guarded(task: Callable[[Any], Any], item: Any) -> ItemOutcome:
+    """Run ``task(item)`` where the task runs, turning any error into a failed outcome.
+
+    Catching on the worker side means an exception never has to survive pickling (a
+    ToolkitError subclass with extra constructor arguments might not), and the reason is
+    computed while the exception's attributes (e.g. its path) are still at hand.
+    """
+    try:
+        result = task(item)
+    except ToolkitError as exc:
+        return ItemOutcome(item, "failed", reason=_reason(exc, item))
+    except Exception as exc:  # a bug in one task must not stop the batch: record it
+        return ItemOutcome(item, "failed", reason=_reason(exc, item), detail=traceback.format_exc())
+    own = getattr(result, "status", result)
+    status: ItemStatus = "up_to_date" if isinstance(own, str) and own == "up_to_date" else "done"
+    return ItemOutcome(item, status, result=result)
+
+
+def run_batch(
+    task: Callable[[Any], Any],
+    items: Sequence[Hashable],
+    executor: Executor,
+    *,
+    desc: str,
+    unit: str = "item",
+) -> BatchSummary:
+    """Run ``task(item)`` for every item on ``executor``; never stop at a failure.
+
+    ``task`` must pickle (a module-level function or a ``functools.partial`` of one). An item
+    whose task raises is recorded as failed with a one-line reason (a ToolkitError's
+    message; any other exception with its type) and the others go on; so are items the
+    executor itself could not run (a worker process that died, a lost Dask worker). A result
+    counts as up to date when it (or its ``status`` attribute) is ``"up_to_date"``, as done
+    otherwise. Outcomes are reported in input order; repeated items run once. A progress bar
+    over the items shows on a terminal.
+    """
+    unique = list(dict.fromkeys(items))
+    start = time.perf_counter()
+    outcomes: dict[int, ItemOutcome] = {}
+    with progress(total=len(unique), desc=desc, unit=unit) as bar:
+        futures: dict[Future[ItemOutcome], int] = {}
+        for index, item in enumerate(unique):
+            try:
+                futures[executor.submit(_call_guarded, task, item)] = index
+            except Exception as exc:  # e.g. a broken pool or a task that does not pickle
+                outcomes[index] = ItemOutcome(item, "failed", reason=_reason(exc, item))
+                bar.update(1)
+        for future in as_completed(futures):
+            index = futures[future]
+            item = unique[index]
+            try:
+                outcome = future.result()
+            except Exception as exc:  # the executor could not run the task at all
+                outcome = ItemOutcome(item, "failed", reason=_reason(exc, item))
+            outcomes[index] = outcome
+            if outcome.detail:
+                _log.debug("%s: %s", item, outcome.detail)
+            bar.update(1)
+    ordered = tuple(outcomes[i] for i in range(len(unique)))
+    return BatchSummary(desc, ordered, time.perf_counter() - start, unit=unit)
+
+
+# --------------------------------------------------------------------------------------
+# terrain ingest
+# --------------------------------------------------------------------------------------
+
+
+def ingest_task(
+    log_path: str | Path, *, workspace_root: str, config_toml: str, overwrite: bool, cwd: str
+) -> Any:
+    """Ingest one log where the task runs (a pool process or a Dask worker).
+
+    Takes only plain data: the configuration as TOML text (parsed here, so a worker needs
+    no access to the user's config file) and paths, relative ones taken against ``cwd``,
+    the submitting process's working directory. Returns ingest_log's IngestResult.
+    """
+    from toolkit.stages.ingest import ingest_log
+
+    config = parse_config(config_toml, source=Path(workspace_root, "config.toml"))
+    return ingest_log(Path(cwd, log_path), Workspace(workspace_root), config, overwrite=overwrite)
+
+
+def _config_in_force(workspace: Workspace, config_path: Path | None) -> PipelineConfig:
+    """``-c CONFIG`` if given, else the workspace's recorded configuration, else the default.
+
+    Loaded (and so validated) once, before anything is submitted: a bad configuration fails
+    the command once, not once per log.
+    """
+    if config_path is not None:
+        return load_config(config_path)
+    if workspace.config_path.is_file():
+        return load_config(workspace.config_path)
+    return default_config()
+
+
+def run_ingest_batch(
+    logs: Sequence[Path],
+    workspace_root: Path,
+    config_path: Path | None,
+    *,
+    overwrite: bool,
+    executor_kind: str = "local",
+    scheduler: str | None = None,
+    workers: int | None = None,
+    shard_index: int = 0,
+    num_shards: int = 1,
+    executor: Executor | None = None,
+) -> BatchSummary:
+    """``terrain ingest``: ingest this shard's logs in parallel; return the summary.
+
+    The configuration is read once (``config_path``, else the workspace's recorded
+    ``WS/config.toml``, else the built-in default), recorded as the configuration in force
+    (one that differs from the workspace's is refused unless ``overwrite``, as ingest_log
+    does) and sent to every task as TOML text. Logs are sharded (:func:`shard`) and each runs
+    through :func:`~toolkit.stages.ingest.ingest_log` on ``executor`` if given, else on
+    one opened by :func:`make_executor` (and closed before returning). A log that cannot
+    be ingested is listed as failed with its reason; the others complete. Re-running
+    finishes only what is missing: ingest_log reports unchanged logs as up to date.
+
+    The workspace's exclusive lock is not taken: the jobs of an array share one workspace,
+    and each log's files and manifest are its own.
+    """
+    unique: dict[str, Path] = {}
+    for log in logs:  # "a.mcap" and "./a.mcap" are one log: never ingest it twice at once
+        unique.setdefault(os.path.abspath(log), log)
+    picked = set(shard(list(unique.values()), shard_index, num_shards))
+    mine = [log for log in unique.values() if log in picked]  # reported in the user's order
+    from toolkit.stages.ingest import _check_workspace_config
+
+    workspace = Workspace(workspace_root).create()
+    config = _config_in_force(workspace, config_path)
+    # ingest_log's own rule (record the config, refuse another unless overwrite), applied
+    # once here so a mismatch fails the command once, not once per log.
+    _check_workspace_config(workspace, config, overwrite)
+    config_toml = dump_toml(config)
+    task = functools.partial(
+        ingest_task,
+        workspace_root=os.path.abspath(workspace_root),
+        config_toml=config_toml,
+        overwrite=overwrite,
+        cwd=os.getcwd(),
+    )
+    if executor is not None:
+        summary = run_batch(task, mine, executor, desc="ingest", unit="log")
+    else:
+        with make_executor(executor_kind, workers=workers, scheduler=scheduler) as opened:
+            summary = run_batch(task, mine, opened, desc="ingest", unit="log")
+    if num_shards > 1:
+        note = f"shard {shard_index} of {num_shards}: {len(mine)} of {len(unique)} logs"
+        summary = dataclasses.replace(summary, notes=(note,))
+    return summary

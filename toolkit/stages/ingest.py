@@ -1,0 +1,1032 @@
+"""Ingest: one MCAP log -> the contract's per-sensor Parquet tables and the log's manifest.
+
+:func:`ingest_log` streams the log chunk by chunk (:class:`~toolkit.mcapio.reader.LogReader`),
+decodes each chunk's messages of one topic in one vectorised call
+(:func:`~toolkit.mcapio.cdr.decode_batch`), converts them to rows by the topic's role
+(:mod:`toolkit.stages.roles`) and appends them to one streaming Parquet writer per table.
+Memory stays bounded by a chunk plus a small reorder buffer per table, whatever the log's length.
+
+Faithful accounting, per topic: every message the reader delivers is either written or rejected
+with one reason, so ``read = written + sum(rejects)``; messages the reader could not salvage
+from a damaged file are reported separately, by reason (``lost``). Reject reasons, checked in
+this order:
+
+- ``duplicate``: same topic, same log time and the same payload bytes as a message already seen
+  (within :data:`DUPLICATE_WINDOW_NS` of log time, which covers a repeated chunk or record);
+- ``bad_payload``: the payload does not decode as the channel's message type;
+- ``clock_skew``: the corrected header stamp is more than ``time.max_header_skew_ns`` from the
+  log time;
+- ``non_finite``: NaN/inf where a value must be finite (imu, wheels, heading, laser angles, a GPS
+  position that claims a fix, the truth pose).
+
+Kept but counted (``counts`` in the manifest, not rejects): laser no-returns (beams),
+``gps_no_fix`` (NO_FIX messages are kept with their status; the pose stage decides),
+``stamp_missing`` (zero header stamp: the log time is used) and ``out_of_order`` (a message whose
+``t_ns`` is earlier than one before it on the same topic; tables are sorted by ``t_ns`` anyway,
+by a reorder buffer and, when rows arrive later than the buffer can hold, an out-of-core re-sort
+of the table's partial file).
+
+Outputs (``WS/logs/<log_id>/``): ``imu``, ``gps``, ``heading``, ``wheels`` and ``laser`` tables
+(always; empty when an optional role is absent), ``truth_pose.parquet`` and
+``truth_features.parquet`` when the log has them (simulated logs), ``tf_static.json`` when it has
+static transforms (the sensor mounts, for the projection stage). Every file is written aside and
+renamed into place only once all of them are complete; on any error the partial files are
+removed and the stage is left not current in the manifest.
+
+Manifest (``WS/logs/<log_id>/manifest.json``): the stage record ``ingest`` (inputs
+``{"log": sha256}``, the hash of the ``topics``, ``time`` and ``pose`` sections, outputs, rows
+per table, reject totals by reason, timings, warnings), and two top-level sections: ``source``
+(path, sha256, size) and ``ingest`` (per topic: role, type, read, written, rows, rejects, counts
+and lost by reason; configured topics missing from the log; the reader's damage list and
+unknown lost bytes; tables that needed the out-of-core re-sort; count totals).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import functools
+import logging
+import os
+import time
+import uuid
+from collections import Counter, defaultdict
+from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
+
+from toolkit.config import REQUIRED_ROLES, PipelineConfig, config_hash, dump_toml
+from toolkit.errors import CdrError, ConfigError, LogReadError, SchemaError, StageError
+from toolkit.mcapio.cdr import decode_batch
+from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_text
+from toolkit.mcapio.reader import Channel, Damage, LogReader, MessageBatch, ReadReport
+from toolkit.progress import progress
+from toolkit.stages.roles import ROLE_SPECS, ConvertContext, Converter, RoleRows
+from toolkit.tableio import TableSchema, conform_table, contract_metadata, load_table_schema
+from toolkit.workspace import (
+    StageRecord,
+    Workspace,
+    atomic_write_json,
+    check_up_to_date,
+    file_sha256,
+    make_log_id,
+)
+
+_log = logging.getLogger(__name__)
+
+#: The manifest's name for this stage.
+STAGE = "ingest"
+
+#: Configuration sections ingest reads (topics, timing, and pose.heading_noise_rad).
+CONFIG_SECTIONS: tuple[str, ...] = ("topics", "time", "pose")
+
+#: Sensor tables always written, empty when their role is absent (role -> table).
+SENSOR_TABLES: dict[str, str] = {
+    "imu": "imu",
+    "gps": "gps",
+    "heading": "heading",
+    "wheels": "wheels",
+    "lasers": "laser",
+}
+
+#: Roles written as Parquet tables only when the log has them.
+TRUTH_TABLES: dict[str, str] = {"truth_pose": "truth_pose", "truth_features": "truth_features"}
+
+#: Tables with a contract schema in schemas/tables (truth_features has none: written as is).
+SCHEMA_TABLES: frozenset[str] = frozenset({*SENSOR_TABLES.values(), "truth_pose"})
+
+#: Output name of the static transforms.
+TF_STATIC_OUTPUT = "tf_static.json"
+
+#: Exact duplicates are looked for among messages of the same topic this close in log time.
+DUPLICATE_WINDOW_NS = 2_000_000_000
+
+#: Bytes of rows a table holds back to sort them before they are written.
+DEFAULT_REORDER_BUFFER_BYTES = 8 * 1024 * 1024
+
+#: Rows per Parquet row group at most.
+ROW_GROUP_ROWS = 65_536
+
+#: Reject reasons, in the order they are checked.
+REJECT_REASONS: tuple[str, ...] = ("duplicate", "bad_payload", "clock_skew", "non_finite")
+
+
+# --------------------------------------------------------------------------------------
+# Results and accounting
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class IngestResult:
+    """What :func:`ingest_log` did to one log.
+
+    ``status`` is ``"ingested"`` or ``"up_to_date"`` (nothing rewritten). ``row_counts`` is
+    rows per output table; ``rejects`` and ``lost`` are counts by topic, then reason
+    (``lost``: messages the reader could not salvage from a damaged file).
+    """
+
+    log_path: Path
+    log_id: str
+    status: str
+    row_counts: dict[str, int]
+    rejects: dict[str, dict[str, int]]
+    lost: dict[str, dict[str, int]]
+    warnings: tuple[str, ...]
+    seconds: float
+
+    def summary(self) -> str:
+        """One line for people."""
+        rows = ", ".join(f"{k} {v}" for k, v in sorted(self.row_counts.items()))
+        rejected = sum(sum(r.values()) for r in self.rejects.values())
+        lost = sum(sum(r.values()) for r in self.lost.values())
+        return (
+            f"{self.log_path}: {self.status.replace('_', ' ')} as {self.log_id} "
+            f"({rows}; {rejected} rejected, {lost} lost) in {self.seconds:.2f} s"
+        )
+
+
+@dataclass
+class TopicAccount:
+    """Per-topic accounting: ``read == written + sum(rejects)``."""
+
+    topic: str
+    role: str
+    type_name: str
+    table: str
+    read: int = 0
+    written: int = 0
+    rows: int = 0
+    rejects: Counter[str] = field(default_factory=lambda: Counter(dict.fromkeys(REJECT_REASONS, 0)))
+    counts: Counter[str] = field(
+        default_factory=lambda: Counter({"out_of_order": 0, "stamp_missing": 0})
+    )
+    lost: dict[str, int] = field(default_factory=dict)
+    max_t_ns: int | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready (for the manifest)."""
+        return {
+            "role": self.role,
+            "type": self.type_name,
+            "table": self.table,
+            "read": self.read,
+            "written": self.written,
+            "rows": self.rows,
+            "rejects": dict(sorted(self.rejects.items())),
+            "counts": dict(sorted(self.counts.items())),
+            "lost": dict(sorted(self.lost.items())),
+        }
+
+
+# --------------------------------------------------------------------------------------
+# Exact duplicates
+# --------------------------------------------------------------------------------------
+
+
+class DuplicateFilter:
+    """Finds exact duplicates of one topic: same log time and same payload bytes.
+
+    Only messages sharing a log time with another are compared byte for byte, so the common
+    case costs one sort of the batch's times. Messages of the last ``window_ns`` of log time
+    are remembered across batches (a repeated chunk lands in another batch).
+    """
+
+    def __init__(self, window_ns: int = DUPLICATE_WINDOW_NS) -> None:
+        self.window_ns = window_ns
+        self._times = np.zeros(0, dtype=np.int64)
+        self._payloads: list[bytes] = []
+
+    def check(self, log_time_ns: np.ndarray, payloads: Sequence[bytes]) -> np.ndarray:
+        """Boolean mask of the batch's messages that duplicate an earlier one."""
+        times = np.asarray(log_time_ns, dtype=np.int64)
+        n_old = len(self._times)
+        all_t = np.concatenate([self._times, times])
+        dup = np.zeros(len(times), dtype=bool)
+        order = np.argsort(all_t, kind="stable")
+        sorted_t = all_t[order]
+        same = sorted_t[1:] == sorted_t[:-1]
+        if same.any():
+            flag = np.zeros(len(all_t), dtype=bool)
+            flag[order[1:][same]] = True
+            flag[order[:-1][same]] = True
+            seen: set[tuple[int, bytes]] = set()
+            # Rare: only messages sharing a log time with another are compared.
+            for i in np.flatnonzero(flag).tolist():
+                data = self._payloads[i] if i < n_old else bytes(payloads[i - n_old])
+                key = (int(all_t[i]), data)
+                if key in seen:
+                    if i >= n_old:
+                        dup[i - n_old] = True
+                else:
+                    seen.add(key)
+        if len(all_t):
+            keep_from = int(all_t.max()) - self.window_ns
+            keep_old = np.flatnonzero(self._times >= keep_from)
+            keep_new = np.flatnonzero((times >= keep_from) & ~dup)
+            self._times = np.concatenate([self._times[keep_old], times[keep_new]])
+            self._payloads = [self._payloads[i] for i in keep_old.tolist()] + [
+                payloads[i] for i in keep_new.tolist()
+            ]
+        return dup
+
+
+# --------------------------------------------------------------------------------------
+# Streaming table writer
+# --------------------------------------------------------------------------------------
+
+
+def _sort_by_time(table: pa.Table) -> pa.Table:
+    t = table.column("t_ns").to_numpy()
+    if len(t) < 2 or bool(np.all(t[1:] >= t[:-1])):
+        return table
+    return table.take(pc.sort_indices(table, sort_keys=[("t_ns", "ascending")]))
+
+
+class TableSink:
+    """One output table, streamed to a partial file in time order, renamed into place later.
+
+    Rows arrive batch by batch from one or more topics (``sources``). They are held in a
+    reorder buffer of about ``buffer_bytes``; when it is full the rows no source can still
+    precede (t_ns up to the least recent time of every source) are sorted and written. Rows
+    that arrive earlier than rows already written make the table need an out-of-core re-sort
+    when it is finished (:meth:`finish`). ``schema`` is the contract schema (None for a table
+    without one, written as given); the file carries the contract metadata (tableio).
+    """
+
+    def __init__(
+        self,
+        final_path: Path,
+        name: str,
+        schema: TableSchema | None,
+        sources: Collection[str],
+        *,
+        source_sha256: str,
+        config_hash: str,
+        buffer_bytes: int = DEFAULT_REORDER_BUFFER_BYTES,
+    ) -> None:
+        self.final_path = final_path
+        self.name = name
+        self.schema = schema
+        self.source_sha256 = source_sha256
+        self.config_hash = config_hash
+        self.extra_metadata: dict[str, str] = {}
+        self.buffer_bytes = buffer_bytes
+        tag = uuid.uuid4().hex[:8]
+        self.partial_path = final_path.with_name(f".{final_path.name}.{tag}.partial")
+        self._latest: dict[str, int | None] = {s: None for s in sources}
+        self._buffer: list[pa.Table] = []
+        self._buffered_bytes = 0
+        self._writer: pq.ParquetWriter | None = None
+        self._arrow_schema: pa.Schema | None = None
+        self._flushed_max: int | None = None
+        self.rows = 0
+        self.late_rows = 0
+        self.resorted = False
+
+    # -- adding rows -------------------------------------------------------------------
+
+    def add(self, table: pa.Table, source: str, metadata: Mapping[str, str]) -> None:
+        """Append rows of one source (already filtered); they may be out of order."""
+        for key, value in metadata.items():
+            self.extra_metadata.setdefault(key, value)
+        if table.num_rows == 0:
+            return
+        if self.schema is not None:
+            table = conform_table(table, self.schema, self.final_path)
+        t = table.column("t_ns").to_numpy()
+        if self._flushed_max is not None:
+            self.late_rows += int(np.count_nonzero(t < self._flushed_max))
+        prev = self._latest.get(source)
+        newest = int(t.max())
+        self._latest[source] = newest if prev is None else max(prev, newest)
+        self._buffer.append(table)
+        self._buffered_bytes += table.nbytes
+        if self._buffered_bytes >= self.buffer_bytes:
+            self._flush(final=False)
+
+    def _flush(self, *, final: bool) -> None:
+        if not self._buffer:
+            return
+        table = _sort_by_time(pa.concat_tables(self._buffer))
+        t = table.column("t_ns").to_numpy()
+        if final:
+            n_out = len(t)
+        else:
+            latest = list(self._latest.values())
+            if any(v is None for v in latest):
+                n_out = 0  # a source has not spoken yet: it may still precede everything
+            else:
+                watermark = min(v for v in latest if v is not None)
+                n_out = int(np.searchsorted(t, watermark, side="right"))
+            if table.nbytes - table.nbytes * n_out / max(len(t), 1) > 2 * self.buffer_bytes:
+                n_out = max(n_out, len(t) // 2)  # a stalled source: keep memory bounded
+        out, rest = table.slice(0, n_out), table.slice(n_out)
+        if out.num_rows:
+            self._write(out)
+            top = int(t[n_out - 1])
+            self._flushed_max = top if self._flushed_max is None else max(self._flushed_max, top)
+        self._buffer = [rest] if rest.num_rows else []
+        self._buffered_bytes = rest.nbytes if rest.num_rows else 0
+
+    def _metadata(self) -> dict[str, str]:
+        name, version = (
+            (self.name, 1) if self.schema is None else (self.schema.name, self.schema.version)
+        )
+        return contract_metadata(
+            name,
+            version,
+            source_sha256=self.source_sha256,
+            config_hash=self.config_hash,
+            extra_metadata=self.extra_metadata,
+        )
+
+    def _open(self, schema: pa.Schema) -> pq.ParquetWriter:
+        self._arrow_schema = schema.with_metadata(self._metadata())
+        self.partial_path.parent.mkdir(parents=True, exist_ok=True)
+        return pq.ParquetWriter(self.partial_path, self._arrow_schema, compression="zstd")
+
+    def _write(self, table: pa.Table) -> None:
+        if self._writer is None:
+            self._writer = self._open(table.schema)
+        elif self._arrow_schema is not None and not table.schema.equals(
+            self._arrow_schema, check_metadata=False
+        ):
+            table = table.cast(self._arrow_schema)
+        self._writer.write_table(table, row_group_size=ROW_GROUP_ROWS)
+        self.rows += table.num_rows
+
+    # -- finishing ---------------------------------------------------------------------
+
+    def finish(self) -> bool:
+        """Write what is buffered, close, re-sort if needed; False if there is no file
+        (a table without a schema that got no rows)."""
+        self._flush(final=True)
+        if self._writer is None:
+            if self.schema is None:
+                return False
+            self._writer = self._open(self.schema.arrow_schema())
+            self._writer.write_table(self.schema.empty_table().cast(self._arrow_schema))
+        self._writer.close()
+        self._writer = None
+        if self.late_rows:
+            self._resort()
+        return True
+
+    def _resort(self) -> None:
+        """Sort the partial file by t_ns out of core (polars streaming), keeping the schema
+        and metadata: polars sorts into a scratch file, which is copied back batch by batch."""
+        import polars as pl
+
+        scratch = self.partial_path.with_name(self.partial_path.name + ".sorted")
+        final_tmp = self.partial_path.with_name(self.partial_path.name + ".resorted")
+        try:
+            pl.scan_parquet(self.partial_path).sort("t_ns", maintain_order=True).sink_parquet(
+                scratch, compression="zstd", row_group_size=ROW_GROUP_ROWS
+            )
+            if self._arrow_schema is None:  # pragma: no cover - a file always has a schema
+                raise StageError(f"table {self.name}: no schema to re-sort into")
+            source = pq.ParquetFile(scratch)
+            with pq.ParquetWriter(final_tmp, self._arrow_schema, compression="zstd") as writer:
+                for batch in source.iter_batches(batch_size=ROW_GROUP_ROWS):
+                    writer.write_table(pa.Table.from_batches([batch]).cast(self._arrow_schema))
+            os.replace(final_tmp, self.partial_path)
+            self.resorted = True
+        finally:
+            for p in (scratch, final_tmp):
+                with contextlib.suppress(FileNotFoundError):
+                    p.unlink()
+
+    def commit(self) -> None:
+        """Move the finished partial file to its final name."""
+        os.replace(self.partial_path, self.final_path)
+
+    def discard(self) -> None:
+        """Close and delete everything this sink wrote (after an error)."""
+        if self._writer is not None:
+            with contextlib.suppress(Exception):
+                self._writer.close()
+            self._writer = None
+        for suffix in ("", ".sorted", ".resorted"):
+            with contextlib.suppress(FileNotFoundError):
+                self.partial_path.with_name(self.partial_path.name + suffix).unlink()
+
+
+# --------------------------------------------------------------------------------------
+# Topics, roles and decoders
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TopicPlan:
+    """How one topic of the log is ingested: its role, table, decoder and converter."""
+
+    topic: str
+    role: str
+    table: str
+    schema_name: str
+    type_name: str
+    decode: Callable[[Sequence[bytes]], dict[str, np.ndarray]]
+    convert: Converter
+    context: ConvertContext
+
+
+@functools.cache
+def _known_types() -> frozenset[str]:
+    return frozenset(known_types())
+
+
+def _decoder(topic: str, channel: Channel) -> Callable[[Sequence[bytes]], dict[str, np.ndarray]]:
+    """decode_batch bound to the channel's type: by name for a type the toolkit ships,
+    else by the schema text the log carries (parsed once)."""
+    if channel.message_encoding != "cdr":
+        raise StageError(
+            f"topic {topic} has message encoding {channel.message_encoding!r}; only ROS 2 "
+            "'cdr' messages can be ingested"
+        )
+    name = full_type_name(channel.schema_name)
+    if name in _known_types():
+        return functools.partial(decode_batch, name)
+    if channel.schema_encoding == "ros2msg" and channel.schema_data:
+        try:
+            spec = parse_schema_text(name, bytes(channel.schema_data).decode("utf-8"))
+        except (SchemaError, UnicodeDecodeError, ValueError) as exc:
+            raise StageError(f"topic {topic}: unusable schema {name!r}: {exc}") from exc
+        return functools.partial(decode_batch, spec)
+    raise StageError(f"topic {topic}: no message definition for {name!r} in the log or toolkit")
+
+
+def resolve_topics(
+    config: PipelineConfig, found: Mapping[str, Channel], log_path: Path
+) -> tuple[dict[str, TopicPlan], dict[str, list[str]], list[str]]:
+    """Plan every configured topic present in the log.
+
+    Returns (topic -> plan, role -> configured topics missing from the log, warnings).
+    A required role none of whose topics is in the log is a StageError naming the role, the
+    configured topics and the topics found; a message type the role does not accept is a
+    StageError naming topic, type and the accepted types.
+    """
+    plans: dict[str, TopicPlan] = {}
+    missing: dict[str, list[str]] = {}
+    warnings: list[str] = []
+    found_list = ", ".join(sorted(found)) or "none"
+    for role, topics in config.topics.by_role().items():
+        absent = [t for t in topics if t not in found]
+        if absent:
+            missing[role] = absent
+        if len(absent) == len(topics):
+            if role in REQUIRED_ROLES:
+                raise StageError(
+                    f"required role {role}: configured topic(s) {', '.join(topics)} not in the "
+                    f"log (topics found: {found_list}); set [topics] {role} in the configuration",
+                    path=log_path,
+                )
+            warnings.append(
+                f"optional role {role}: topic {', '.join(topics)} not in the log; "
+                f"{'its table is empty' if role in SENSOR_TABLES else 'skipped'}"
+            )
+        elif absent:
+            warnings.append(f"role {role}: topic(s) {', '.join(absent)} not in the log")
+        for topic in topics:
+            if topic in found:
+                plans[topic] = plan_topic(topic, role, found[topic], config, log_path)
+    return plans, missing, warnings
+
+
+def plan_topic(
+    topic: str, role: str, channel: Channel, config: PipelineConfig, log_path: Path
+) -> TopicPlan:
+    """The plan of one channel playing ``role``; StageError (naming the log) when the role
+    does not accept its type or its messages cannot be decoded."""
+    spec = ROLE_SPECS[role]
+    try:
+        convert = spec.converter_for(topic, channel.schema_name)
+        decode = _decoder(topic, channel)
+    except StageError as exc:
+        raise StageError(str(exc), path=log_path) from None
+    return TopicPlan(
+        topic=topic,
+        role=role,
+        table=spec.table,
+        schema_name=channel.schema_name,
+        type_name=full_type_name(channel.schema_name),
+        decode=decode,
+        convert=convert,
+        context=ConvertContext.for_topic(topic, role, channel.schema_name, config),
+    )
+
+
+# --------------------------------------------------------------------------------------
+# One batch
+# --------------------------------------------------------------------------------------
+
+
+def _decode_tolerant(
+    plan: TopicPlan, payloads: Sequence[bytes]
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Decode a batch; if some payload is broken, find which (one by one, the rare path)
+    and decode the rest. Returns the columns of the good payloads and their mask."""
+    ok = np.ones(len(payloads), dtype=bool)
+    try:
+        return plan.decode(payloads), ok
+    except CdrError:
+        pass
+    for i, payload in enumerate(payloads):
+        try:
+            plan.decode([payload])
+        except CdrError:
+            ok[i] = False
+    good = [p for p, keep in zip(payloads, ok.tolist(), strict=True) if keep]
+    return (plan.decode(good) if good else {}), ok
+
+
+@dataclass
+class _BatchRows:
+    """The rows one batch contributes to its table, and the table metadata they carry."""
+
+    rows: pa.Table
+    metadata: dict[str, str]
+
+
+def convert_batch(
+    plan: TopicPlan,
+    log_time_ns: np.ndarray,
+    payloads: Sequence[bytes],
+    dedup: DuplicateFilter,
+    account: TopicAccount,
+    max_skew_ns: int,
+) -> _BatchRows | None:
+    """Dedup, decode, convert and screen one batch of a topic; update its account.
+
+    Returns the rows to write (None when none survive).
+    """
+    n = len(payloads)
+    account.read += n
+    log_t = np.asarray(log_time_ns, dtype=np.int64)
+    dup = dedup.check(log_t, payloads)
+    if dup.any():
+        account.rejects["duplicate"] += int(dup.sum())
+        idx = np.flatnonzero(~dup)
+        payloads = [payloads[i] for i in idx.tolist()]
+        log_t = log_t[idx]
+    if not payloads:
+        return None
+    cols, ok = _decode_tolerant(plan, payloads)
+    if not ok.all():
+        account.rejects["bad_payload"] += int((~ok).sum())
+        log_t = log_t[ok]
+    if not len(log_t):
+        return None
+    rows: RoleRows = plan.convert(cols, log_t, plan.context)
+    keep = rows.finite.copy()
+    if rows.message_of_row is None:
+        skew = np.abs(rows.t_ns - log_t) > max_skew_ns
+        skew &= ~rows.stamp_missing
+        account.rejects["clock_skew"] += int(skew.sum())
+        keep &= ~skew
+        account.rejects["non_finite"] += int((~rows.finite & ~skew).sum())
+    else:
+        account.rejects["non_finite"] += int((~rows.finite).sum())
+    account.counts["stamp_missing"] += int((rows.stamp_missing & keep).sum())
+    for key, per_msg in rows.counts.items():
+        account.counts[key] += int(per_msg[keep].sum())
+    kept = int(keep.sum())
+    account.written += kept
+    if rows.message_of_row is None:
+        table = rows.table if kept == len(keep) else rows.table.filter(pa.array(keep))
+    else:
+        row_keep = keep[rows.message_of_row]
+        table = rows.table if row_keep.all() else rows.table.filter(pa.array(row_keep))
+    if rows.message_of_row is None and kept:
+        t = table.column("t_ns").to_numpy()
+        prior = np.iinfo(np.int64).min if account.max_t_ns is None else account.max_t_ns
+        running = np.maximum.accumulate(np.concatenate([[prior], t[:-1]]))
+        account.counts["out_of_order"] += int(np.count_nonzero(t < running))
+        account.max_t_ns = int(max(prior, int(t.max())))
+    account.rows += table.num_rows
+    return _BatchRows(table, rows.metadata) if table.num_rows else None
+
+
+# --------------------------------------------------------------------------------------
+# The stage
+# --------------------------------------------------------------------------------------
+
+
+def stage_config_hash(config: PipelineConfig) -> str:
+    """Hash of the configuration sections ingest reads (its up-to-date key)."""
+    return config_hash(config, CONFIG_SECTIONS)
+
+
+def _check_workspace_config(workspace: Workspace, config: PipelineConfig, overwrite: bool) -> None:
+    """Record the configuration in force, or refuse one that differs from the workspace's."""
+    if not workspace.config_path.is_file():
+        workspace.write_config(config)
+        return
+    with contextlib.suppress(OSError, UnicodeDecodeError):
+        if workspace.config_path.read_text(encoding="utf-8") == dump_toml(config):
+            return  # the file this configuration writes: equal without parsing it
+    current = workspace.read_config()
+    if current == config:
+        return
+    if not overwrite:
+        raise ConfigError(
+            f"the workspace was set up with another configuration ({current.name}, "
+            f"{config_hash(current)[:12]}) than the one given ({config.name}, "
+            f"{config_hash(config)[:12]}); use a new workspace or --overwrite to replace it",
+            path=workspace.config_path,
+        )
+    workspace.write_config(config)
+
+
+def _result_from_record(
+    log_path: Path, log_id: str, record: StageRecord, detail: Mapping[str, Any], seconds: float
+) -> IngestResult:
+    topics = detail.get("topics", {}) if isinstance(detail, Mapping) else {}
+    return IngestResult(
+        log_path=log_path,
+        log_id=log_id,
+        status="up_to_date",
+        row_counts=dict(record.row_counts),
+        rejects=_nonzero(topics, "rejects"),
+        lost=_nonzero(topics, "lost"),
+        warnings=(),
+        seconds=seconds,
+    )
+
+
+def _nonzero(topics: Mapping[str, Any], key: str) -> dict[str, dict[str, int]]:
+    """topic -> reason -> count from the manifest's per-topic detail, zeros left out."""
+    out: dict[str, dict[str, int]] = {}
+    for topic, acc in topics.items():
+        counts = {str(k): int(v) for k, v in dict(acc.get(key, {})).items() if v}
+        if counts:
+            out[topic] = counts
+    return out
+
+
+def _damage_json(damage: Iterable[Damage]) -> list[dict[str, Any]]:
+    return [dataclasses.asdict(d) for d in damage]
+
+
+class _Run:
+    """The state of one ingest pass: a plan, account and duplicate filter per topic, a sink
+    per table. :meth:`consume` takes the reader's batches; :meth:`finish` completes the
+    tables; :meth:`commit` moves them into place; :meth:`discard` removes everything."""
+
+    def __init__(
+        self,
+        plans: dict[str, TopicPlan],
+        sinks: dict[str, TableSink],
+        config: PipelineConfig,
+        log_path: Path,
+    ) -> None:
+        self.plans = plans
+        self.sinks = sinks
+        self.config = config
+        self.log_path = log_path
+        self.accounts = {t: TopicAccount(t, p.role, p.type_name, p.table) for t, p in plans.items()}
+        self.dedups = {t: DuplicateFilter() for t in plans}
+        self.tf_rows: list[pa.Table] = []
+        self.extra_plans: dict[tuple[str, str], TopicPlan] = {}
+        self.timings: defaultdict[str, float] = defaultdict(float)
+        self.outputs: list[str] = []
+
+    def _plan(self, batch: MessageBatch) -> TopicPlan | None:
+        topic = batch.channel.topic
+        plan = self.plans.get(topic)
+        if plan is None or batch.channel.schema_name == plan.schema_name:
+            return plan
+        # Another channel on the same topic with another type: plan it as well.
+        key = (topic, batch.channel.schema_name)
+        if key not in self.extra_plans:
+            self.extra_plans[key] = plan_topic(
+                topic, plan.role, batch.channel, self.config, self.log_path
+            )
+        return self.extra_plans[key]
+
+    def consume(self, batch: MessageBatch) -> None:
+        """Convert one batch and hand its rows to its table."""
+        plan = self._plan(batch)
+        if plan is None:
+            return  # a topic the configuration does not use
+        t0 = time.perf_counter()
+        out = convert_batch(
+            plan,
+            batch.log_time_ns,
+            batch.payloads,
+            self.dedups[plan.topic],
+            self.accounts[plan.topic],
+            self.config.time.max_header_skew_ns,
+        )
+        t1 = time.perf_counter()
+        if out is not None:
+            if plan.role == "tf_static":
+                self.tf_rows.append(out.rows)
+            else:
+                self.sinks[plan.table].add(out.rows, plan.topic, out.metadata)
+        self.timings["decode_convert"] += t1 - t0
+        self.timings["write"] += time.perf_counter() - t1
+
+    def finish(self, report: ReadReport) -> None:
+        """Count the reader's losses, check something usable came, complete every table."""
+        for topic, by_reason in report.lost.items():
+            if topic in self.accounts:
+                self.accounts[topic].lost = {k: int(v) for k, v in by_reason.items() if v}
+        _require_usable(self.accounts, self.log_path)
+        t0 = time.perf_counter()
+        self.outputs = [name for name, sink in self.sinks.items() if sink.finish()]
+        self.timings["finish"] = time.perf_counter() - t0
+
+    def commit(self, log_dir: Path) -> list[str]:
+        """Move the finished tables into place, then write tf_static.json; the file names."""
+        files = [self.sinks[name].final_path.name for name in self.outputs]
+        for name in self.outputs:
+            self.sinks[name].commit()
+        if self.tf_rows:
+            atomic_write_json(log_dir / TF_STATIC_OUTPUT, _tf_json(self.tf_rows))
+            files.append(TF_STATIC_OUTPUT)
+        return files
+
+    def discard(self) -> None:
+        """Remove every partial file (after an error)."""
+        for sink in self.sinks.values():
+            sink.discard()
+
+    def row_counts(self) -> dict[str, int]:
+        """Rows per output (tf_static: transforms)."""
+        counts = {name: self.sinks[name].rows for name in self.outputs}
+        if self.tf_rows:
+            counts["tf_static"] = sum(t.num_rows for t in self.tf_rows)
+        return counts
+
+    def rejects_by_topic(self) -> dict[str, dict[str, int]]:
+        """topic -> reason -> count, zeros left out."""
+        out: dict[str, dict[str, int]] = {}
+        for topic, acc in self.accounts.items():
+            nonzero = {k: v for k, v in acc.rejects.items() if v}
+            if nonzero:
+                out[topic] = nonzero
+        return out
+
+    def detail(self, report: ReadReport, missing: Mapping[str, list[str]]) -> dict[str, Any]:
+        """The manifest's ``ingest`` section: per-topic accounting, reader damage, counts."""
+        return {
+            "topics": {t: a.to_json() for t, a in sorted(self.accounts.items())},
+            "missing_topics": dict(missing),
+            "used_index": report.used_index,
+            "damage": _damage_json(report.damage),
+            "unknown_lost_bytes": dict(report.unknown_lost_bytes),
+            "resorted_tables": sorted(n for n, sink in self.sinks.items() if sink.resorted),
+            "counts": _count_totals(self.accounts),
+        }
+
+
+def ingest_log(
+    log_path: Path,
+    workspace: Workspace,
+    config: PipelineConfig,
+    *,
+    overwrite: bool = False,
+    reorder_buffer_bytes: int = DEFAULT_REORDER_BUFFER_BYTES,
+) -> IngestResult:
+    """Ingest one MCAP log into ``WS/logs/<log_id>/`` (see the module docstring).
+
+    Idempotent: when the manifest records an ingest of the same log content (sha256) under
+    the same configuration and its outputs exist, nothing is rewritten and the status is
+    ``"up_to_date"``; ``overwrite=True`` redoes it. Writes ``WS/config.toml`` if absent and
+    refuses (ConfigError) a configuration other than the workspace's unless ``overwrite``.
+    Raises StageError when a required role is missing or nothing usable is in the log,
+    LogReadError when the file cannot be read at all. ``reorder_buffer_bytes`` bounds the
+    rows each table holds back for sorting.
+    """
+    start = time.perf_counter()
+    log_path = Path(log_path)
+    if not log_path.is_file():
+        raise LogReadError("no such log file", path=log_path)
+    sha256 = file_sha256(log_path)
+    log_id = make_log_id(log_path.stem, sha256)
+    workspace.create()
+    _check_workspace_config(workspace, config, overwrite)
+    cfg_hash = stage_config_hash(config)
+    log_dir = workspace.log_dir(log_id)
+    manifest = workspace.manifest(log_id)
+    inputs = {"log": sha256}
+    record = manifest.stage(STAGE)
+    if record is not None and not overwrite:
+        outputs = [log_dir / o for o in record.outputs]
+        if check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=outputs):
+            _log.info("%s: up to date (%s)", log_path, log_id)
+            return _result_from_record(
+                log_path,
+                log_id,
+                record,
+                manifest.read().get(STAGE, {}),
+                time.perf_counter() - start,
+            )
+    if record is not None:
+        manifest.remove_stage(STAGE)  # a failure from here on leaves the stage not current
+    created_dir = not log_dir.exists()
+    log_dir.mkdir(parents=True, exist_ok=True)
+    run: _Run | None = None
+    try:
+        with LogReader(log_path, topics=_configured_topics(config)) as reader:
+            plans, missing, warnings = resolve_topics(config, reader.channels(), log_path)
+            sinks = _make_sinks(
+                plans,
+                workspace,
+                log_id,
+                source_sha256=sha256,
+                config_hash=cfg_hash,
+                buffer_bytes=reorder_buffer_bytes,
+            )
+            run = _Run(plans, sinks, config, log_path)
+            t_read = time.perf_counter()
+            for batch in progress(reader.batches(), desc=f"ingest {log_path.name}", unit="batch"):
+                run.consume(batch)
+            spent = run.timings["decode_convert"] + run.timings["write"]
+            run.timings["read"] = time.perf_counter() - t_read - spent
+            report = reader.report
+        run.finish(report)
+        damage_warning = _damage_warning(report, run.accounts)
+        if damage_warning:
+            warnings.append(damage_warning)
+        for w in warnings:
+            _log.warning("%s: %s", log_path, w)
+        out_files = run.commit(log_dir)
+    except BaseException:
+        if run is not None:
+            run.discard()
+        if created_dir:  # a log that failed on its first ingest leaves no trace
+            with contextlib.suppress(OSError):
+                log_dir.rmdir()
+        raise
+    _remove_stale_outputs(log_dir, record, out_files)
+    run.timings["total"] = time.perf_counter() - start
+    rejects_total: Counter[str] = Counter()
+    for by_reason in run.rejects_by_topic().values():
+        rejects_total.update(by_reason)
+    source = {
+        "path": str(log_path.resolve()),
+        "sha256": sha256,
+        "log_id": log_id,
+        "size_bytes": log_path.stat().st_size,
+    }
+    manifest.set_header(source=source, ingest=run.detail(report, missing))
+    manifest.record_stage(
+        STAGE,
+        StageRecord(
+            inputs=inputs,
+            config_hash=cfg_hash,
+            outputs=tuple(out_files),
+            row_counts=run.row_counts(),
+            rejects=dict(sorted(rejects_total.items())),
+            timings_s={k: round(v, 6) for k, v in sorted(run.timings.items())},
+            warnings=tuple(warnings),
+        ),
+    )
+    result = IngestResult(
+        log_path=log_path,
+        log_id=log_id,
+        status="ingested",
+        row_counts=run.row_counts(),
+        rejects=run.rejects_by_topic(),
+        lost={t: dict(a.lost) for t, a in run.accounts.items() if a.lost},
+        warnings=tuple(warnings),
+        seconds=time.perf_counter() - start,
+    )
+    _log.info("%s", result.summary())
+    return result
+
+
+def _configured_topics(config: PipelineConfig) -> list[str]:
+    return [t for topics in config.topics.by_role().values() for t in topics]
+
+
+def _make_sinks(
+    plans: Mapping[str, TopicPlan],
+    workspace: Workspace,
+    log_id: str,
+    *,
+    source_sha256: str,
+    config_hash: str,
+    buffer_bytes: int,
+) -> dict[str, TableSink]:
+    """One sink per sensor table (always) and per truth table the log has."""
+    sources: dict[str, list[str]] = {}
+    for topic, plan in plans.items():
+        sources.setdefault(plan.table, []).append(topic)
+    tables = list(SENSOR_TABLES.values()) + [
+        TRUTH_TABLES[r] for r in TRUTH_TABLES if any(p.role == r for p in plans.values())
+    ]
+    return {
+        name: TableSink(
+            workspace.log_table(log_id, name),
+            name,
+            load_table_schema(name) if name in SCHEMA_TABLES else None,
+            sources.get(name, []),
+            source_sha256=source_sha256,
+            config_hash=config_hash,
+            buffer_bytes=buffer_bytes,
+        )
+        for name in tables
+    }
+
+
+def _require_usable(accounts: Mapping[str, TopicAccount], log_path: Path) -> None:
+    """StageError when a required role got no usable message at all."""
+    for role in REQUIRED_ROLES:
+        accs = [a for a in accounts.values() if a.role == role]
+        if accs and sum(a.written for a in accs) == 0:
+            read = sum(a.read for a in accs)
+            rejected: Counter[str] = Counter()
+            lost: Counter[str] = Counter()
+            for a in accs:
+                rejected.update(a.rejects)
+                lost.update(a.lost)
+            parts = [f"{read} read"]
+            parts += [f"{v} rejected ({k})" for k, v in sorted(rejected.items()) if v]
+            parts += [f"{v} lost ({k})" for k, v in sorted(lost.items()) if v]
+            raise StageError(
+                f"nothing usable: no message of required role {role} "
+                f"({', '.join(a.topic for a in accs)}: {', '.join(parts)})",
+                path=log_path,
+            )
+
+
+def _damage_warning(report: ReadReport, accounts: Mapping[str, TopicAccount]) -> str | None:
+    """One line on what a damaged file lost, or None for an intact one."""
+    damage = report.damage
+    lost_all: Counter[str] = Counter()
+    for by_reason in report.lost.values():
+        lost_all.update({k: int(v) for k, v in by_reason.items()})
+    unknown = {k: int(v) for k, v in report.unknown_lost_bytes.items() if v}
+    if not damage and not sum(lost_all.values()) and not unknown:
+        return None
+    reasons = Counter(d.reason for d in damage)
+    what = ", ".join(f"{k} x{v}" if v > 1 else k for k, v in sorted(reasons.items())) or "damage"
+    lost_text = ", ".join(f"{v} {k}" for k, v in sorted(lost_all.items()) if v)
+    salvaged = sum(a.read for a in accounts.values())
+    line = f"damaged log ({what}): salvaged {salvaged} messages"
+    line += f", lost {sum(lost_all.values())} messages ({lost_text})" if lost_text else ""
+    if unknown:
+        line += f", {sum(unknown.values())} bytes of unknown content lost"
+    return line
+
+
+def _count_totals(accounts: Mapping[str, TopicAccount]) -> dict[str, int]:
+    total: Counter[str] = Counter()
+    for acc in accounts.values():
+        total.update(acc.counts)
+    return dict(sorted((k, v) for k, v in total.items()))
+
+
+def _tf_json(tables: Sequence[pa.Table]) -> dict[str, Any]:
+    """Static transforms, the latest per (parent, child) pair."""
+    merged = pa.concat_tables(tables).to_pylist()
+    latest: dict[tuple[str, str], dict[str, Any]] = {}
+    for row in merged:
+        latest[(row["parent_frame"], row["child_frame"])] = row
+    transforms = [
+        {
+            "parent_frame": r["parent_frame"],
+            "child_frame": r["child_frame"],
+            "t_ns": int(r["t_ns"]),
+            "translation_m": [r["tx"], r["ty"], r["tz"]],
+            "rotation_xyzw": [r["qx"], r["qy"], r["qz"], r["qw"]],
+        }
+        for r in latest.values()
+    ]
+    return {"transforms": transforms}
+
+
+def _remove_stale_outputs(log_dir: Path, old: StageRecord | None, current: Sequence[str]) -> None:
+    """Remove outputs a previous ingest wrote that this one did not (e.g. a role dropped)."""
+    if old is None:
+        return
+    for name in set(old.outputs) - set(current):
+        if "/" in name or name.startswith("."):
+            continue
+        with contextlib.suppress(FileNotFoundError):
+            (log_dir / name).unlink()
+
+
+__all__ = [
+    "CONFIG_SECTIONS",
+    "DUPLICATE_WINDOW_NS",
+    "STAGE",
+    "DuplicateFilter",
+    "IngestResult",
+    "TableSink",
+    "TopicAccount",
+    "TopicPlan",
+    "convert_batch",
+    "ingest_log",
+    "plan_topic",
+    "resolve_topics",
+    "stage_config_hash",
+]
