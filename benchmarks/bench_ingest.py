@@ -38,7 +38,7 @@ with tempfile.TemporaryDirectory() as tmp:
     t0 = time.perf_counter()
     result = ingest_log(log, ws, default_config(), overwrite=True)
     wall = time.perf_counter() - t0
-rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+rss = [int(l.split()[1]) / 1024 for l in open("/proc/self/status") if l.startswith("VmHWM")][0]
 print(json.dumps({"wall_s": wall, "rss_mb": rss}))
 """
 
@@ -81,7 +81,7 @@ with tempfile.TemporaryDirectory() as tmp:
     write("laser", laser, ["t_ns", "laser", "angle_min", "angle_increment", "time_increment", "ranges"])
     write("truth", truth, ["t_ns", "x", "y", "z", "qx", "qy", "qz", "qw"])
 wall = time.perf_counter() - t0
-rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+rss = [int(l.split()[1]) / 1024 for l in open("/proc/self/status") if l.startswith("VmHWM")][0]
 print(json.dumps({"wall_s": wall, "rss_mb": rss}))
 """
 
@@ -94,7 +94,7 @@ with open(sys.argv[1], "rb") as f:
     for _ in make_reader(f).iter_messages():
         n += 1
 wall = time.perf_counter() - t0
-rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+rss = [int(l.split()[1]) / 1024 for l in open("/proc/self/status") if l.startswith("VmHWM")][0]
 print(json.dumps({"wall_s": wall, "rss_mb": rss, "messages": n}))
 """
 

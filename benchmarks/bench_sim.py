@@ -29,7 +29,7 @@ r = simulate(Path(out), profile="race", distance_m=distance, seed=seed, workers=
 wall = time.perf_counter() - t0
 print(json.dumps({"sim_s": r.duration_s, "wall_s": wall, "distance_m": r.distance_m,
                   "messages": sum(r.message_counts.values()), "bytes": Path(out).stat().st_size,
-                  "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+                  "rss_mb": [int(l.split()[1]) / 1024 for l in open("/proc/self/status") if l.startswith("VmHWM")][0]}))
 """
 
 

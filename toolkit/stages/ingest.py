@@ -112,6 +112,8 @@ DEFAULT_REORDER_BUFFER_BYTES = 8 * 1024 * 1024
 
 #: Rows per Parquet row group at most.
 ROW_GROUP_ROWS = 65_536
+# Buffered pieces of a table folded into one once there are this many.
+COMPACT_PIECES = 64
 
 #: Reject reasons, in the order they are checked.
 REJECT_REASONS: tuple[str, ...] = ("duplicate", "bad_payload", "clock_skew", "non_finite")
@@ -309,6 +311,11 @@ class TableSink:
         self._buffered_bytes += table.nbytes
         if self._buffered_bytes >= self.buffer_bytes:
             self._flush(final=False)
+        elif len(self._buffer) >= COMPACT_PIECES:
+            # A small table (GPS, heading) may stay buffered for a whole log, arriving as one
+            # tiny table per chunk; each piece's own buffers cost far more than its rows, so
+            # fold them into one contiguous table to keep memory independent of log length.
+            self._buffer = [pa.concat_tables(self._buffer).combine_chunks()]
 
     def _flush(self, *, final: bool) -> None:
         if not self._buffer:
