@@ -760,3 +760,60 @@ def test_conformance_corpus_is_ingested_or_refused_clearly(tmp_path: Path) -> No
     print("\n".join(f"{name}: {outcome}" for name, outcome in sorted(outcomes.items())))
     assert len(outcomes) == len(_conformance_files()), reasons
     assert ws.log_ids() == []  # refused logs leave nothing behind
+
+
+def test_sample_tables_equal_the_reference_decoder(
+    sample_ingest: tuple[Workspace, IngestResult],
+) -> None:
+    """Every role's table holds, value for value, what mcap-ros2-support's decoder reads."""
+    from mcap_ros2.decoder import DecoderFactory
+
+    ws, result = sample_ingest
+    ref: dict[str, list[Any]] = {}
+    with SAMPLE_LOG.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, channel, _, msg in reader.iter_decoded_messages():
+            ref.setdefault(channel.topic, []).append(msg)
+
+    def stamp(m: Any) -> int:
+        return int(m.header.stamp.sec) * 1_000_000_000 + int(m.header.stamp.nanosec)
+
+    def table(name: str) -> dict[str, Any]:
+        return pq.read_table(ws.log_table(result.log_id, name)).to_pydict()
+
+    def by_time(msgs: list[Any]) -> list[Any]:
+        return sorted(msgs, key=stamp)
+
+    imu, msgs = table("imu"), by_time(ref["/imu/data"])
+    assert imu["t_ns"] == [stamp(m) for m in msgs]
+    assert imu["accel_z"] == [m.linear_acceleration.z for m in msgs]
+    assert imu["gyro_x"] == [m.angular_velocity.x for m in msgs]
+
+    gps, msgs = table("gps"), by_time(ref["/gps/fix"])
+    assert gps["t_ns"] == [stamp(m) for m in msgs]
+    np.testing.assert_array_equal(gps["latitude"], [m.latitude for m in msgs])
+    assert gps["status"] == [m.status.status for m in msgs]
+
+    heading, msgs = table("heading"), by_time(ref["/gps/heading"])
+    assert heading["yaw"] == [m.yaw for m in msgs]
+
+    wheels, msgs = table("wheels"), by_time(ref["/vehicle/wheel_speeds"])
+    assert wheels["front_left"] == [m.front_left for m in msgs]
+    assert wheels["rear_right"] == [m.rear_right for m in msgs]
+
+    laser = table("laser")
+    scans = by_time([m for t, ms in ref.items() if t.startswith("/laser/") for m in ms])
+    assert sorted(laser["t_ns"]) == [stamp(m) for m in scans]
+    got = {
+        (t, a): r
+        for t, a, r in zip(laser["t_ns"], laser["angle_min"], laser["ranges"], strict=True)
+    }
+    for m in scans[:: max(len(scans) // 500, 1)]:
+        np.testing.assert_array_equal(
+            np.asarray(got[(stamp(m), m.angle_min)], dtype=np.float32),
+            np.asarray(m.ranges, dtype=np.float32),
+        )
+
+    truth, msgs = table("truth_pose"), by_time(ref["/truth/odom"])
+    assert truth["x"] == [m.pose.pose.position.x for m in msgs]
+    assert truth["z"] == [m.pose.pose.position.z for m in msgs]
