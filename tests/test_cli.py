@@ -21,7 +21,7 @@ from toolkit import progress as progress_mod
 from toolkit.cli import main
 from toolkit.errors import LogReadError, SimulationError
 
-VERBS = ["sim", "info"]
+VERBS = ["sim", "info", "ingest"]
 
 
 @pytest.fixture
