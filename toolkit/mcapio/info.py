@@ -47,6 +47,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 
 from toolkit.errors import LogReadError, ToolkitError
 from toolkit.mcapio.msgdefs import parse_schema_text
+from toolkit.mcapio.reader import open_mcap
 
 MAGIC = b"\x89MCAP0\r\n"
 _FOOTER_RECORD = 1 + 8 + 8 + 8 + 4
@@ -190,22 +191,6 @@ class _Scan:
 # --------------------------------------------------------------------------------------------
 # Opening, header and summary
 # --------------------------------------------------------------------------------------------
-
-
-def _open(path: Path) -> tuple[IO[bytes], int]:
-    if not path.exists():
-        raise LogReadError("no such file", path)
-    if not path.is_file():
-        raise LogReadError("not a regular file", path)
-    try:
-        f = open(path, "rb")  # noqa: SIM115 - closed by scan_log
-    except OSError as exc:
-        raise LogReadError(f"cannot open: {exc.strerror}", path) from exc
-    size = path.stat().st_size
-    if f.read(len(MAGIC)) != MAGIC:
-        f.close()
-        raise LogReadError("not an MCAP file (bad magic bytes at the start)", path)
-    return f, size
 
 
 def _read_header(f: IO[bytes], path: Path, size: int) -> Header:
@@ -556,7 +541,7 @@ def scan_log(path: str | Path, *, full: bool = False) -> LogInfo:
     Raises :class:`LogReadError` for a missing file or one that is not MCAP at all.
     """
     path = Path(path)
-    f, size = _open(path)
+    f, size = open_mcap(path)
     try:
         scan = _Scan(header=_read_header(f, path, size))
         summary, _footer = _read_summary(f, size, scan)

@@ -301,7 +301,9 @@ class _Layout:
     damage: list[Damage] = field(default_factory=list)
 
 
-def _open(path: Path) -> tuple[IO[bytes], int]:
+def open_mcap(path: Path) -> tuple[IO[bytes], int]:
+    """Open ``path`` after checking it is a readable file that starts with the MCAP magic;
+    returns the file (positioned after the magic) and its size. LogReadError otherwise."""
     if not path.exists():
         raise LogReadError("no such file", path)
     if not path.is_file():
@@ -894,7 +896,7 @@ class LogReader:
         self.path = Path(path)
         self._topics = None if topics is None else frozenset(topics)
         self._file: IO[bytes] | None
-        self._file, size = _open(self.path)
+        self._file, size = open_mcap(self.path)
         try:
             self._layout = _read_header(self._file, self.path, size)
             _read_summary(self._file, self._layout)
