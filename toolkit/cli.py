@@ -294,3 +294,31 @@ def ingest(
             click.echo(outcome.detail.rstrip("\n"), err=True)
         _error_line(f"{outcome.item}: {outcome.reason}")
     ctx.exit(1)
+
+
+@main.command()
+@click.option(
+    "-w",
+    "--workspace",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Workspace directory (ingested).",
+)
+@click.option("--log", "log_id", default=None, help="One log id (default: every log).")
+@click.option("--overwrite", is_flag=True, help="Recompute poses that are up to date.")
+def pose(workspace: Path, log_id: str | None, overwrite: bool) -> None:
+    """UKF pose fusion: WS/logs/<id>/pose.parquet at 100 Hz."""
+    from toolkit.errors import WorkspaceError
+    from toolkit.stages.pose import run_pose
+    from toolkit.workspace import Workspace
+
+    ws = Workspace(workspace)
+    cfg = ws.read_config()
+    ids = ws.log_ids()
+    if log_id is not None:
+        if log_id not in ids:
+            raise WorkspaceError(f"no log {log_id!r} in the workspace", path=ws.root)
+        ids = [log_id]
+    with ws.lock():
+        for one in ids:
+            click.echo(run_pose(ws, one, cfg, overwrite=overwrite).summary())

@@ -817,3 +817,14 @@ def test_sample_tables_equal_the_reference_decoder(
     truth, msgs = table("truth_pose"), by_time(ref["/truth/odom"])
     assert truth["x"] == [m.pose.pose.position.x for m in msgs]
     assert truth["z"] == [m.pose.pose.position.z for m in msgs]
+
+
+def test_sample_log_mcap_metadata_is_kept(sample_ingest: tuple[Workspace, IngestResult]) -> None:
+    ws, result = sample_ingest
+    record = ws.manifest(result.log_id).stage("ingest")
+    assert record is not None and "mcap_metadata.json" in record.outputs
+    meta = json.loads((log_dir(ws, result) / "mcap_metadata.json").read_text())
+    sim = meta["terrain_sim"]
+    origin = json.loads(sim["origin"])
+    assert set(origin) >= {"latitude_deg", "longitude_deg", "altitude_m"}
+    assert json.loads(sim["gps_dropouts_ns"])  # the sample's scheduled 5 s dropout

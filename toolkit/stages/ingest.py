@@ -29,7 +29,9 @@ of the table's partial file).
 Outputs (``WS/logs/<log_id>/``): ``imu``, ``gps``, ``heading``, ``wheels`` and ``laser`` tables
 (always; empty when an optional role is absent), ``truth_pose.parquet`` and
 ``truth_features.parquet`` when the log has them (simulated logs), ``tf_static.json`` when it has
-static transforms (the sensor mounts, for the projection stage). Every file is written aside and
+static transforms (the sensor mounts, for the projection stage), ``mcap_metadata.json`` when the
+log has MCAP metadata records (name -> key -> value; the simulator's ``terrain_sim`` record
+holds its ENU origin and truth parameters). Every file is written aside and
 renamed into place only once all of them are complete; on any error the partial files are
 removed and the stage is left not current in the manifest.
 
@@ -48,6 +50,7 @@ import dataclasses
 import functools
 import logging
 import os
+import struct
 import time
 import uuid
 from collections import Counter, defaultdict
@@ -60,6 +63,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
+from mcap.exceptions import McapError
+from mcap.reader import make_reader as mcap_make_reader
 
 from toolkit.config import REQUIRED_ROLES, PipelineConfig, config_hash, dump_toml
 from toolkit.errors import CdrError, ConfigError, LogReadError, SchemaError, StageError
@@ -103,6 +108,9 @@ SCHEMA_TABLES: frozenset[str] = frozenset({*SENSOR_TABLES.values(), "truth_pose"
 
 #: Output name of the static transforms.
 TF_STATIC_OUTPUT = "tf_static.json"
+
+#: Output name of the log's MCAP metadata records (record name -> key -> value).
+MCAP_METADATA_OUTPUT = "mcap_metadata.json"
 
 #: Exact duplicates are looked for among messages of the same topic this close in log time.
 DUPLICATE_WINDOW_NS = 2_000_000_000
@@ -699,6 +707,7 @@ class _Run:
         self.accounts = {t: TopicAccount(t, p.role, p.type_name, p.table) for t, p in plans.items()}
         self.dedups = {t: DuplicateFilter() for t in plans}
         self.tf_rows: list[pa.Table] = []
+        self.mcap_metadata: dict[str, dict[str, str]] = {}
         self.extra_plans: dict[tuple[str, str], TopicPlan] = {}
         self.timings: defaultdict[str, float] = defaultdict(float)
         self.outputs: list[str] = []
@@ -757,6 +766,9 @@ class _Run:
         if self.tf_rows:
             atomic_write_json(log_dir / TF_STATIC_OUTPUT, _tf_json(self.tf_rows))
             files.append(TF_STATIC_OUTPUT)
+        if self.mcap_metadata:
+            atomic_write_json(log_dir / MCAP_METADATA_OUTPUT, self.mcap_metadata)
+            files.append(MCAP_METADATA_OUTPUT)
         return files
 
     def discard(self) -> None:
@@ -859,6 +871,9 @@ def ingest_log(
             run.timings["read"] = time.perf_counter() - t_read - spent
             report = reader.report
         run.finish(report)
+        run.mcap_metadata, meta_warning = read_mcap_metadata(log_path)
+        if meta_warning:
+            warnings.append(meta_warning)
         damage_warning = _damage_warning(report, run.accounts)
         if damage_warning:
             warnings.append(damage_warning)
@@ -1011,6 +1026,29 @@ def _tf_json(tables: Sequence[pa.Table]) -> dict[str, Any]:
     return {"transforms": transforms}
 
 
+def read_mcap_metadata(log_path: Path) -> tuple[dict[str, dict[str, str]], str | None]:
+    """The log's MCAP metadata records (name -> key -> value) from the summary's index.
+
+    Records of the same name are merged, later keys winning. A log without a readable
+    summary (unindexed or damaged) gives ``{}`` and a warning line instead of an error: the
+    records are provenance, not sensor data.
+    """
+    out: dict[str, dict[str, str]] = {}
+    try:
+        with log_path.open("rb") as fh:
+            reader = mcap_make_reader(fh)
+            summary = reader.get_summary()
+            if summary is None or not summary.metadata_indexes:
+                return out, None
+            for record in reader.iter_metadata():
+                out.setdefault(record.name, {}).update(
+                    {str(k): str(v) for k, v in record.metadata.items()}
+                )
+    except (McapError, OSError, ValueError, struct.error) as exc:
+        return {}, f"MCAP metadata records not read: {exc}"
+    return out, None
+
+
 def _remove_stale_outputs(log_dir: Path, old: StageRecord | None, current: Sequence[str]) -> None:
     """Remove outputs a previous ingest wrote that this one did not (e.g. a role dropped)."""
     if old is None:
@@ -1028,12 +1066,14 @@ __all__ = [
     "STAGE",
     "DuplicateFilter",
     "IngestResult",
+    "MCAP_METADATA_OUTPUT",
     "TableSink",
     "TopicAccount",
     "TopicPlan",
     "convert_batch",
     "ingest_log",
     "plan_topic",
+    "read_mcap_metadata",
     "resolve_topics",
     "stage_config_hash",
 ]

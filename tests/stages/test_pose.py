@@ -1,0 +1,119 @@
+"""Pose stage on the sample log: accuracy against truth, errors, idempotence."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from toolkit.config import default_config
+from toolkit.errors import StageError
+from toolkit.stages.ingest import ingest_log
+from toolkit.stages.pose import PoseResult, run_pose
+from toolkit.tableio import read_table, read_table_metadata, write_table
+from toolkit.workspace import Workspace
+
+SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
+
+
+@pytest.fixture(scope="module")
+def sample_pose(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, str, PoseResult]:
+    ws = Workspace(tmp_path_factory.mktemp("pose") / "ws")
+    ingested = ingest_log(SAMPLE_LOG, ws, default_config())
+    return ws, ingested.log_id, run_pose(ws, ingested.log_id, default_config())
+
+
+def test_sample_pose_meets_the_accuracy_targets(
+    sample_pose: tuple[Workspace, str, PoseResult],
+) -> None:
+    ws, log_id, result = sample_pose
+    acc = result.accuracy
+    assert acc is not None
+    assert acc["horizontal_rmse_m"] <= 0.3
+    assert acc["roll_rmse_deg"] <= 0.3
+    assert acc["pitch_rmse_deg"] <= 0.3
+    assert acc["yaw_rmse_deg"] <= 0.5
+    (drop,) = acc["gps_dropouts"]  # the sample's 5 s dropout at 30-35 s
+    assert drop["duration_s"] == pytest.approx(5.0)
+    assert drop["horizontal_error_at_end_m"] <= 1.0
+    assert ws.manifest(log_id).read()["pose_accuracy"] == acc
+
+
+def test_sample_pose_table_follows_the_contract(
+    sample_pose: tuple[Workspace, str, PoseResult],
+) -> None:
+    ws, log_id, result = sample_pose
+    path = ws.log_table(log_id, "pose")
+    table = read_table(path, "pose")
+    t = table.column("t_ns").to_numpy()
+    assert result.rows == table.num_rows > 5900
+    np.testing.assert_allclose(np.diff(t), 10_000_000, atol=1)  # 100 Hz
+    origin = json.loads(read_table_metadata(path)["enu_origin"])
+    gps = read_table(ws.log_table(log_id, "gps"), "gps")
+    first = next(r for r in gps.to_pylist() if r["status"] >= 0)
+    assert origin["latitude_deg"] == first["latitude"]
+    record = ws.manifest(log_id).stage("pose")
+    assert record is not None and record.row_counts == {"pose": table.num_rows}
+    detail = ws.manifest(log_id).read()["pose"]
+    assert detail["imu_gaps"] == {"bridged": 0, "restarted": 0}
+    assert detail["heading_source"] == "compass"
+    assert set(detail["gated"]) <= {"gps", "heading", "wheels", "nhc"}
+
+
+def test_pose_rerun_is_up_to_date(sample_pose: tuple[Workspace, str, PoseResult]) -> None:
+    ws, log_id, _ = sample_pose
+    path = ws.log_table(log_id, "pose")
+    before = path.stat().st_mtime_ns
+    again = run_pose(ws, log_id, default_config())
+    assert again.status == "up_to_date"
+    assert path.stat().st_mtime_ns == before
+
+
+def test_no_gps_fix_is_a_stage_error(
+    sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path
+) -> None:
+    ws0, log_id, _ = sample_pose
+    ws = Workspace(tmp_path / "ws")
+    shutil.copytree(ws0.root, ws.root)
+    gps_path = ws.log_table(log_id, "gps")
+    gps = read_table(gps_path, "gps")
+    n = gps.num_rows
+    nan = pa.array(np.full(n, np.nan))
+    bad = gps.set_column(
+        gps.schema.get_field_index("status"), "status", pa.array(np.full(n, -1, dtype=np.int8))
+    )
+    for name in ("latitude", "longitude", "altitude"):
+        bad = bad.set_column(bad.schema.get_field_index(name), name, nan)
+    meta = read_table_metadata(gps_path)
+    write_table(
+        gps_path, bad, "gps", source_sha256=meta["source_sha256"], config_hash=meta["config_hash"]
+    )
+    with pytest.raises(StageError, match="no valid GPS fix"):
+        run_pose(ws, log_id, default_config())
+
+
+def test_no_compass_heading_from_gps_track(
+    sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path
+) -> None:
+    ws0, log_id, _ = sample_pose
+    ws = Workspace(tmp_path / "ws")
+    shutil.copytree(ws0.root, ws.root)
+    path = ws.log_table(log_id, "heading")
+    head = read_table(path, "heading")
+    meta = read_table_metadata(path)
+    write_table(
+        path,
+        head.slice(0, 0),
+        "heading",
+        source_sha256=meta["source_sha256"],
+        config_hash=meta["config_hash"],
+    )
+    result = run_pose(ws, log_id, default_config())
+    assert ws.manifest(log_id).read()["pose"]["heading_source"] == "gps_track"
+    assert result.accuracy is not None
+    assert result.accuracy["horizontal_rmse_m"] <= 1.0
+    assert result.accuracy["yaw_rmse_deg"] <= 3.0

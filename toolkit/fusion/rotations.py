@@ -1,0 +1,67 @@
+"""Rotations for the pose filter, vectorised over leading axes.
+
+Attitude is Z-Y-X Euler (roll, pitch, yaw): ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` maps
+base_link vectors into ENU (world from body).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+
+
+def wrap_angle(a: FloatArray | float) -> FloatArray:
+    """Angles to [-pi, pi)."""
+    return np.asarray((np.asarray(a) + np.pi) % (2.0 * np.pi) - np.pi, dtype=np.float64)
+
+
+def euler_to_rot(rpy: FloatArray) -> FloatArray:
+    """(..., 3) roll, pitch, yaw -> (..., 3, 3) world-from-body rotation matrices."""
+    r, p, y = rpy[..., 0], rpy[..., 1], rpy[..., 2]
+    cr, sr, cp, sp, cy, sy = np.cos(r), np.sin(r), np.cos(p), np.sin(p), np.cos(y), np.sin(y)
+    out = np.empty((*rpy.shape[:-1], 3, 3))
+    out[..., 0, 0] = cy * cp
+    out[..., 0, 1] = cy * sp * sr - sy * cr
+    out[..., 0, 2] = cy * sp * cr + sy * sr
+    out[..., 1, 0] = sy * cp
+    out[..., 1, 1] = sy * sp * sr + cy * cr
+    out[..., 1, 2] = sy * sp * cr - cy * sr
+    out[..., 2, 0] = -sp
+    out[..., 2, 1] = cp * sr
+    out[..., 2, 2] = cp * cr
+    return out
+
+
+def rot_to_euler(rot: FloatArray) -> FloatArray:
+    """(..., 3, 3) rotation matrices -> (..., 3) roll, pitch, yaw."""
+    roll = np.arctan2(rot[..., 2, 1], rot[..., 2, 2])
+    pitch = -np.arcsin(np.clip(rot[..., 2, 0], -1.0, 1.0))
+    yaw = np.arctan2(rot[..., 1, 0], rot[..., 0, 0])
+    return np.stack([roll, pitch, yaw], axis=-1)
+
+
+def so3_exp(phi: FloatArray) -> FloatArray:
+    """Rodrigues: rotation vectors (..., 3) -> rotation matrices (..., 3, 3)."""
+    theta = np.linalg.norm(phi, axis=-1)[..., None, None]
+    k = np.zeros((*phi.shape[:-1], 3, 3))
+    k[..., 0, 1], k[..., 0, 2] = -phi[..., 2], phi[..., 1]
+    k[..., 1, 0], k[..., 1, 2] = phi[..., 2], -phi[..., 0]
+    k[..., 2, 0], k[..., 2, 1] = -phi[..., 1], phi[..., 0]
+    small = theta < 1e-8
+    t = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(t) / t)
+    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(t)) / t**2)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def euler_rates(rpy: FloatArray, omega_body: FloatArray) -> FloatArray:
+    """Time derivatives of roll, pitch, yaw (..., 3) given the body rate (..., 3)."""
+    r, p = rpy[..., 0], rpy[..., 1]
+    wx, wy, wz = omega_body[..., 0], omega_body[..., 1], omega_body[..., 2]
+    sr, cr, tp, cp = np.sin(r), np.cos(r), np.tan(p), np.cos(p)
+    roll_dot = wx + sr * tp * wy + cr * tp * wz
+    pitch_dot = cr * wy - sr * wz
+    yaw_dot = (sr * wy + cr * wz) / cp
+    return np.stack([roll_dot, pitch_dot, yaw_dot], axis=-1)
