@@ -77,6 +77,11 @@ def make_profile(name: str, distance_m: float | None = None) -> SimProfile:
         return SimProfile(
             name=name,
             world=WorldParams(length_m=distance_m or 8000.0, feature_rate_per_km=16.0),
+            # Random dropouts as well, but one of 10 s for certain, so every race log checks
+            # how far the pose drifts while it coasts.
+            sensors=replace(
+                SensorParams(), gps=replace(GpsParams(), scheduled_dropouts_s=((60.0, 10.0),))
+            ),
         )
     n = len(CALIBRATION_SPEEDS_MPS)
     length = distance_m or CALIBRATION_FIRST_M + n * CALIBRATION_SPACING_M

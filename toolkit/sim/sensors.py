@@ -98,7 +98,7 @@ class GpsParams:
     mount: Mount = Mount("gps_antenna", (0.6, 0.0, 2.1))
     horizontal_noise_m: float = 0.10
     vertical_noise_m: float = 0.20
-    drift_std_m: float = 0.25
+    drift_std_m: float = 0.15
     drift_tau_s: float = 120.0
     dropouts_per_hour: float = 20.0
     dropout_duration_s: tuple[float, float] = (3.0, 12.0)
