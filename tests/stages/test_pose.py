@@ -143,3 +143,117 @@ def test_no_compass_heading_from_gps_track(
     assert result.accuracy is not None
     assert result.accuracy["horizontal_rmse_m"] <= 1.0
     assert result.accuracy["yaw_rmse_deg"] <= 3.0
+
+
+def _copy_workspace(sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path) -> Workspace:
+    ws0, _, _ = sample_pose
+    ws = Workspace(tmp_path / "ws")
+    shutil.copytree(ws0.root, ws.root)
+    return ws
+
+
+def _rewrite(ws: Workspace, log_id: str, name: str, table: pa.Table) -> None:
+    path = ws.log_table(log_id, name)
+    meta = read_table_metadata(path)
+    write_table(
+        path, table, name, source_sha256=meta["source_sha256"], config_hash=meta["config_hash"]
+    )
+
+
+def _drop_imu_span(ws: Workspace, log_id: str, start_s: float, length_s: float) -> None:
+    """Delete the IMU rows in [t0 + start_s, t0 + start_s + length_s)."""
+    imu = read_table(ws.log_table(log_id, "imu"), "imu")
+    t = imu.column("t_ns").to_numpy()
+    lo = t[0] + int(start_s * 1e9)
+    keep = (t < lo) | (t >= lo + int(length_s * 1e9))
+    _rewrite(ws, log_id, "imu", imu.filter(pa.array(keep)))
+
+
+def test_short_imu_gap_is_bridged(
+    sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path
+) -> None:
+    _, log_id, _ = sample_pose
+    ws = _copy_workspace(sample_pose, tmp_path)
+    _drop_imu_span(ws, log_id, 20.0, 0.3)
+    result = run_pose(ws, log_id, default_config())
+    assert ws.manifest(log_id).read()["pose"]["imu_gaps"] == {"bridged": 1, "restarted": 0}
+    assert result.accuracy is not None
+    assert result.accuracy["horizontal_rmse_m"] <= 0.3
+    assert result.accuracy["yaw_rmse_deg"] <= 0.5
+
+
+def test_long_imu_gap_restarts_the_filter(
+    sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path
+) -> None:
+    _, log_id, _ = sample_pose
+    ws = _copy_workspace(sample_pose, tmp_path)
+    _drop_imu_span(ws, log_id, 20.0, 1.0)
+    result = run_pose(ws, log_id, default_config())
+    assert ws.manifest(log_id).read()["pose"]["imu_gaps"] == {"bridged": 0, "restarted": 1}
+    assert result.rows > 5900
+    assert result.accuracy is not None
+    assert result.accuracy["horizontal_rmse_m"] <= 0.5  # the 1 s crossing costs a little
+
+
+def test_single_vehicle_speed_meets_the_targets(
+    sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path
+) -> None:
+    """Wheels with only the vehicle speed (per-wheel columns null)."""
+    _, log_id, _ = sample_pose
+    ws = _copy_workspace(sample_pose, tmp_path)
+    wheels = read_table(ws.log_table(log_id, "wheels"), "wheels")
+    for name in ("front_left", "front_right", "rear_left", "rear_right"):
+        i = wheels.schema.get_field_index(name)
+        wheels = wheels.set_column(i, name, pa.nulls(wheels.num_rows, pa.float64()))
+    _rewrite(ws, log_id, "wheels", wheels)
+    acc = run_pose(ws, log_id, default_config()).accuracy
+    assert acc is not None
+    assert acc["horizontal_rmse_m"] <= 0.3
+    assert acc["roll_rmse_deg"] <= 0.3
+    assert acc["pitch_rmse_deg"] <= 0.3
+    assert acc["yaw_rmse_deg"] <= 0.5
+
+
+def _decimate(ws: Workspace, log_id: str, name: str, rate_hz: float) -> None:
+    table = read_table(ws.log_table(log_id, name), name)
+    t = table.column("t_ns").to_numpy()
+    step = max(1, round(1e9 / rate_hz / float(np.median(np.diff(t)))))
+    _rewrite(ws, log_id, name, table.take(pa.array(np.arange(0, table.num_rows, step))))
+
+
+def test_other_imu_and_gps_rates(
+    sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path
+) -> None:
+    """IMU decimated to 50 Hz and GPS to 5 Hz: looser bounds, still a usable pose."""
+    _, log_id, _ = sample_pose
+    ws = _copy_workspace(sample_pose, tmp_path)
+    _decimate(ws, log_id, "imu", 50.0)
+    _decimate(ws, log_id, "gps", 5.0)
+    result = run_pose(ws, log_id, default_config())
+    assert result.rows > 5900  # still 100 Hz out
+    acc = result.accuracy
+    assert acc is not None
+    assert acc["horizontal_rmse_m"] <= 0.5
+    assert acc["roll_rmse_deg"] <= 0.5
+    assert acc["pitch_rmse_deg"] <= 0.5
+    assert acc["yaw_rmse_deg"] <= 1.0
+
+
+def test_cli_pose_exit_codes(
+    sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path
+) -> None:
+    from click.testing import CliRunner
+
+    from toolkit.cli import main
+
+    _, log_id, _ = sample_pose
+    ws = _copy_workspace(sample_pose, tmp_path)
+    runner = CliRunner()
+    ok = runner.invoke(main, ["pose", "-w", str(ws.root), "--log", log_id, "--overwrite"])
+    assert ok.exit_code == 0, ok.output
+    assert f"{log_id}: pose estimated" in ok.stdout
+    bad = runner.invoke(main, ["pose", "-w", str(ws.root), "--log", "no-such-log"])
+    assert bad.exit_code == 1
+    lines = bad.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("terrain: error: ")
+    assert "no-such-log" in lines[0]
