@@ -7,10 +7,8 @@ decoder, never through the code under test.
 
 from __future__ import annotations
 
-import os
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -183,13 +181,3 @@ def rng() -> np.random.Generator:
     return np.random.default_rng(20240601)
 
 
-@pytest.fixture
-def conformance_files() -> list[Path]:
-    """The MCAP project's conformance corpus: ``shared/`` beside the repository (as in CI),
-    or wherever ``TERRAIN_MCAP_CONFORMANCE`` points. Its absence is a failure, not a skip."""
-    default = Path(__file__).resolve().parents[3] / "shared" / "mcap-conformance"
-    root = Path(os.environ.get("TERRAIN_MCAP_CONFORMANCE", default))
-    files = sorted(root.glob("*/*.mcap"))
-    if not files:
-        pytest.fail(f"MCAP conformance corpus not found under {root}")
-    return files

@@ -10,7 +10,6 @@ import dataclasses
 import json
 import logging
 import math
-import os
 import shutil
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
@@ -733,21 +732,14 @@ def test_log_without_summary_ingests(tmp_path: Path, ws: Workspace) -> None:
 # --------------------------------------------------------------------------------------
 
 
-def _conformance_files() -> list[Path]:
-    default = Path(__file__).resolve().parents[3] / "shared" / "mcap-conformance"
-    root = Path(os.environ.get("TERRAIN_MCAP_CONFORMANCE", default))
-    files = sorted(root.glob("*/*.mcap"))
-    if not files:
-        pytest.fail(f"MCAP conformance corpus not found under {root}")
-    return files
-
-
-def test_conformance_corpus_is_ingested_or_refused_clearly(tmp_path: Path) -> None:
+def test_conformance_corpus_is_ingested_or_refused_clearly(
+    tmp_path: Path, conformance_files: list[Path]
+) -> None:
     """Every corpus file: ingested, or refused with one line naming the file. None holds ROS 2
     sensor data, so each is refused (no topic for the required roles, or no readable file)."""
     ws = Workspace(tmp_path / "ws")
     outcomes: dict[str, str] = {}
-    for path in _conformance_files():
+    for path in conformance_files:
         try:
             result = ingest_log(path, ws, default_config())
         except ToolkitError as exc:
@@ -758,7 +750,7 @@ def test_conformance_corpus_is_ingested_or_refused_clearly(tmp_path: Path) -> No
             outcomes[path.name] = f"ingested: {result.row_counts}"
     reasons = Counter(o.split(":")[0] + ":" + o.split(":")[1][:30] for o in outcomes.values())
     print("\n".join(f"{name}: {outcome}" for name, outcome in sorted(outcomes.items())))
-    assert len(outcomes) == len(_conformance_files()), reasons
+    assert len(outcomes) == len(conformance_files), reasons
     assert ws.log_ids() == []  # refused logs leave nothing behind
 
 
