@@ -16,6 +16,7 @@ covariance is reset to the initial uncertainty.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -160,33 +161,88 @@ def _epochs(d: SensorData, t_start: float, t_end: float) -> FloatArray:
     return np.asarray(t[1:], dtype=np.float64)
 
 
+ImuWindow = tuple[FloatArray, FloatArray, FloatArray]
+"""One window of IMU samples in time order: (t (N,), accel (N, 3), gyro (N, 3))."""
+
+OutputChunk = tuple[np.ndarray, dict[str, FloatArray]]
+"""Output rows of one window: (t_ns (M,), pose columns)."""
+
+
+def _imu_windows_of(d: SensorData, rows: int = 65_536) -> Iterator[ImuWindow]:
+    for a in range(0, d.imu_t.size, rows):
+        yield d.imu_t[a : a + rows], d.accel[a : a + rows], d.gyro[a : a + rows]
+
+
 def estimate(d: SensorData, s: FilterSettings) -> EstimateResult:
-    """Run the causal filter over the log (see the module docstring)."""
+    """Run the causal filter over the log held in memory (see :func:`estimate_stream`)."""
+    acc = EstimateResult({}, np.zeros(0, np.int64), {}, {}, 0, 0, 0, 0, "")
+    chunks: list[OutputChunk] = list(
+        estimate_stream(
+            d,
+            lambda: _imu_windows_of(d),
+            s,
+            t_end=float(d.imu_t[-1]),
+            period=float(np.median(np.diff(d.imu_t))) if d.imu_t.size > 1 else 0.01,
+            result=acc,
+        )
+    )
+    acc.t_ns = np.concatenate([c[0] for c in chunks]) if chunks else np.zeros(0, np.int64)
+    names: list[str] = list(chunks[0][1]) if chunks else []
+    acc.columns = {n: np.concatenate([c[1][n] for c in chunks]) for n in names}
+    return acc
+
+
+def estimate_stream(
+    d: SensorData,
+    imu_windows: Callable[[], Iterable[ImuWindow]],
+    s: FilterSettings,
+    *,
+    t_end: float,
+    period: float,
+    result: EstimateResult,
+) -> Iterator[OutputChunk]:
+    """Run the causal filter window by window (see the module docstring).
+
+    ``d`` holds the GPS, compass and wheel arrays (its IMU arrays are not used);
+    ``imu_windows`` opens a fresh pass over the IMU samples (called twice: once for the
+    initial attitude, once for the run); ``t_end`` is the last IMU time and ``period`` the
+    nominal IMU period. Output rows are yielded per window, so memory does not grow with the
+    log; the accounting is written into ``result`` when the generator is exhausted.
+    """
     t_start, yaw0, heading_source = _start(d)
     warnings: list[str] = []
     if heading_source == "none":
         warnings.append("no compass and the vehicle never moves fast enough for a GPS heading")
-    t_end = float(d.imu_t[-1])
     epochs = _epochs(d, t_start, t_end)
-    # Segments: the timeline cut at every IMU sample and epoch; each segment holds the IMU
-    # sample that ends at or after it (a sample averages the interval before its stamp).
-    bounds = np.union1d(d.imu_t[(d.imu_t > t_start) & (d.imu_t <= t_end)], epochs)
-    bounds = np.concatenate([[t_start], bounds])
-    seg_dt = np.diff(bounds)
-    seg_imu = np.searchsorted(d.imu_t, bounds[1:], side="left")
-    seg_is_epoch = np.isin(bounds[1:], epochs)
-    period = float(np.median(np.diff(d.imu_t))) if d.imu_t.size > 1 else 0.01
-    imu_dt = np.diff(d.imu_t, prepend=d.imu_t[0] - period)
-    gap_len = imu_dt[seg_imu]
-    is_gap = gap_len > 1.5 * period
-    restart_seg = is_gap & (gap_len > MAX_BRIDGE_S)
-    gap_samples = np.flatnonzero(imu_dt > 1.5 * period)
-    gap_samples = gap_samples[d.imu_t[gap_samples] > t_start]
-    n_restart = int((imu_dt[gap_samples] > MAX_BRIDGE_S).sum())
-    n_bridged = int(gap_samples.size - n_restart)
 
-    # Initial state.
-    att0 = _initial_attitude(d, t_start, yaw0)
+    # Initial attitude from the first second of IMU after the start.
+    first_t: list[FloatArray] = []
+    first_a: list[FloatArray] = []
+    first_g: list[FloatArray] = []
+    for wt, wa, wg in imu_windows():
+        sel = wt >= t_start
+        first_t.append(wt[sel])
+        first_a.append(wa[sel])
+        first_g.append(wg[sel])
+        if wt.size and wt[-1] > t_start + 1.0:
+            break
+    head = SensorData(
+        t0_ns=d.t0_ns,
+        imu_t=np.concatenate(first_t) if first_t else np.zeros(0),
+        accel=np.concatenate(first_a) if first_a else np.zeros((0, 3)),
+        gyro=np.concatenate(first_g) if first_g else np.zeros((0, 3)),
+        gps_t=d.gps_t,
+        gps_enu=d.gps_enu,
+        gps_var=d.gps_var,
+        head_t=d.head_t,
+        head_yaw=d.head_yaw,
+        head_var=d.head_var,
+        wheel_t=d.wheel_t,
+        wheel_speed=d.wheel_speed,
+    )
+    att0 = _initial_attitude(head, t_start, yaw0)
+    del head, first_t, first_a, first_g
+
     i_fix = min(int(np.searchsorted(d.gps_t, t_start)), d.gps_t.size - 1)
     rot0 = euler_to_rot(att0)
     x0 = np.zeros(DIM_X)
@@ -205,15 +261,6 @@ def estimate(d: SensorData, s: FilterSettings) -> EstimateResult:
     P0 = np.diag(p0)
     ukf = PoseUKF(x0, P0, s.noise, alpha=s.alpha, beta=s.beta, kappa=s.kappa)
 
-    n_seg = seg_dt.size
-    n_ep = epochs.size
-    post = np.empty((n_ep + 1, DIM_X))  # posterior at the start of epoch k's interval
-    post[0] = ukf.x
-    seg_tau = np.empty(n_seg)
-    seg_dR = np.empty((n_seg, 3, 3))
-    seg_dv = np.empty((n_seg, 3))
-    seg_dp = np.empty((n_seg, 3))
-    seg_w = np.empty((n_seg, 3))
     hx_yaw = yaw_model
     hx_gps = gps_model(s.lever_gps)
     wheel_var = np.array([[s.wheel_var]])
@@ -221,121 +268,172 @@ def estimate(d: SensorData, s: FilterSettings) -> EstimateResult:
     R_heading_idx = {float(t): i for i, t in enumerate(d.head_t.tolist())}
     gps_idx = {float(t): i for i, t in enumerate(d.gps_t.tolist())}
     zero2 = np.zeros(2)
+    step = 1.0 / s.output_rate_hz
+    n_out_total = int(np.floor((t_end - t_start) / step))
 
-    accel, gyro = d.accel, d.gyro
-    k = 0
+    post_k = ukf.x.copy()  # posterior at the start of the current epoch interval
     inc = ImuIncrement(ukf.x[9:12].copy(), ukf.x[BG].copy())
     restart_pending = False
-    for j in range(n_seg):
-        i = int(seg_imu[j])
-        if restart_seg[j]:
-            # Cross a long gap at constant velocity and attitude.
-            f_hold = inc.rot_inc.T @ euler_to_rot(post[k, ATT]).T @ (-GRAVITY) + inc.ba0
-            inc.add(f_hold, inc.bg0, float(seg_dt[j]))
-            restart_pending = True
-        else:
-            inc.add(accel[i], gyro[i], float(seg_dt[j]))
-        seg_tau[j] = inc.T
-        seg_dR[j] = inc.rot_inc
-        seg_dv[j] = inc.dv
-        seg_dp[j] = inc.dp
-        seg_w[j] = gyro[min(i, gyro.shape[0] - 1)] - inc.bg0
-        if not seg_is_epoch[j]:
+    prev_imu_t: float | None = None
+    prev_bound = t_start  # the last segment end handled
+    prev_row: dict[str, float] | None = None  # last segment's values, for interpolation
+    first_seg_t: float | None = None
+    n_bridged = n_restart = n_imu = 0
+    m_next = 1  # next output index (t_out = t_start + step * m)
+
+    for wt, accel, gyro in imu_windows():
+        if wt.size == 0:
             continue
-        t = float(bounds[j + 1])
-        ukf.predict_imu(inc)
-        if restart_pending:
-            ukf.P = np.maximum(ukf.P, P0)
-            restart_pending = False
-        w_now = seg_w[j]
-        gi = gps_idx.get(t)
-        if gi is not None:
-            ukf.update_gated("gps", d.gps_enu[gi], np.diag(d.gps_var[gi]), hx_gps, s.gate_gps)
-        hi = R_heading_idx.get(t)
-        if hi is not None:
-            ukf.update_gated(
-                "heading",
-                d.head_yaw[hi : hi + 1],
-                d.head_var[hi : hi + 1, None],
-                hx_yaw,
-                s.gate_heading,
-                mean_fn=angle_mean,
-                residual_fn=angle_residual,
-            )
-        if d.wheel_t.size and d.wheel_t[0] <= t <= d.wheel_t[-1]:
-            speed = float(np.interp(t, d.wheel_t, d.wheel_speed))
-            ukf.update_gated(
-                "wheels",
-                np.array([speed]),
-                wheel_var,
-                wheel_model(w_now, s.lever_axle),
-                s.gate_wheels,
-            )
-        ukf.update_gated("nhc", zero2, nhc_cov, nhc_model(w_now, s.lever_axle), NHC_GATE_CHI2)
-        k += 1
-        post[k] = ukf.x
-        inc = ImuIncrement(ukf.x[9:12].copy(), ukf.x[BG].copy())
+        w_prev = (wt[0] - period) if prev_imu_t is None else prev_imu_t
+        imu_dt = np.diff(wt, prepend=w_prev)
+        prev_imu_t = float(wt[-1])
+        after = wt > t_start
+        gap_w = (imu_dt > 1.5 * period) & after
+        n_restart += int((imu_dt[gap_w] > MAX_BRIDGE_S).sum())
+        n_bridged += int(gap_w.sum() - (imu_dt[gap_w] > MAX_BRIDGE_S).sum())
+        n_imu += int(np.count_nonzero(after & (wt <= t_end)))
+        t_hi = float(wt[-1])
+        if t_hi <= t_start:
+            continue
+        lo = prev_bound
+        ep_w = epochs[(epochs > lo) & (epochs <= t_hi)]
+        bounds = np.union1d(wt[(wt > lo) & (wt <= t_end)], ep_w)
+        if bounds.size == 0:
+            continue
+        seg_dt = np.diff(bounds, prepend=lo)
+        seg_imu = np.searchsorted(wt, bounds, side="left")
+        seg_is_epoch = np.isin(bounds, ep_w)
+        gap_len = imu_dt[seg_imu]
+        restart_seg = (gap_len > 1.5 * period) & (gap_len > MAX_BRIDGE_S)
+        n_seg = bounds.size
+        seg_tau = np.empty(n_seg)
+        seg_dR = np.empty((n_seg, 3, 3))
+        seg_dv = np.empty((n_seg, 3))
+        seg_dp = np.empty((n_seg, 3))
+        seg_w = np.empty((n_seg, 3))
+        seg_base = np.empty((n_seg, DIM_X))
+        seg_post = np.empty((n_seg, DIM_X))
+        for j in range(n_seg):
+            i = int(seg_imu[j])
+            seg_base[j] = post_k
+            if restart_seg[j]:
+                f_hold = inc.rot_inc.T @ euler_to_rot(post_k[ATT]).T @ (-GRAVITY) + inc.ba0
+                inc.add(f_hold, inc.bg0, float(seg_dt[j]))
+                restart_pending = True
+            else:
+                inc.add(accel[i], gyro[i], float(seg_dt[j]))
+            seg_tau[j] = inc.T
+            seg_dR[j] = inc.rot_inc
+            seg_dv[j] = inc.dv
+            seg_dp[j] = inc.dp
+            seg_w[j] = gyro[min(i, gyro.shape[0] - 1)] - inc.bg0
+            if not seg_is_epoch[j]:
+                continue
+            t = float(bounds[j])
+            ukf.predict_imu(inc)
+            if restart_pending:
+                ukf.P = np.maximum(ukf.P, P0)
+                restart_pending = False
+            w_now = seg_w[j]
+            gi = gps_idx.get(t)
+            if gi is not None:
+                ukf.update_gated("gps", d.gps_enu[gi], np.diag(d.gps_var[gi]), hx_gps, s.gate_gps)
+            hi = R_heading_idx.get(t)
+            if hi is not None:
+                ukf.update_gated(
+                    "heading",
+                    d.head_yaw[hi : hi + 1],
+                    d.head_var[hi : hi + 1, None],
+                    hx_yaw,
+                    s.gate_heading,
+                    mean_fn=angle_mean,
+                    residual_fn=angle_residual,
+                )
+            if d.wheel_t.size and d.wheel_t[0] <= t <= d.wheel_t[-1]:
+                speed = float(np.interp(t, d.wheel_t, d.wheel_speed))
+                ukf.update_gated(
+                    "wheels",
+                    np.array([speed]),
+                    wheel_var,
+                    wheel_model(w_now, s.lever_axle),
+                    s.gate_wheels,
+                )
+            ukf.update_gated("nhc", zero2, nhc_cov, nhc_model(w_now, s.lever_axle), NHC_GATE_CHI2)
+            post_k = ukf.x.copy()
+            seg_post[j] = post_k
+            inc = ImuIncrement(ukf.x[9:12].copy(), ukf.x[BG].copy())
+        prev_bound = float(bounds[-1])
 
-    # The mean carried from each epoch's posterior to every segment end (vectorised).
-    ep_seg = np.flatnonzero(seg_is_epoch)
-    base = post[np.searchsorted(ep_seg, np.arange(n_seg), side="left")]
-    rot_a = euler_to_rot(base[:, ATT])
-    tau = seg_tau[:, None]
-    pos = (
-        base[:, POS]
-        + base[:, VEL] * tau
-        + 0.5 * GRAVITY * tau**2
-        + np.einsum("nij,nj->ni", rot_a, seg_dp)
-    )
-    vel = base[:, VEL] + GRAVITY * tau + np.einsum("nij,nj->ni", rot_a, seg_dv)
-    rot = rot_a @ seg_dR
-    att = rot_to_euler(rot)
-    # At an epoch the posterior replaces the carried prior.
-    pos[ep_seg] = post[1 : ep_seg.size + 1, POS]
-    vel[ep_seg] = post[1 : ep_seg.size + 1, VEL]
-    att[ep_seg] = post[1 : ep_seg.size + 1, ATT]
-    rot[ep_seg] = euler_to_rot(att[ep_seg])
-    omega = seg_w
-    # base_link: the IMU position less the lever arm; velocity less w x lever.
-    lever_base = s.lever_axle
-    pos_b = pos + np.einsum("nij,j->ni", rot, lever_base)
-    vel_b = vel + np.einsum("nij,nj->ni", rot, np.cross(omega, lever_base))
-    rates = euler_rates(att, omega)
+        # The mean carried from each epoch's posterior to every segment end (vectorised).
+        ep_seg = np.flatnonzero(seg_is_epoch)
+        base = seg_base
+        rot_a = euler_to_rot(base[:, ATT])
+        tau = seg_tau[:, None]
+        pos = (
+            base[:, POS]
+            + base[:, VEL] * tau
+            + 0.5 * GRAVITY * tau**2
+            + np.einsum("nij,nj->ni", rot_a, seg_dp)
+        )
+        vel = base[:, VEL] + GRAVITY * tau + np.einsum("nij,nj->ni", rot_a, seg_dv)
+        rot = rot_a @ seg_dR
+        att = rot_to_euler(rot)
+        # At an epoch the posterior replaces the carried prior.
+        pos[ep_seg] = seg_post[ep_seg][:, POS]
+        vel[ep_seg] = seg_post[ep_seg][:, VEL]
+        att[ep_seg] = seg_post[ep_seg][:, ATT]
+        rot[ep_seg] = euler_to_rot(att[ep_seg])
+        omega = seg_w
+        # base_link: the IMU position less the lever arm; velocity less w x lever.
+        lever_base = s.lever_axle
+        pos_b = pos + np.einsum("nij,j->ni", rot, lever_base)
+        vel_b = vel + np.einsum("nij,nj->ni", rot, np.cross(omega, lever_base))
+        rates = euler_rates(att, omega)
+        seg_cols = {
+            "x": pos_b[:, 0],
+            "y": pos_b[:, 1],
+            "z": pos_b[:, 2],
+            "roll": att[:, 0],
+            "pitch": att[:, 1],
+            "yaw": att[:, 2],
+            "vx": vel_b[:, 0],
+            "vy": vel_b[:, 1],
+            "vz": vel_b[:, 2],
+            "roll_rate": rates[:, 0],
+            "pitch_rate": rates[:, 1],
+            "yaw_rate": rates[:, 2],
+        }
+        t_seg = bounds
+        if prev_row is not None:
+            t_seg = np.concatenate([[prev_row["t"]], t_seg])
+            seg_cols = {k: np.concatenate([[prev_row[k]], v]) for k, v in seg_cols.items()}
+        seg_cols["yaw"] = np.unwrap(seg_cols["yaw"])
+        prev_row = {k: float(v[-1]) for k, v in seg_cols.items()}
+        prev_row["t"] = float(t_seg[-1])
+        if first_seg_t is None:
+            first_seg_t = float(t_seg[0])
+        # Output times up to this window's last segment end.
+        m_hi = min(int(np.floor((t_seg[-1] - t_start) / step)), n_out_total)
+        if m_hi < m_next:
+            continue
+        t_out = t_start + step * np.arange(m_next, m_hi + 1)
+        m_next = m_hi + 1
+        t_out = t_out[t_out >= first_seg_t]
+        if t_out.size == 0:
+            continue
 
-    t_seg = bounds[1:]
-    step = 1.0 / s.output_rate_hz
-    t_out = t_start + step * np.arange(1, int(np.floor((t_seg[-1] - t_start) / step)) + 1)
-    t_out = t_out[t_out >= t_seg[0]]
+        columns = {
+            k: np.asarray(np.interp(t_out, t_seg, v), dtype=np.float64) for k, v in seg_cols.items()
+        }
+        columns["yaw"] = wrap_angle(columns["yaw"])
+        columns["speed"] = np.hypot(columns["vx"], columns["vy"])
+        yield d.t0_ns + np.round(t_out * 1e9).astype(np.int64), columns
 
-    def interp(col: FloatArray) -> FloatArray:
-        return np.asarray(np.interp(t_out, t_seg, col), dtype=np.float64)
-
-    yaw_c = wrap_angle(interp(np.unwrap(att[:, 2])))
-    columns = {
-        "x": interp(pos_b[:, 0]),
-        "y": interp(pos_b[:, 1]),
-        "z": interp(pos_b[:, 2]),
-        "roll": interp(att[:, 0]),
-        "pitch": interp(att[:, 1]),
-        "yaw": yaw_c,
-        "vx": interp(vel_b[:, 0]),
-        "vy": interp(vel_b[:, 1]),
-        "vz": interp(vel_b[:, 2]),
-        "roll_rate": interp(rates[:, 0]),
-        "pitch_rate": interp(rates[:, 1]),
-        "yaw_rate": interp(rates[:, 2]),
-    }
-    columns["speed"] = np.hypot(columns["vx"], columns["vy"])
-    t_ns = d.t0_ns + np.round(t_out * 1e9).astype(np.int64)
-    return EstimateResult(
-        columns=columns,
-        t_ns=t_ns,
-        gated=dict(ukf.gated),
-        accepted=dict(ukf.accepted),
-        imu_gaps_bridged=n_bridged,
-        imu_gaps_restarted=n_restart,
-        epochs=int(n_ep),
-        imu_samples=int(np.count_nonzero((d.imu_t > t_start) & (d.imu_t <= t_end))),
-        heading_source=heading_source,
-        warnings=warnings,
-    )
+    result.gated = dict(ukf.gated)
+    result.accepted = dict(ukf.accepted)
+    result.imu_gaps_bridged = n_bridged
+    result.imu_gaps_restarted = n_restart
+    result.epochs = int(epochs.size)
+    result.imu_samples = n_imu
+    result.heading_source = heading_source
+    result.warnings = warnings

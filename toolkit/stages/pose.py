@@ -8,32 +8,57 @@ IMU gaps bridged / restarted, timings; for simulated logs (``truth_pose.parquet`
 ``terrain_sim`` record in ``mcap_metadata.json``) an ``accuracy`` header section against
 truth: horizontal RMSE (m), roll / pitch / yaw RMSE (deg), position error at the end of each
 GPS dropout (m). Idempotent: an up-to-date pose is not recomputed.
+
+Memory is flat in log length: the IMU and truth tables are read in batches of
+:data:`BATCH_ROWS`, the filter runs window by window carrying its state
+(:func:`~toolkit.fusion.estimator.estimate_stream`), pose rows are streamed to a partial
+file renamed into place at the end, and the accuracy keeps only sums of squares. The
+low-rate GPS, compass and wheel-speed arrays are held whole.
 """
 
 from __future__ import annotations
 
 import json
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
-from toolkit.fusion.estimator import EstimateResult, FilterSettings, SensorData, estimate
+from toolkit.fusion.estimator import (
+    EstimateResult,
+    FilterSettings,
+    ImuWindow,
+    OutputChunk,
+    SensorData,
+    estimate_stream,
+)
 from toolkit.fusion.rotations import FloatArray, wrap_angle
 from toolkit.fusion.ukf import NoiseModel
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
-from toolkit.tableio import read_table, write_table
-from toolkit.workspace import StageRecord, Workspace, check_up_to_date, file_sha256
+from toolkit.tableio import conform_table, contract_metadata, load_table_schema, read_table
+from toolkit.workspace import (
+    StageRecord,
+    Workspace,
+    atomic_output,
+    check_up_to_date,
+    file_sha256,
+)
 
 STAGE = "pose"
 INPUT_TABLES = ("imu", "gps", "heading", "wheels")
 CONFIG_SECTIONS = ("pose", "time")
 OUTPUT = "pose.parquet"
+#: Rows per IMU / truth read batch and per output row group.
+BATCH_ROWS = 4_096
+IMU_COLUMNS = ["t_ns"] + [f"{q}_{a}" for q in ("accel", "gyro") for a in "xyz"]
 
 
 @dataclass(frozen=True)
@@ -90,13 +115,34 @@ def _lever_arms(log_dir: Path) -> tuple[FloatArray, FloatArray, list[str]]:
     return gps - imu, -imu, warnings
 
 
+def _batches(path: Path, columns: list[str]) -> Iterator[pa.RecordBatch]:
+    """Record batches of a table, in file (time) order, BATCH_ROWS at a time."""
+    with pq.ParquetFile(path) as f:
+        yield from f.iter_batches(batch_size=BATCH_ROWS, columns=columns)
+
+
+def _last_t_ns(path: Path) -> int:
+    """The last t_ns of a time-sorted table, reading only its last row group."""
+    with pq.ParquetFile(path) as f:
+        rg = f.read_row_group(f.metadata.num_row_groups - 1, columns=["t_ns"])
+    return int(rg.column("t_ns")[-1].as_py())
+
+
 def _sensor_data(
     log_dir: Path, config: PipelineConfig
-) -> tuple[SensorData, GeodeticOrigin, list[str]]:
-    tables = {n: read_table(log_dir / f"{n}.parquet", n) for n in INPUT_TABLES}
-    imu, gps, head, wheels = (tables[n] for n in INPUT_TABLES)
-    if imu.num_rows < 2:
-        raise StageError(f"imu table has {imu.num_rows} rows", path=log_dir / "imu.parquet")
+) -> tuple[SensorData, GeodeticOrigin, list[str], Any, float, float]:
+    """The low-rate sensors as arrays and a re-startable stream over the IMU.
+
+    Returns (data without IMU arrays, origin, warnings, IMU window factory, last IMU time
+    (s), nominal IMU period (s, the median interval of the first batch)).
+    """
+    imu_path = log_dir / "imu.parquet"
+    n_imu = read_table(imu_path, "imu", columns=[]).num_rows  # checks the contract
+    if n_imu < 2:
+        raise StageError(f"imu table has {n_imu} rows", path=imu_path)
+    gps = read_table(log_dir / "gps.parquet", "gps")
+    head = read_table(log_dir / "heading.parquet", "heading")
+    wheels = read_table(log_dir / "wheels.parquet", "wheels", columns=["t_ns", "speed"])
     status = np.asarray(gps.column("status").to_numpy(zero_copy_only=False))
     lat, lon, alt = _col(gps, "latitude"), _col(gps, "longitude"), _col(gps, "altitude")
     valid = (status >= config.pose.gps_min_status) & np.isfinite(lat) & np.isfinite(lon)
@@ -109,22 +155,41 @@ def _sensor_data(
         )
     first = int(np.flatnonzero(valid)[0])
     origin = GeodeticOrigin(float(lat[first]), float(lon[first]), float(alt[first]))
-    t0_ns = int(imu.column("t_ns")[0].as_py())
+    first_batch = next(_batches(imu_path, ["t_ns"]))
+    t_first = np.asarray(first_batch.column(0).to_numpy(), dtype=np.int64)
+    t0_ns = int(t_first[0])
+    period = float(np.median(np.diff(t_first) * 1e-9)) if t_first.size > 1 else 0.01
+    t_end = float(_last_t_ns(imu_path) - t0_ns) * 1e-9
+
+    def rel_ns(t: np.ndarray) -> FloatArray:
+        return (np.asarray(t, dtype=np.int64) - t0_ns).astype(np.float64) * 1e-9
 
     def rel(table: pa.Table) -> FloatArray:
-        t = np.asarray(table.column("t_ns").to_numpy(), dtype=np.int64)
-        return (t - t0_ns).astype(np.float64) * 1e-9
+        return rel_ns(table.column("t_ns").to_numpy())
+
+    def imu_windows() -> Iterator[ImuWindow]:
+        for b in _batches(imu_path, IMU_COLUMNS):
+            t = rel_ns(b.column(0).to_numpy())
+            cols = [
+                np.asarray(b.column(i).to_numpy(zero_copy_only=False), np.float64)
+                for i in range(1, 7)
+            ]
+            yield t, np.stack(cols[:3], axis=1), np.stack(cols[3:], axis=1)
 
     gps_t = rel(gps)[valid]
     enu = geodetic_to_enu(lat[valid], lon[valid], alt[valid], origin)
-    cov = gps.column("position_covariance").to_pylist()
     p = config.pose
     default_var = np.array([p.gps_noise_m**2, p.gps_noise_m**2, p.gps_vertical_noise_m**2])
     gvar = np.tile(default_var, (int(valid.sum()), 1))
     idx = np.flatnonzero(valid)
-    covs = [cov[i] for i in idx.tolist()]
-    if covs and all(c is not None and len(c) == 9 for c in covs):
-        diag = np.asarray(covs, dtype=np.float64)[:, [0, 4, 8]]
+    covs = gps.column("position_covariance").combine_chunks().take(pa.array(idx))
+    if (
+        len(covs)
+        and covs.null_count == 0
+        and pc.all(pc.equal(pc.list_value_length(covs), 9)).as_py()
+    ):
+        flat = np.asarray(pc.list_flatten(covs).to_numpy(zero_copy_only=False), dtype=np.float64)
+        diag = flat.reshape(-1, 9)[:, [0, 4, 8]]
         ok = np.all(np.isfinite(diag) & (diag > 0), axis=1)
         gvar[ok] = diag[ok]
     yaw_std = _col(head, "yaw_std") if head.num_rows else np.zeros(0)
@@ -133,9 +198,9 @@ def _sensor_data(
     wok = np.isfinite(wheel_speed)
     data = SensorData(
         t0_ns=t0_ns,
-        imu_t=rel(imu),
-        accel=np.stack([_col(imu, f"accel_{a}") for a in "xyz"], axis=1),
-        gyro=np.stack([_col(imu, f"gyro_{a}") for a in "xyz"], axis=1),
+        imu_t=np.zeros(0),
+        accel=np.zeros((0, 3)),
+        gyro=np.zeros((0, 3)),
         gps_t=gps_t,
         gps_enu=enu,
         gps_var=gvar,
@@ -145,7 +210,7 @@ def _sensor_data(
         wheel_t=rel(wheels)[wok],
         wheel_speed=wheel_speed[wok],
     )
-    return data, origin, []
+    return data, origin, [], imu_windows, t_end, period
 
 
 def _settings(
@@ -172,10 +237,121 @@ def _settings(
     )
 
 
-def accuracy_vs_truth(
-    log_dir: Path, t_ns: np.ndarray, cols: dict[str, FloatArray], origin: GeodeticOrigin
-) -> dict[str, Any] | None:
-    """Errors of the pose against the simulator's truth, or None for a real log."""
+class TruthAccuracy:
+    """Errors of the pose against the simulator's truth, accumulated chunk by chunk.
+
+    The truth table is read in batches alongside the pose rows (both are time-sorted); only
+    sums of squares, counts and the error at the end of each GPS dropout are kept.
+    """
+
+    def __init__(self, truth_path: Path, sim: dict[str, Any], origin: GeodeticOrigin) -> None:
+        o = json.loads(sim["origin"])
+        self.sim_origin = GeodeticOrigin(o["latitude_deg"], o["longitude_deg"], o["altitude_m"])
+        self.origin = origin
+        read_table(truth_path, "truth_pose", columns=[])  # checks the contract
+        cols = ["t_ns", "x", "y", "z", "roll", "pitch", "yaw"]
+        self._batches = _batches(truth_path, cols)
+        first = next(_batches(truth_path, ["t_ns"]))
+        self.tt0 = int(first.column(0)[0].as_py())
+        self.tr_end = float(_last_t_ns(truth_path) - self.tt0)
+        self._buf: pa.Table | None = None
+        self._exhausted = False
+        self.sums = dict.fromkeys(("h", "v", "roll", "pitch", "yaw"), 0.0)
+        self.n = 0
+        self.t_first: int | None = None
+        self.t_last: int | None = None
+        self.dropouts = [
+            (int(lo), int(hi)) for lo, hi in json.loads(sim.get("gps_dropouts_ns", "[]"))
+        ]
+        self.drop_err: dict[int, float] = {}
+
+    def _cover(self, t_hi: int) -> pa.Table:
+        """Truth rows from the last one at or before the previous chunk up to >= t_hi."""
+        assert self._buf is not None or not self._exhausted
+        while not self._exhausted and (
+            self._buf is None or int(self._buf.column("t_ns")[-1].as_py()) < t_hi
+        ):
+            try:
+                batch = pa.Table.from_batches([next(self._batches)])
+            except StopIteration:
+                self._exhausted = True
+                break
+            self._buf = batch if self._buf is None else pa.concat_tables([self._buf, batch])
+        assert self._buf is not None
+        return self._buf
+
+    def add(self, t_ns: np.ndarray, cols: dict[str, FloatArray]) -> None:
+        if t_ns.size == 0:
+            return
+        tq = (t_ns - self.tt0).astype(np.float64)
+        inside = (tq >= 0.0) & (tq <= self.tr_end)
+        if not inside.any():
+            return
+        truth = self._cover(int(t_ns[inside][-1]))
+        tt = np.asarray(truth.column("t_ns").to_numpy(), dtype=np.int64)
+        tr = (tt - self.tt0).astype(np.float64)
+        tq = tq[inside]
+        xyz_sim = np.stack([_col(truth, c) for c in "xyz"], axis=1)
+        lat, lon, alt = enu_to_geodetic(xyz_sim, self.sim_origin)
+        xyz = geodetic_to_enu(lat, lon, alt, self.origin)
+
+        def at(v: FloatArray) -> FloatArray:
+            return np.asarray(np.interp(tq, tr, v), dtype=np.float64)
+
+        ex = cols["x"][inside] - at(xyz[:, 0])
+        ey = cols["y"][inside] - at(xyz[:, 1])
+        eh = np.hypot(ex, ey)
+        ez = cols["z"][inside] - at(xyz[:, 2])
+        self.sums["h"] += float(np.sum(eh**2))
+        self.sums["v"] += float(np.sum(ez**2))
+        for name in ("roll", "pitch", "yaw"):
+            tv = np.unwrap(_col(truth, name))
+            e = wrap_angle(cols[name][inside] - wrap_angle(at(tv)))
+            self.sums[name] += float(np.sum(e**2))
+        t_abs = t_ns[inside]
+        self.n += int(t_abs.size)
+        if self.t_first is None:
+            self.t_first = int(t_abs[0])
+        self.t_last = int(t_abs[-1])
+        for _lo, hi in self.dropouts:
+            k = int(np.searchsorted(t_abs, hi)) - 1
+            if k >= 0:
+                self.drop_err[hi] = float(eh[k])
+        # Keep only the truth rows the next chunk can still need.
+        keep_from = max(int(np.searchsorted(tt, int(t_abs[-1]), side="right")) - 1, 0)
+        self._buf = truth.slice(keep_from)
+
+    def result(self) -> dict[str, Any] | None:
+        if self.n == 0 or self.t_first is None or self.t_last is None:
+            return None
+
+        def rms(key: str) -> float:
+            return float(np.sqrt(self.sums[key] / self.n))
+
+        dropouts = []
+        for lo, hi in self.dropouts:
+            if lo < self.t_first or hi > self.t_last or hi not in self.drop_err:
+                continue
+            dropouts.append(
+                {
+                    "start_ns": int(lo),
+                    "duration_s": round((hi - lo) * 1e-9, 3),
+                    "horizontal_error_at_end_m": round(self.drop_err[hi], 4),
+                }
+            )
+        return {
+            "rows_compared": self.n,
+            "horizontal_rmse_m": round(rms("h"), 4),
+            "vertical_rmse_m": round(rms("v"), 4),
+            "roll_rmse_deg": round(float(np.degrees(rms("roll"))), 4),
+            "pitch_rmse_deg": round(float(np.degrees(rms("pitch"))), 4),
+            "yaw_rmse_deg": round(float(np.degrees(rms("yaw"))), 4),
+            "gps_dropouts": dropouts,
+        }
+
+
+def truth_accuracy(log_dir: Path, origin: GeodeticOrigin) -> TruthAccuracy | None:
+    """An accumulator against the simulator's truth, or None for a real log."""
     meta_path = log_dir / "mcap_metadata.json"
     truth_path = log_dir / "truth_pose.parquet"
     if not (meta_path.is_file() and truth_path.is_file()):
@@ -183,54 +359,18 @@ def accuracy_vs_truth(
     sim = json.loads(meta_path.read_text()).get("terrain_sim")
     if not sim or "origin" not in sim:
         return None
-    o = json.loads(sim["origin"])
-    sim_origin = GeodeticOrigin(o["latitude_deg"], o["longitude_deg"], o["altitude_m"])
-    truth = read_table(truth_path, "truth_pose")
-    tt = np.asarray(truth.column("t_ns").to_numpy(), dtype=np.int64)
-    xyz_sim = np.stack([_col(truth, c) for c in "xyz"], axis=1)
-    lat, lon, alt = enu_to_geodetic(xyz_sim, sim_origin)
-    xyz = geodetic_to_enu(lat, lon, alt, origin)
-    tq = (t_ns - tt[0]).astype(np.float64)
-    tr = (tt - tt[0]).astype(np.float64)
-    inside = (tq >= tr[0]) & (tq <= tr[-1])
-    tq = tq[inside]
+    return TruthAccuracy(truth_path, sim, origin)
 
-    def at(v: FloatArray) -> FloatArray:
-        return np.asarray(np.interp(tq, tr, v), dtype=np.float64)
 
-    ex = cols["x"][inside] - at(xyz[:, 0])
-    ey = cols["y"][inside] - at(xyz[:, 1])
-    eh = np.hypot(ex, ey)
-    errs = {}
-    for name in ("roll", "pitch", "yaw"):
-        tv = np.unwrap(_col(truth, name))
-        errs[name] = wrap_angle(cols[name][inside] - wrap_angle(at(tv)))
-
-    def rms(v: FloatArray) -> float:
-        return float(np.sqrt(np.mean(v**2)))
-
-    dropouts = []
-    t_abs = t_ns[inside]
-    for lo, hi in json.loads(sim.get("gps_dropouts_ns", "[]")):
-        if lo < t_abs[0] or hi > t_abs[-1]:
-            continue
-        k = int(np.searchsorted(t_abs, hi)) - 1
-        dropouts.append(
-            {
-                "start_ns": int(lo),
-                "duration_s": round((hi - lo) * 1e-9, 3),
-                "horizontal_error_at_end_m": round(float(eh[k]), 4),
-            }
-        )
-    return {
-        "rows_compared": int(inside.sum()),
-        "horizontal_rmse_m": round(rms(eh), 4),
-        "vertical_rmse_m": round(rms(cols["z"][inside] - at(xyz[:, 2])), 4),
-        "roll_rmse_deg": round(float(np.degrees(rms(errs["roll"]))), 4),
-        "pitch_rmse_deg": round(float(np.degrees(rms(errs["pitch"]))), 4),
-        "yaw_rmse_deg": round(float(np.degrees(rms(errs["yaw"]))), 4),
-        "gps_dropouts": dropouts,
-    }
+def accuracy_vs_truth(
+    log_dir: Path, t_ns: np.ndarray, cols: dict[str, FloatArray], origin: GeodeticOrigin
+) -> dict[str, Any] | None:
+    """Errors of a pose held in memory against the simulator's truth, or None for a real log."""
+    acc = truth_accuracy(log_dir, origin)
+    if acc is None:
+        return None
+    acc.add(t_ns, cols)
+    return acc.result()
 
 
 def run_pose(
@@ -263,23 +403,11 @@ def run_pose(
             acc,
             time.perf_counter() - start,
         )
-    timings: dict[str, float] = {}
+    timings: dict[str, float] = dict.fromkeys(("read", "filter", "write", "accuracy"), 0.0)
     t = time.perf_counter()
-    data, origin, warnings = _sensor_data(log_dir, config)
+    data, origin, warnings, imu_windows, t_end, period = _sensor_data(log_dir, config)
     lever_gps, lever_axle, lw = _lever_arms(log_dir)
     warnings += lw
-    timings["read"] = time.perf_counter() - t
-    t = time.perf_counter()
-    est: EstimateResult = estimate(data, _settings(config, lever_gps, lever_axle))
-    timings["filter"] = time.perf_counter() - t
-    warnings += est.warnings
-    t = time.perf_counter()
-    table = pa.table(
-        {
-            "t_ns": pa.array(est.t_ns, pa.int64()),
-            **{k: pa.array(v, pa.float64()) for k, v in est.columns.items()},
-        }
-    )
     sha = json.loads(json.dumps(manifest.read().get("source", {}))).get("sha256", "")
     origin_json = json.dumps(
         {
@@ -288,20 +416,69 @@ def run_pose(
             "altitude_m": origin.altitude_m,
         }
     )
-    write_table(
-        out_path,
-        table,
-        "pose",
-        source_sha256=sha,
-        config_hash=cfg_hash,
-        extra_metadata={"enu_origin": origin_json, "frame_id": "enu_first_fix"},
+    schema = load_table_schema("pose")
+    arrow_schema = schema.arrow_schema().with_metadata(
+        contract_metadata(
+            schema.name,
+            schema.version,
+            source_sha256=sha,
+            config_hash=cfg_hash,
+            extra_metadata={"enu_origin": origin_json, "frame_id": "enu_first_fix"},
+        )
     )
-    timings["write"] = time.perf_counter() - t
-    t = time.perf_counter()
-    accuracy = accuracy_vs_truth(log_dir, est.t_ns, est.columns, origin)
-    timings["accuracy"] = time.perf_counter() - t
+    acc = truth_accuracy(log_dir, origin)
+    timings["read"] += time.perf_counter() - t
+    est = EstimateResult({}, np.zeros(0, np.int64), {}, {}, 0, 0, 0, 0, "")
+    rows = 0
+    t_first: int | None = None
+    t_last: int | None = None
+    chunks = estimate_stream(
+        data,
+        imu_windows,
+        _settings(config, lever_gps, lever_axle),
+        t_end=t_end,
+        period=period,
+        result=est,
+    )
+    try:
+        with (
+            atomic_output(out_path) as tmp,
+            pq.ParquetWriter(tmp, arrow_schema, compression="zstd") as writer,
+        ):
+            while True:
+                t = time.perf_counter()
+                chunk: OutputChunk | None = next(chunks, None)
+                timings["filter"] += time.perf_counter() - t
+                if chunk is None:
+                    break
+                t_ns, cols = chunk
+                t = time.perf_counter()
+                table = pa.table(
+                    {
+                        "t_ns": pa.array(t_ns, pa.int64()),
+                        **{k: pa.array(v, pa.float64()) for k, v in cols.items()},
+                    }
+                )
+                writer.write_table(conform_table(table, schema, out_path).cast(arrow_schema))
+                timings["write"] += time.perf_counter() - t
+                rows += table.num_rows
+                if t_ns.size:
+                    t_first = int(t_ns[0]) if t_first is None else t_first
+                    t_last = int(t_ns[-1])
+                if acc is not None:
+                    t = time.perf_counter()
+                    acc.add(t_ns, cols)
+                    timings["accuracy"] += time.perf_counter() - t
+            if rows == 0:
+                writer.write_table(schema.empty_table().cast(arrow_schema))
+    except (OSError, pa.ArrowException) as exc:
+        raise StageError(f"cannot write table 'pose': {exc}", path=out_path) from exc
+    warnings += est.warnings
+    accuracy = acc.result() if acc is not None else None
     timings["total"] = time.perf_counter() - start
-    duration_s = float(est.t_ns[-1] - est.t_ns[0]) * 1e-9 if est.t_ns.size else 0.0
+    duration_s = (
+        float(t_last - t_first) * 1e-9 if t_first is not None and t_last is not None else 0.0
+    )
     filter_detail = {
         "enu_origin": json.loads(origin_json),
         "heading_source": est.heading_source,
@@ -319,13 +496,20 @@ def run_pose(
             inputs=inputs,
             config_hash=cfg_hash,
             outputs=(OUTPUT,),
-            row_counts={"pose": table.num_rows},
+            row_counts={"pose": rows},
             rejects={f"gated_{k}": v for k, v in sorted(est.gated.items())},
             timings_s={k: round(v, 6) for k, v in sorted(timings.items())},
             warnings=tuple(warnings),
         ),
     )
-    return PoseResult(log_id, "estimated", table.num_rows, accuracy, time.perf_counter() - start)
+    return PoseResult(log_id, "estimated", rows, accuracy, time.perf_counter() - start)
 
 
-__all__ = ["STAGE", "PoseResult", "accuracy_vs_truth", "run_pose", "stage_config_hash"]
+__all__ = [
+    "STAGE",
+    "PoseResult",
+    "TruthAccuracy",
+    "accuracy_vs_truth",
+    "run_pose",
+    "stage_config_hash",
+]
