@@ -130,7 +130,9 @@ def _make(minutes: float, out_dir: Path) -> Path:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("logs", nargs="*", type=Path)
-    ap.add_argument("--make", nargs="*", type=float, default=[], help="minutes of race log to simulate")
+    ap.add_argument(
+        "--make", nargs="*", type=float, default=[], help="minutes of race log to simulate"
+    )
     ap.add_argument("--dir", type=Path, default=Path(tempfile.gettempdir()) / "terrain-bench")
     ap.add_argument("--skip-naive", action="store_true")
     args = ap.parse_args()
@@ -139,7 +141,9 @@ def main() -> None:
     for log in logs:
         messages, ranges, duration = _shape(log)
         size_mb = log.stat().st_size / 1e6
-        print(f"{log.name}: {duration:.0f} s, {size_mb:.1f} MB, {messages} messages, {ranges} laser ranges")
+        print(
+            f"{log.name}: {duration:.0f} s, {size_mb:.1f} MB, {messages} messages, {ranges} laser ranges"
+        )
         results = {"bare": _run(BARE, log), "toolkit": _run(TOOLKIT, log)}
         if not args.skip_naive:
             results["naive"] = _run(NAIVE, log)

@@ -156,8 +156,9 @@ def assert_object_matches(spec: MessageSpec, obj: Any, cols: Mapping[str, Any], 
             np.testing.assert_array_equal(np.asarray(got, dtype=dtype), want, err_msg=leaf.path)
 
 
-def assert_columns_match(spec: MessageSpec, got: Mapping[str, Any], cols: Mapping[str, Any],
-                         n: int) -> None:
+def assert_columns_match(
+    spec: MessageSpec, got: Mapping[str, Any], cols: Mapping[str, Any], n: int
+) -> None:
     """decode_batch output equals the columns the messages were made from (row by row)."""
     assert set(got) == {leaf.path for leaf in leaves(spec)}
     for leaf in leaves(spec):
@@ -179,5 +180,3 @@ def assert_columns_match(spec: MessageSpec, got: Mapping[str, Any], cols: Mappin
 @pytest.fixture
 def rng() -> np.random.Generator:
     return np.random.default_rng(20240601)
-
-

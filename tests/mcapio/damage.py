@@ -52,9 +52,7 @@ def chunk_topics(path: Path, index: ChunkIndex) -> Counter[str]:
         chunk = next(iter(StreamReader(f, skip_magic=True, emit_chunks=True).records))
     assert isinstance(chunk, Chunk)
     return Counter(
-        summary.channels[r.channel_id].topic
-        for r in breakup_chunk(chunk)
-        if isinstance(r, Message)
+        summary.channels[r.channel_id].topic for r in breakup_chunk(chunk) if isinstance(r, Message)
     )
 
 

@@ -93,14 +93,18 @@ def test_parsed_spec_has_real_ros2_fields() -> None:
     ]
     cov = imu.field("orientation_covariance")
     assert (cov.type_name, cov.is_array, cov.array_length, cov.is_primitive) == (
-        "float64", True, 9, True,
+        "float64",
+        True,
+        9,
+        True,
     )
     header = imu.field("header")
     assert header.nested is not None and header.nested.name == "std_msgs/msg/Header"
     stamp = header.nested.field("stamp")
     assert stamp.nested is not None
     assert [(f.name, f.type_name) for f in stamp.nested.fields] == [
-        ("sec", "int32"), ("nanosec", "uint32"),
+        ("sec", "int32"),
+        ("nanosec", "uint32"),
     ]
     ranges = parse_msgdef("sensor_msgs/msg/LaserScan").field("ranges")
     assert ranges.is_sequence and ranges.array_length is None
@@ -291,8 +295,11 @@ def test_bad_columns_are_refused() -> None:
 def test_messages_with_nested_sequences_take_the_reference_path() -> None:
     transforms = [
         [
-            {"header": {"frame_id": "odom"}, "child_frame_id": "base_link",
-             "transform": {"translation": {"x": 1.0}}},
+            {
+                "header": {"frame_id": "odom"},
+                "child_frame_id": "base_link",
+                "transform": {"translation": {"x": 1.0}},
+            },
         ],
         [],
     ]

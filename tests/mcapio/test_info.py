@@ -23,10 +23,14 @@ def _good_log(path: Path, compression: CompressionType = CompressionType.ZSTD) -
     t_imu = T0 + np.arange(1000, dtype=np.int64) * 10_000_000
     t_imu = np.concatenate([t_imu[:500], t_imu[550:]])  # a 0.51 s gap
     t_wheels = T0 + np.arange(200, dtype=np.int64) * 50_000_000
-    imu = encode_batch("sensor_msgs/msg/Imu", {
-        "header.stamp.sec": t_imu // 10**9, "header.stamp.nanosec": t_imu % 10**9,
-        "linear_acceleration.z": np.linspace(9.0, 10.0, len(t_imu)),
-    })
+    imu = encode_batch(
+        "sensor_msgs/msg/Imu",
+        {
+            "header.stamp.sec": t_imu // 10**9,
+            "header.stamp.nanosec": t_imu % 10**9,
+            "linear_acceleration.z": np.linspace(9.0, 10.0, len(t_imu)),
+        },
+    )
     wheels = encode_batch("terrain_msgs/msg/WheelSpeeds", {"front_left": np.arange(200.0)})
     with LogWriter(path, compression=compression, chunk_size=64 * 1024) as log:
         log.register("/imu", "sensor_msgs/msg/Imu")
@@ -130,11 +134,20 @@ def test_disorder_duplicates_and_foreign_schemas_are_reported(tmp_path: Path) ->
 def test_log_without_summary_is_streamed(tmp_path: Path) -> None:
     path = tmp_path / "nosummary.mcap"
     with open(path, "wb") as f:
-        w = Writer(f, index_types=IndexType.NONE, repeat_channels=False, repeat_schemas=False,
-                   use_statistics=False, use_summary_offsets=False)
+        w = Writer(
+            f,
+            index_types=IndexType.NONE,
+            repeat_channels=False,
+            repeat_schemas=False,
+            use_statistics=False,
+            use_summary_offsets=False,
+        )
         w.start(profile="ros2", library="test")
-        sid = w.register_schema("terrain_msgs/msg/GpsHeading", "ros2msg",
-                                load_msgdef("terrain_msgs/msg/GpsHeading").encode())
+        sid = w.register_schema(
+            "terrain_msgs/msg/GpsHeading",
+            "ros2msg",
+            load_msgdef("terrain_msgs/msg/GpsHeading").encode(),
+        )
         ros = w.register_channel("/heading", "cdr", sid)
         js = w.register_channel("/json", "json", w.register_schema("Thing", "jsonschema", b"{}"))
         for i, payload in enumerate(encode_batch("terrain_msgs/msg/GpsHeading", {}, n=30)):

@@ -36,18 +36,39 @@ def _columns(n: int, seed: int) -> dict[str, tuple[np.ndarray, list[bytes]]]:
     t_heading = T0 + np.arange(n // 10, dtype=np.int64) * 50_000_000 + 2
     frames = np.array(["imu", "imu_link_long_name", ""])[rng.integers(0, 3, n)]
     return {
-        "/imu": (t_imu, encode_batch("sensor_msgs/msg/Imu", {
-            **_stamp(t_imu), "header.frame_id": frames,
-            "linear_acceleration.z": rng.normal(9.8, 1.0, n)})),
-        "/wheels": (t_wheels, encode_batch("terrain_msgs/msg/WheelSpeeds", {
-            "front_left": rng.random(len(t_wheels))})),
-        "/heading": (t_heading, encode_batch("terrain_msgs/msg/GpsHeading", {
-            **_stamp(t_heading), "yaw": rng.random(len(t_heading))})),
+        "/imu": (
+            t_imu,
+            encode_batch(
+                "sensor_msgs/msg/Imu",
+                {
+                    **_stamp(t_imu),
+                    "header.frame_id": frames,
+                    "linear_acceleration.z": rng.normal(9.8, 1.0, n),
+                },
+            ),
+        ),
+        "/wheels": (
+            t_wheels,
+            encode_batch("terrain_msgs/msg/WheelSpeeds", {"front_left": rng.random(len(t_wheels))}),
+        ),
+        "/heading": (
+            t_heading,
+            encode_batch(
+                "terrain_msgs/msg/GpsHeading",
+                {**_stamp(t_heading), "yaw": rng.random(len(t_heading))},
+            ),
+        ),
     }
 
 
-def make_log(path: Path, *, compression: CompressionType = CompressionType.ZSTD,
-             n: int = 400, chunk_size: int = 16 * 1024, seed: int = 1) -> Path:
+def make_log(
+    path: Path,
+    *,
+    compression: CompressionType = CompressionType.ZSTD,
+    n: int = 400,
+    chunk_size: int = 16 * 1024,
+    seed: int = 1,
+) -> Path:
     """About ``1.35 n`` messages on three topics (one silent topic registered), several chunks;
     publish times differ from log times."""
     cols = _columns(n, seed)
@@ -57,24 +78,35 @@ def make_log(path: Path, *, compression: CompressionType = CompressionType.ZSTD,
         log.register("/heading", "terrain_msgs/msg/GpsHeading")
         log.register("/silent", "terrain_msgs/msg/GpsHeading")
         log.add_attachment("notes.txt", b"x" * 5000)
-        log.write_interleaved(merge_by_time(
-            (topic, t, payloads, t - 7) for topic, (t, payloads) in cols.items()
-        ))
+        log.write_interleaved(
+            merge_by_time((topic, t, payloads, t - 7) for topic, (t, payloads) in cols.items())
+        )
     return path
 
 
-def make_plain_log(path: Path, *, chunked: bool = True, summary: bool = True,
-                   indexes: bool = True, n: int = 300) -> Path:
+def make_plain_log(
+    path: Path, *, chunked: bool = True, summary: bool = True, indexes: bool = True, n: int = 300
+) -> Path:
     """The same kind of log written with mcap's Writer, optionally without chunking, summary
     or indexes (then channel and schema records sit only in the data section, or in chunks)."""
     cols = _columns(n, 2)
-    types = {"/imu": "sensor_msgs/msg/Imu", "/wheels": "terrain_msgs/msg/WheelSpeeds",
-             "/heading": "terrain_msgs/msg/GpsHeading"}
+    types = {
+        "/imu": "sensor_msgs/msg/Imu",
+        "/wheels": "terrain_msgs/msg/WheelSpeeds",
+        "/heading": "terrain_msgs/msg/GpsHeading",
+    }
     with open(path, "wb") as f:
-        w = Writer(f, chunk_size=8 * 1024, compression=CompressionType.ZSTD,
-                   index_types=IndexType.ALL if indexes else IndexType.NONE,
-                   repeat_channels=summary, repeat_schemas=summary, use_chunking=chunked,
-                   use_statistics=summary, use_summary_offsets=summary)
+        w = Writer(
+            f,
+            chunk_size=8 * 1024,
+            compression=CompressionType.ZSTD,
+            index_types=IndexType.ALL if indexes else IndexType.NONE,
+            repeat_channels=summary,
+            repeat_schemas=summary,
+            use_chunking=chunked,
+            use_statistics=summary,
+            use_summary_offsets=summary,
+        )
         w.start(profile="ros2", library="test")
         ids = {}
         for topic, type_name in types.items():
@@ -88,8 +120,7 @@ def make_plain_log(path: Path, *, chunked: bool = True, summary: bool = True,
     return path
 
 
-def read_all(path: Path, topics: set[str] | None = None
-             ) -> tuple[damage.Messages, ReadReport]:
+def read_all(path: Path, topics: set[str] | None = None) -> tuple[damage.Messages, ReadReport]:
     got: damage.Messages = {}
     with LogReader(path, topics) as log:
         for batch in log.batches():
@@ -98,10 +129,14 @@ def read_all(path: Path, topics: set[str] | None = None
             assert batch.log_time_ns.dtype == np.int64 and batch.log_time_ns.shape == (n,)
             assert batch.publish_time_ns.dtype == np.int64 and batch.publish_time_ns.shape == (n,)
             assert all(type(p) is bytes for p in batch.payloads)
-            got.setdefault(batch.channel.topic, []).extend(zip(
-                batch.log_time_ns.tolist(), batch.publish_time_ns.tolist(), batch.payloads,
-                strict=True,
-            ))
+            got.setdefault(batch.channel.topic, []).extend(
+                zip(
+                    batch.log_time_ns.tolist(),
+                    batch.publish_time_ns.tolist(),
+                    batch.payloads,
+                    strict=True,
+                )
+            )
         report = log.report
     for topic, messages in got.items():
         assert report.messages_read[topic] == len(messages)
@@ -124,8 +159,9 @@ def _accounted(report: ReadReport, reference: damage.Messages) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("compression", [CompressionType.ZSTD, CompressionType.LZ4,
-                                         CompressionType.NONE])
+@pytest.mark.parametrize(
+    "compression", [CompressionType.ZSTD, CompressionType.LZ4, CompressionType.NONE]
+)
 def test_fast_path_gives_what_mcap_gives(tmp_path: Path, compression: CompressionType) -> None:
     path = make_log(tmp_path / "log.mcap", compression=compression)
     assert len(damage.chunk_indexes(path)) >= 5
@@ -140,18 +176,21 @@ def test_fast_path_gives_what_mcap_gives(tmp_path: Path, compression: Compressio
     assert list(channels) == [*TOPICS, "/silent"]
     imu = channels["/imu"]
     assert (imu.message_encoding, imu.schema_name, imu.schema_encoding) == (
-        "cdr", "sensor_msgs/msg/Imu", "ros2msg")
+        "cdr",
+        "sensor_msgs/msg/Imu",
+        "ros2msg",
+    )
     assert imu.schema_data == load_msgdef("sensor_msgs/msg/Imu").encode()
 
 
 @pytest.mark.parametrize("chunked", [True, False])
 @pytest.mark.parametrize("indexes", [True, False])
-def test_logs_without_summary_or_repeated_channels(tmp_path: Path, chunked: bool,
-                                                   indexes: bool) -> None:
+def test_logs_without_summary_or_repeated_channels(
+    tmp_path: Path, chunked: bool, indexes: bool
+) -> None:
     """Without indexes mcap's Writer writes no summary at all; with them, a summary of chunk
     indexes only (channels then come from the records inside the chunks)."""
-    path = make_plain_log(tmp_path / "plain.mcap", chunked=chunked, summary=False,
-                          indexes=indexes)
+    path = make_plain_log(tmp_path / "plain.mcap", chunked=chunked, summary=False, indexes=indexes)
     got, report = read_all(path)
     assert got == damage.reference(path)
     fast = chunked and indexes
@@ -164,8 +203,9 @@ def test_logs_without_summary_or_repeated_channels(tmp_path: Path, chunked: bool
     assert channels["/wheels"].schema_name == "terrain_msgs/msg/WheelSpeeds"
 
 
-def test_unchunked_log_with_summary_and_small_segments(tmp_path: Path,
-                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+def test_unchunked_log_with_summary_and_small_segments(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     path = make_plain_log(tmp_path / "flat.mcap", chunked=False, summary=True)
     monkeypatch.setattr(reader_module, "SEGMENT_BYTES", 2000)
     with LogReader(path) as log:
@@ -176,7 +216,8 @@ def test_unchunked_log_with_summary_and_small_segments(tmp_path: Path,
     got: damage.Messages = {}
     for b in batches:
         got.setdefault(b.channel.topic, []).extend(
-            zip(b.log_time_ns.tolist(), b.publish_time_ns.tolist(), b.payloads, strict=True))
+            zip(b.log_time_ns.tolist(), b.publish_time_ns.tolist(), b.payloads, strict=True)
+        )
     assert got == damage.reference(path)
 
 
@@ -199,8 +240,9 @@ def test_topics_filter(tmp_path: Path) -> None:
             assert set(log.channels()) == {*TOPICS, "/silent"}  # channels() ignores the filter
 
 
-def test_batches_stream_one_chunk_at_a_time(tmp_path: Path,
-                                            monkeypatch: pytest.MonkeyPatch) -> None:
+def test_batches_stream_one_chunk_at_a_time(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     path = make_log(tmp_path / "log.mcap", n=10000)
     size = path.stat().st_size
     read = Counter[str]()
@@ -263,8 +305,7 @@ def test_truncated_uncompressed_log_keeps_every_message_before_the_cut(tmp_path:
 def test_truncated_compressed_log(tmp_path: Path, compression: CompressionType) -> None:
     """Chunks before the cut are whole; the cut chunk gives the messages of its complete
     compression blocks (zstd: 128 KiB, lz4: 64 KiB of records), an intact prefix."""
-    path = make_log(tmp_path / "log.mcap", compression=compression, n=5000,
-                    chunk_size=256 * 1024)
+    path = make_log(tmp_path / "log.mcap", compression=compression, n=5000, chunk_size=256 * 1024)
     reference = damage.reference(path)
     chunks = damage.chunk_indexes(path)
     assert len(chunks) >= 4
@@ -290,14 +331,18 @@ def test_truncated_compressed_log(tmp_path: Path, compression: CompressionType) 
 # --------------------------------------------------------------------------------------------
 
 
-def _check_one_bad_chunk(report: ReadReport, got: damage.Messages, path: Path, k: int,
-                         reasons: set[str]) -> str:
+def _check_one_bad_chunk(
+    report: ReadReport, got: damage.Messages, path: Path, k: int, reasons: set[str]
+) -> str:
     """Chunk ``k`` lost, counted from the index, every other message delivered intact."""
     reference = damage.reference(path)
     chunks = damage.chunk_indexes(path)
     lost_here = damage.chunk_topics(path, chunks[k])
-    bad = [d for d in report.damage
-           if d.reason in {"chunk_crc", "chunk_decompress", "unsupported_compression"}]
+    bad = [
+        d
+        for d in report.damage
+        if d.reason in {"chunk_crc", "chunk_decompress", "unsupported_compression"}
+    ]
     assert len(bad) == 1 and bad[0].reason in reasons
     assert bad[0].offset == chunks[k].chunk_start_offset
     reason = bad[0].reason
@@ -307,8 +352,7 @@ def _check_one_bad_chunk(report: ReadReport, got: damage.Messages, path: Path, k
     for topic in TOPICS:  # what was delivered is the reference minus that chunk's messages
         kept = Counter(got.get(topic, []))
         assert not kept - Counter(reference[topic])
-    assert sum(_counts(got).values()) == sum(_counts(reference).values()) - sum(
-        lost_here.values())
+    assert sum(_counts(got).values()) == sum(_counts(reference).values()) - sum(lost_here.values())
     return reason
 
 
@@ -337,11 +381,13 @@ def test_unknown_compression_skips_the_chunk(tmp_path: Path) -> None:
     _check_one_bad_chunk(report, got, path, 4, {"unsupported_compression"})
 
 
-@pytest.mark.parametrize("compression", [CompressionType.ZSTD, CompressionType.LZ4,
-                                         CompressionType.NONE])
+@pytest.mark.parametrize(
+    "compression", [CompressionType.ZSTD, CompressionType.LZ4, CompressionType.NONE]
+)
 @pytest.mark.parametrize("where", [0.3, 0.6, 0.9])
-def test_flipped_byte_in_compressed_data(tmp_path: Path, compression: CompressionType,
-                                         where: float) -> None:
+def test_flipped_byte_in_compressed_data(
+    tmp_path: Path, compression: CompressionType, where: float
+) -> None:
     path = make_log(tmp_path / "log.mcap", compression=compression)
     ci = damage.chunk_indexes(path)[3]
     at = damage.compressed_start(ci) + int(ci.compressed_size * where)
@@ -459,8 +505,10 @@ def test_header_only_file_reads_as_empty_and_truncated(tmp_path: Path) -> None:
 def _corpus_messages(path: Path) -> list[tuple[int, int, bytes]]:
     records = json.loads(path.with_suffix(".json").read_text())["records"]
     fields: list[dict[str, Any]] = [dict(r["fields"]) for r in records if r["type"] == "Message"]
-    return sorted((int(f["log_time"]), int(f["publish_time"]), bytes(int(b) for b in f["data"]))
-                  for f in fields)
+    return sorted(
+        (int(f["log_time"]), int(f["publish_time"]), bytes(int(b) for b in f["data"]))
+        for f in fields
+    )
 
 
 def test_conformance_corpus(conformance_files: list[Path]) -> None:
@@ -472,8 +520,9 @@ def test_conformance_corpus(conformance_files: list[Path]) -> None:
                 got = sorted(
                     message
                     for b in log.batches()
-                    for message in zip(b.log_time_ns.tolist(), b.publish_time_ns.tolist(),
-                                       b.payloads, strict=True)
+                    for message in zip(
+                        b.log_time_ns.tolist(), b.publish_time_ns.tolist(), b.payloads, strict=True
+                    )
                 )
                 report = log.report
         except LogReadError:

@@ -28,22 +28,47 @@ def _write_sample(path: Path, n_imu: int = 400) -> dict[str, object]:
     t_gps = t_imu[0] + np.arange(20, dtype=np.int64) * 100_000_000
     accel = rng.normal(0, 1, (n_imu, 3))
     ranges = rng.random((150, 181)).astype(np.float32) * 40
-    imu = encode_batch("sensor_msgs/msg/Imu", {
-        **_stamp(t_imu), "header.frame_id": "imu",
-        "linear_acceleration.x": accel[:, 0], "linear_acceleration.y": accel[:, 1],
-        "linear_acceleration.z": accel[:, 2],
-    })
-    laser = encode_batch("sensor_msgs/msg/LaserScan", {
-        **_stamp(t_laser), "header.frame_id": "laser_1", "angle_min": -np.pi / 2,
-        "angle_max": np.pi / 2, "angle_increment": np.pi / 180, "ranges": ranges,
-    })
-    gps = encode_batch("sensor_msgs/msg/NavSatFix", {
-        **_stamp(t_gps), "header.frame_id": "gps", "latitude": 36.0 + np.arange(20) * 1e-6,
-        "longitude": -117.0, "position_covariance_type": 2,
-    })
-    tf = encode_batch("tf2_msgs/msg/TFMessage", {"transforms": [[
-        {"header": {"frame_id": "base_link"}, "child_frame_id": "imu"},
-    ]]})
+    imu = encode_batch(
+        "sensor_msgs/msg/Imu",
+        {
+            **_stamp(t_imu),
+            "header.frame_id": "imu",
+            "linear_acceleration.x": accel[:, 0],
+            "linear_acceleration.y": accel[:, 1],
+            "linear_acceleration.z": accel[:, 2],
+        },
+    )
+    laser = encode_batch(
+        "sensor_msgs/msg/LaserScan",
+        {
+            **_stamp(t_laser),
+            "header.frame_id": "laser_1",
+            "angle_min": -np.pi / 2,
+            "angle_max": np.pi / 2,
+            "angle_increment": np.pi / 180,
+            "ranges": ranges,
+        },
+    )
+    gps = encode_batch(
+        "sensor_msgs/msg/NavSatFix",
+        {
+            **_stamp(t_gps),
+            "header.frame_id": "gps",
+            "latitude": 36.0 + np.arange(20) * 1e-6,
+            "longitude": -117.0,
+            "position_covariance_type": 2,
+        },
+    )
+    tf = encode_batch(
+        "tf2_msgs/msg/TFMessage",
+        {
+            "transforms": [
+                [
+                    {"header": {"frame_id": "base_link"}, "child_frame_id": "imu"},
+                ]
+            ]
+        },
+    )
     with LogWriter(path) as log:
         log.register("/imu", "sensor_msgs/msg/Imu")
         log.register("/laser_1", "sensor_msgs/msg/LaserScan")
@@ -51,12 +76,16 @@ def _write_sample(path: Path, n_imu: int = 400) -> dict[str, object]:
         log.register("/tf_static", "tf2_msgs/msg/TFMessage")
         log.add_metadata("terrain", {"profile": "sample", "seed": "7"})
         log.add_attachment("config.toml", b"[vehicle]\nwheelbase_m = 2.9\n", "application/toml")
-        log.write_interleaved(merge_by_time([
-            ("/tf_static", t_imu[:1], tf),
-            ("/imu", t_imu, imu),
-            ("/laser_1", t_laser, laser),
-            ("/gps/fix", t_gps, gps),
-        ]))
+        log.write_interleaved(
+            merge_by_time(
+                [
+                    ("/tf_static", t_imu[:1], tf),
+                    ("/imu", t_imu, imu),
+                    ("/laser_1", t_laser, laser),
+                    ("/gps/fix", t_gps, gps),
+                ]
+            )
+        )
     return {"accel": accel, "ranges": ranges, "t_imu": t_imu, "n": n_imu + 150 + 20 + 1}
 
 
@@ -109,9 +138,12 @@ def test_large_logs_are_split_into_chunks(tmp_path: Path) -> None:
     path = tmp_path / "big.mcap"
     n = 3000
     rng = np.random.default_rng(1)
-    payloads = encode_batch("sensor_msgs/msg/LaserScan", {
-        "ranges": rng.random((n, 181)).astype(np.float32),
-    })
+    payloads = encode_batch(
+        "sensor_msgs/msg/LaserScan",
+        {
+            "ranges": rng.random((n, 181)).astype(np.float32),
+        },
+    )
     with LogWriter(path) as log:
         log.register("/laser", "sensor_msgs/msg/LaserScan")
         log.write_batch("/laser", np.arange(n, dtype=np.int64) * 10**7, payloads)
@@ -153,10 +185,14 @@ def test_topic_type_conflict_is_a_schema_error(tmp_path: Path) -> None:
 
 
 def test_merge_by_time_is_stable_and_global() -> None:
-    merged = list(merge_by_time([
-        ("/a", np.array([3, 1, 5]), [b"a3", b"a1", b"a5"]),
-        ("/b", np.array([1, 3]), [b"b1", b"b3"], np.array([10, 30])),
-    ]))
+    merged = list(
+        merge_by_time(
+            [
+                ("/a", np.array([3, 1, 5]), [b"a3", b"a1", b"a5"]),
+                ("/b", np.array([1, 3]), [b"b1", b"b3"], np.array([10, 30])),
+            ]
+        )
+    )
     assert [r.payload for r in merged] == [b"a1", b"b1", b"a3", b"b3", b"a5"]
     assert merged[1] == Record("/b", 1, b"b1", 10)
     assert merged[0].publish_time_ns == 1

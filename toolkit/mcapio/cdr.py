@@ -555,8 +555,10 @@ def _to_reference(value: Any) -> Any:
     if isinstance(value, np.ndarray):
         if value.dtype == np.uint8:
             return value.tobytes()
-        return [_to_reference(v) for v in value.tolist()] if value.dtype == object else (
-            value.tolist()
+        return (
+            [_to_reference(v) for v in value.tolist()]
+            if value.dtype == object
+            else (value.tolist())
         )
     if isinstance(value, np.generic):
         return value.item()
@@ -650,8 +652,7 @@ def _columns_to_dicts(columns: Mapping[str, Any]) -> list[dict[str, Any]]:
         raise CdrError(f"element columns have different lengths: {sorted(lengths)}")
     k = lengths.pop() if lengths else 0
     return [
-        {key: (col[j] if key in per_row else col) for key, col in columns.items()}
-        for j in range(k)
+        {key: (col[j] if key in per_row else col) for key, col in columns.items()} for j in range(k)
     ]
 
 
@@ -711,8 +712,10 @@ def _objects_to_columns(spec: MessageSpec, objs: Sequence[Any]) -> dict[str, Any
             assert leaf.dtype is not None
             out[leaf.path] = np.array(values, dtype=_native(leaf))
         else:
-            rows = [np.frombuffer(v, np.uint8) if isinstance(v, bytes) else np.asarray(v)
-                    for v in values]
+            rows = [
+                np.frombuffer(v, np.uint8) if isinstance(v, bytes) else np.asarray(v)
+                for v in values
+            ]
             out[leaf.path] = _stack_rows(rows, _native(leaf))
     return out
 
@@ -736,9 +739,7 @@ def _native(leaf: _Leaf) -> np.dtype[Any]:
     return leaf.dtype.newbyteorder("=")
 
 
-def _decode_slow(
-    plan: _Plan, payloads: Sequence[bytes], schema_text: str | None
-) -> dict[str, Any]:
+def _decode_slow(plan: _Plan, payloads: Sequence[bytes], schema_text: str | None) -> dict[str, Any]:
     decoder = _reference_decoder(plan.spec.name, schema_text)
     objs: list[SimpleNamespace] = []
     for i, data in enumerate(payloads):
@@ -926,9 +927,7 @@ def _assemble(
                 for idx, arr, k in groups:
                     count = k[lengths_of[path]]
                     block = (
-                        arr[path].astype(native)
-                        if count
-                        else np.zeros((len(idx), 0), dtype=native)
+                        arr[path].astype(native) if count else np.zeros((len(idx), 0), dtype=native)
                     )
                     for j, i in enumerate(idx.tolist()):
                         ocol[i] = block[j]

@@ -393,9 +393,7 @@ def _stream_pass(f: IO[bytes], size: int, scan: _Scan) -> None:
                 scan.attachment_names.append(rec.name)
             elif isinstance(rec, Footer):
                 saw_footer = True
-    if not saw_footer and not any(
-        p.kind in ("truncated", "corrupt", "crc") for p in scan.problems
-    ):
+    if not saw_footer and not any(p.kind in ("truncated", "corrupt", "crc") for p in scan.problems):
         scan.problem("truncated", "the file ends before its footer")
     if len(scan.digests or ()):
         chan = np.frombuffer(scan.channel_ids, dtype=np.uint16).astype(np.int64)
@@ -481,11 +479,15 @@ def _schema_problem(channel: Channel, schema: Schema | None) -> str:
 
 
 def _findings(path: Path, size: int, scan: _Scan, has_summary: bool, mode: str) -> LogInfo:
-    chan = np.frombuffer(scan.channel_ids, dtype=np.uint16) if len(scan.channel_ids) else (
-        np.zeros(0, dtype=np.uint16)
+    chan = (
+        np.frombuffer(scan.channel_ids, dtype=np.uint16)
+        if len(scan.channel_ids)
+        else (np.zeros(0, dtype=np.uint16))
     )
-    times = np.frombuffer(scan.times, dtype=np.uint64).astype(np.int64) if len(scan.times) else (
-        np.zeros(0, dtype=np.int64)
+    times = (
+        np.frombuffer(scan.times, dtype=np.uint64).astype(np.int64)
+        if len(scan.times)
+        else (np.zeros(0, dtype=np.int64))
     )
     if times.size >= 2:
         behind = times[1:] < np.maximum.accumulate(times)[:-1]
@@ -596,24 +598,30 @@ def render_table(info: LogInfo) -> str:
         f"({', '.join(info.compression) or 'not chunked'})",
         f"metadata:     {', '.join(info.metadata_names) or '-'}",
         f"attachments:  {', '.join(info.attachment_names) or '-'}",
-        f"scan:         {info.scan}" + (" (summary and indexes; chunk CRCs not checked)"
-                                        if info.scan == "index" else " (every record read)"),
+        f"scan:         {info.scan}"
+        + (
+            " (summary and indexes; chunk CRCs not checked)"
+            if info.scan == "index"
+            else " (every record read)"
+        ),
         "",
     ]
     start = info.start_time_ns or 0
     header = ("topic", "type", "count", "first s", "last s", "rate Hz", "max gap s", "gaps>3x")
     rows = [header]
     for t in info.topics:
-        rows.append((
-            t.topic,
-            t.message_type or "-",
-            str(t.message_count),
-            _fmt(None if t.first_time_ns is None else (t.first_time_ns - start) / 1e9, 3),
-            _fmt(None if t.last_time_ns is None else (t.last_time_ns - start) / 1e9, 3),
-            _fmt(t.mean_rate_hz, 2),
-            _fmt(t.max_gap_s, 3),
-            str(t.long_gaps),
-        ))
+        rows.append(
+            (
+                t.topic,
+                t.message_type or "-",
+                str(t.message_count),
+                _fmt(None if t.first_time_ns is None else (t.first_time_ns - start) / 1e9, 3),
+                _fmt(None if t.last_time_ns is None else (t.last_time_ns - start) / 1e9, 3),
+                _fmt(t.mean_rate_hz, 2),
+                _fmt(t.max_gap_s, 3),
+                str(t.long_gaps),
+            )
+        )
     widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
     for k, row in enumerate(rows):
         cells = [

@@ -226,8 +226,9 @@ def _gather(buf: bytes, offsets: np.ndarray) -> _Fields:
     def col(a: int, b: int, dtype: str) -> np.ndarray:
         return np.ascontiguousarray(rows[:, a:b]).view(dtype).reshape(-1)
 
-    return _Fields(rows[:, 0], col(1, 9, "<u8"), col(9, 11, "<u2"), col(15, 23, "<i8"),
-                   col(23, 31, "<i8"))
+    return _Fields(
+        rows[:, 0], col(1, 9, "<u8"), col(9, 11, "<u2"), col(15, 23, "<i8"), col(23, 31, "<i8")
+    )
 
 
 def _payloads(buf: bytes, offsets: np.ndarray, length: np.ndarray) -> list[bytes]:
@@ -331,8 +332,9 @@ def _read_header(f: IO[bytes], path: Path, size: int) -> _Layout:
         header = _parse(mr.Header, _read_at(f, len(MAGIC) + 9, length))
     except _PARSE_ERRORS as exc:
         raise LogReadError(f"MCAP file with an unreadable Header record ({exc!r})", path) from exc
-    return _Layout(size=size, data_start=end, data_end=size, profile=header.profile,
-                   library=header.library)
+    return _Layout(
+        size=size, data_start=end, data_end=size, profile=header.profile, library=header.library
+    )
 
 
 def _read_footer(f: IO[bytes], layout: _Layout) -> tuple[int, int, int] | None:
@@ -379,18 +381,28 @@ def _read_summary(f: IO[bytes], layout: _Layout) -> None:
     footer = _read_footer(f, layout)
     if footer is None:
         if not layout.damage:
-            layout.damage.append(Damage(
-                NO_SUMMARY, layout.size,
-                "no Footer record before the closing magic: read by linear scan"))
+            layout.damage.append(
+                Damage(
+                    NO_SUMMARY,
+                    layout.size,
+                    "no Footer record before the closing magic: read by linear scan",
+                )
+            )
         return
     start, offset_start, _crc = footer
     if start == 0:
-        layout.damage.append(Damage(NO_SUMMARY, layout.data_end,
-                                    "the Footer says there is no summary section"))
+        layout.damage.append(
+            Damage(NO_SUMMARY, layout.data_end, "the Footer says there is no summary section")
+        )
         return
     if not layout.data_start <= start <= layout.data_end:
-        layout.damage.append(Damage(BAD_INDEX, layout.data_end,
-                                    f"the Footer's summary_start {start} is outside the file"))
+        layout.damage.append(
+            Damage(
+                BAD_INDEX,
+                layout.data_end,
+                f"the Footer's summary_start {start} is outside the file",
+            )
+        )
         return
     end = offset_start if start < offset_start <= layout.data_end else layout.data_end
     layout.data_end = start
@@ -413,9 +425,13 @@ def _read_summary(f: IO[bytes], layout: _Layout) -> None:
         if _chunk_index_fits(ci, layout):
             layout.chunks.setdefault(ci.chunk_start_offset, ci)
         else:
-            layout.damage.append(Damage(
-                BAD_INDEX, ci.chunk_start_offset,
-                "a Chunk Index points outside the data section; that chunk is parsed instead"))
+            layout.damage.append(
+                Damage(
+                    BAD_INDEX,
+                    ci.chunk_start_offset,
+                    "a Chunk Index points outside the data section; that chunk is parsed instead",
+                )
+            )
     layout.chunk_starts = sorted(layout.chunks)
     indexed = {cid for ci in layout.chunks.values() for cid in ci.message_index_offsets}
     channels = catalog.raw.values()
@@ -441,6 +457,7 @@ def _chunk_index_fits(ci: mr.ChunkIndex, layout: _Layout) -> bool:
 # Chunks
 # --------------------------------------------------------------------------------------------
 
+
 def _chunk_fields(record: bytes, length: int) -> tuple[str, int, int, bytes]:
     """(compression, uncompressed_size, uncompressed_crc, compressed records) of a Chunk record
     whose first ``length`` bytes (header included) are in ``record``; raises _MalformedError."""
@@ -460,8 +477,9 @@ def _chunk_fields(record: bytes, length: int) -> tuple[str, int, int, bytes]:
     return compression, usize, crc, record[at + 8 : at + 8 + rlen]
 
 
-def _decompress(compression: str, data: bytes, usize: int,
-                zstd: zstandard.ZstdDecompressor) -> bytes:
+def _decompress(
+    compression: str, data: bytes, usize: int, zstd: zstandard.ZstdDecompressor
+) -> bytes:
     """The chunk's records, exactly ``usize`` bytes; raises _MalformedError."""
     out: Any
     if compression == "":
@@ -470,8 +488,9 @@ def _decompress(compression: str, data: bytes, usize: int,
         try:
             declared = zstandard.frame_content_size(data)
             if declared not in (-1, usize):
-                raise _MalformedError(CHUNK_DECOMPRESS, f"zstd frame declares {declared} bytes, "
-                                 f"the chunk {usize}")
+                raise _MalformedError(
+                    CHUNK_DECOMPRESS, f"zstd frame declares {declared} bytes, the chunk {usize}"
+                )
             out = zstd.decompress(data, max_output_size=max(usize, 1))
         except zstandard.ZstdError as exc:
             raise _MalformedError(CHUNK_DECOMPRESS, f"zstd: {exc}") from exc
@@ -479,8 +498,9 @@ def _decompress(compression: str, data: bytes, usize: int,
         try:
             declared = lz4.frame.get_frame_info(data).get("content_size") or usize
             if declared != usize:
-                raise _MalformedError(CHUNK_DECOMPRESS, f"lz4 frame declares {declared} bytes, "
-                                 f"the chunk {usize}")
+                raise _MalformedError(
+                    CHUNK_DECOMPRESS, f"lz4 frame declares {declared} bytes, the chunk {usize}"
+                )
             out = lz4.frame.decompress(data)
         except (RuntimeError, ValueError, TypeError) as exc:
             raise _MalformedError(CHUNK_DECOMPRESS, f"lz4: {exc}") from exc
@@ -492,8 +512,7 @@ def _decompress(compression: str, data: bytes, usize: int,
     return out
 
 
-def _decompress_prefix(compression: str, data: bytes,
-                       zstd: zstandard.ZstdDecompressor) -> bytes:
+def _decompress_prefix(compression: str, data: bytes, zstd: zstandard.ZstdDecompressor) -> bytes:
     """As much of a cut-off chunk's records as its compressed prefix yields (b"" if none)."""
     try:
         if compression == "":
@@ -539,8 +558,9 @@ class _Segment:
 class _Walk:
     """One pass over the data section, yielding batches and filling a :class:`ReadReport`."""
 
-    def __init__(self, f: IO[bytes], layout: _Layout, topics: frozenset[str] | None,
-                 report: ReadReport) -> None:
+    def __init__(
+        self, f: IO[bytes], layout: _Layout, topics: frozenset[str] | None, report: ReadReport
+    ) -> None:
         self.f = f
         self.layout = layout
         self.topics = topics
@@ -568,8 +588,9 @@ class _Walk:
         channel = self.catalog.get(channel_id)
         return channel is not None and (self.topics is None or channel.topic in self.topics)
 
-    def batch(self, channel: Channel, log: np.ndarray, pub: np.ndarray,
-              payloads: list[bytes]) -> MessageBatch:
+    def batch(
+        self, channel: Channel, log: np.ndarray, pub: np.ndarray, payloads: list[bytes]
+    ) -> MessageBatch:
         read = self.report.messages_read
         read[channel.topic] = read.get(channel.topic, 0) + len(payloads)
         return MessageBatch(channel, log, pub, payloads)
@@ -641,22 +662,29 @@ class _Walk:
         self.settle_pending()
         self.finish()
 
-    def unreadable(self, pos: int, op: int, length: int
-                   ) -> Generator[MessageBatch, None, int | None]:
+    def unreadable(
+        self, pos: int, op: int, length: int
+    ) -> Generator[MessageBatch, None, int | None]:
         """A record that cannot be read at ``pos``: salvage, note, and say where to resume."""
         size, end = self.layout.size, self.layout.data_end
         self.settle_pending()
         if op != 0 and not self.layout.has_footer and pos + 9 + length > size:
             what = "a record header" if op < 0 else f"a {_opcode_name(op)} record"
-            self.damage(TRUNCATED, pos, f"the file ends inside {what} at offset {pos} "
-                        f"({size - pos} bytes present)")
+            self.damage(
+                TRUNCATED,
+                pos,
+                f"the file ends inside {what} at offset {pos} ({size - pos} bytes present)",
+            )
             self.lose_bytes(TRUNCATED, size - pos)
             if op == Opcode.CHUNK:
                 yield from self.flush_segment()
                 yield from self.cut_chunk(pos)
             return None
-        what = "reserved opcode 0" if op == 0 else (
-            f"{_opcode_name(op)} record of {length} bytes overruns the data section")
+        what = (
+            "reserved opcode 0"
+            if op == 0
+            else (f"{_opcode_name(op)} record of {length} bytes overruns the data section")
+        )
         self.damage(BAD_RECORD, pos, f"unreadable record at offset {pos}: {what}")
         ci = self.layout.chunks.get(pos)
         if ci is not None and self.count_lost(ci, None, BAD_RECORD):
@@ -688,12 +716,19 @@ class _Walk:
             if channel is None:
                 self.unknown_channel(channel_id, len(payloads), segment.offset)
             elif self.wants(channel_id):
-                yield self.batch(channel, np.array(segment.logs[channel_id], dtype=np.int64),
-                                 np.array(segment.pubs[channel_id], dtype=np.int64), payloads)
+                yield self.batch(
+                    channel,
+                    np.array(segment.logs[channel_id], dtype=np.int64),
+                    np.array(segment.pubs[channel_id], dtype=np.int64),
+                    payloads,
+                )
 
     def unknown_channel(self, channel_id: int, n: int, offset: int) -> None:
-        self.damage(UNKNOWN_CHANNEL, offset,
-                    f"{n} messages on channel id {channel_id}, which no Channel record defines")
+        self.damage(
+            UNKNOWN_CHANNEL,
+            offset,
+            f"{n} messages on channel id {channel_id}, which no Channel record defines",
+        )
         self.lose(channel_id, UNKNOWN_CHANNEL, n)
 
     # -- chunks -----------------------------------------------------------------------------
@@ -701,8 +736,12 @@ class _Walk:
     def chunk(self, pos: int, length: int) -> Iterator[MessageBatch]:
         ci = self.layout.chunks.get(pos)
         if ci is not None and ci.chunk_length != 9 + length:
-            self.damage(BAD_INDEX, pos, f"the Chunk Index gives {ci.chunk_length} bytes, the "
-                        f"Chunk record has {9 + length}; parsed without the index")
+            self.damage(
+                BAD_INDEX,
+                pos,
+                f"the Chunk Index gives {ci.chunk_length} bytes, the "
+                f"Chunk record has {9 + length}; parsed without the index",
+            )
             ci = None
         ids = ci.message_index_offsets if ci is not None else {}
         indexed = bool(ids) and all(self.catalog.get(c) is not None for c in ids)
@@ -746,8 +785,9 @@ class _Walk:
         records = _decompress_prefix(compression, data, self.zstd)
         yield from self.sequential(records, pos, partial=True)
 
-    def message_index(self, offset: int, window: bytes | None, pos: int
-                      ) -> tuple[int, np.ndarray] | None:
+    def message_index(
+        self, offset: int, window: bytes | None, pos: int
+    ) -> tuple[int, np.ndarray] | None:
         """The Message Index record at ``offset`` (from ``window`` when it holds it)."""
         rel = offset - pos
         if window is not None and rel >= 0 and rel + 9 <= len(window):
@@ -789,8 +829,9 @@ class _Walk:
             self.lose(found[0], self.pending[0], len(np.unique(found[1]["offset"])))
             self.pending_counted = True
 
-    def indexed(self, ci: mr.ChunkIndex, window: bytes, pos: int, records: bytes
-                ) -> list[MessageBatch] | None:
+    def indexed(
+        self, ci: mr.ChunkIndex, window: bytes, pos: int, records: bytes
+    ) -> list[MessageBatch] | None:
         """The fast path: wanted channels' messages located by their Message Index records.
         None (with ``bad_index`` damage) when an index disagrees with the chunk."""
         parts: list[tuple[Channel, np.ndarray, np.ndarray, list[bytes]]] = []
@@ -801,8 +842,12 @@ class _Walk:
             channel = self.catalog.get(channel_id)
             found = self.message_index(ci.message_index_offsets[channel_id], window, pos)
             if channel is None or found is None or found[0] != channel_id:
-                self.damage(BAD_INDEX, pos, f"chunk at offset {pos}: the Message Index for "
-                            f"channel {channel_id} is unreadable; chunk parsed instead")
+                self.damage(
+                    BAD_INDEX,
+                    pos,
+                    f"chunk at offset {pos}: the Message Index for "
+                    f"channel {channel_id} is unreadable; chunk parsed instead",
+                )
                 return None
             entries = found[1]
             if not len(entries):
@@ -813,8 +858,12 @@ class _Walk:
             keep[1:] = offsets[1:] != offsets[:-1]  # each message at most once
             offsets, times = offsets[keep], times[keep]
             if int(offsets[-1]) > n - _MESSAGE_HEAD:
-                self.damage(BAD_INDEX, pos, f"chunk at offset {pos}: a Message Index offset for "
-                            f"channel {channel_id} is past the chunk; chunk parsed instead")
+                self.damage(
+                    BAD_INDEX,
+                    pos,
+                    f"chunk at offset {pos}: a Message Index offset for "
+                    f"channel {channel_id} is past the chunk; chunk parsed instead",
+                )
                 return None
             at = offsets.astype(np.int64)
             fields = _gather(records, at)
@@ -826,8 +875,12 @@ class _Walk:
                 & (fields.log == times.view(np.int64))
             )
             if not ok.all():
-                self.damage(BAD_INDEX, pos, f"chunk at offset {pos}: the Message Index for "
-                            f"channel {channel_id} does not match its messages; chunk parsed")
+                self.damage(
+                    BAD_INDEX,
+                    pos,
+                    f"chunk at offset {pos}: the Message Index for "
+                    f"channel {channel_id} does not match its messages; chunk parsed",
+                )
                 return None
             parts.append((channel, fields.log, fields.pub, _payloads(records, at, fields.length)))
         return [self.batch(*part) for part in parts]  # counted once all indexes proved right
@@ -849,15 +902,20 @@ class _Walk:
                 if length >= _MESSAGE.size:
                     offsets.append(at)
                 else:
-                    self.damage(BAD_RECORD, pos, f"chunk at offset {pos}: Message record of "
-                                f"{length} bytes at +{at} is too short")
+                    self.damage(
+                        BAD_RECORD,
+                        pos,
+                        f"chunk at offset {pos}: Message record of "
+                        f"{length} bytes at +{at} is too short",
+                    )
                     self.lose_bytes(BAD_RECORD, 9 + length)
             elif op in (schema, channel):
                 self.register(op, records[at + 9 : end], pos)
             at = end
         if at < n and not partial:
-            self.damage(BAD_RECORD, pos, f"chunk at offset {pos}: the record at +{at} overruns "
-                        "the chunk")
+            self.damage(
+                BAD_RECORD, pos, f"chunk at offset {pos}: the record at +{at} overruns the chunk"
+            )
             self.lose_bytes(BAD_RECORD, n - at)
         if not offsets:
             return
@@ -871,8 +929,12 @@ class _Walk:
                 self.unknown_channel(channel_id, int(mask.sum()), pos)
             elif self.wants(channel_id):
                 sel = np.flatnonzero(mask)
-                yield self.batch(resolved, fields.log[sel], fields.pub[sel],
-                                 _payloads(records, starts[sel], fields.length[sel]))
+                yield self.batch(
+                    resolved,
+                    fields.log[sel],
+                    fields.pub[sel],
+                    _payloads(records, starts[sel], fields.length[sel]),
+                )
 
 
 # --------------------------------------------------------------------------------------------
@@ -913,8 +975,12 @@ class LogReader:
     def __enter__(self) -> LogReader:
         return self
 
-    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
-                 tb: TracebackType | None) -> None:
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
         self.close()
 
     def close(self) -> None:

@@ -85,8 +85,10 @@ def merge_by_time(batches: Iterable[Batch | tuple[object, ...]]) -> Iterator[Rec
         batch = Batch(*raw)
         count = len(batch.payloads)
         log = _times(f"{batch.topic}: log_time_ns", batch.log_time_ns, count)
-        pub = log if batch.publish_time_ns is None else _times(
-            f"{batch.topic}: publish_time_ns", batch.publish_time_ns, count
+        pub = (
+            log
+            if batch.publish_time_ns is None
+            else _times(f"{batch.topic}: publish_time_ns", batch.publish_time_ns, count)
         )
         topics.append(batch.topic)
         payloads.append(batch.payloads)
@@ -201,8 +203,9 @@ class LogWriter:
             raise SchemaError(f"topic {topic} is not registered (call register() first)")
         return known[0]
 
-    def write(self, topic: str, log_time_ns: int, payload: bytes, publish_time_ns: int | None = None
-              ) -> None:
+    def write(
+        self, topic: str, log_time_ns: int, payload: bytes, publish_time_ns: int | None = None
+    ) -> None:
         """Write one message."""
         self._check_open()
         channel_id = self._channel(topic)
@@ -234,14 +237,21 @@ class LogWriter:
         channel_id = self._channel(topic)
         count = len(payloads)
         log = _times(f"{topic}: log_time_ns", np.asarray(log_time_ns), count)
-        pub = log if publish_time_ns is None else _times(
-            f"{topic}: publish_time_ns", np.asarray(publish_time_ns), count
+        pub = (
+            log
+            if publish_time_ns is None
+            else _times(f"{topic}: publish_time_ns", np.asarray(publish_time_ns), count)
         )
         seq = self._sequence[channel_id]
         add = self._writer.add_message
         for i, (t_log, t_pub) in enumerate(zip(log.tolist(), pub.tolist(), strict=True)):
-            add(channel_id=channel_id, log_time=t_log, data=payloads[i], publish_time=t_pub,
-                sequence=seq + i)
+            add(
+                channel_id=channel_id,
+                log_time=t_log,
+                data=payloads[i],
+                publish_time=t_pub,
+                sequence=seq + i,
+            )
         self._sequence[channel_id] = seq + count
 
     def write_interleaved(self, records: Iterable[Record | tuple[str, int, bytes, int]]) -> None:
