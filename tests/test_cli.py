@@ -6,6 +6,7 @@ fakes so only argument handling and error mapping are tested.
 
 from __future__ import annotations
 
+import io
 import logging
 import subprocess
 import sys
@@ -325,14 +326,33 @@ def test_progress_disabled_off_terminal_in_ci_and_quiet(monkeypatch: pytest.Monk
     assert not progress_mod.progress_enabled()
 
 
-def test_progress_passes_items_through(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_progress_is_silent_under_ci_and_passes_items_through(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
     monkeypatch.setenv("CI", "true")
+    terminal = io.StringIO()
+    terminal.isatty = lambda: True  # type: ignore[method-assign]
+    monkeypatch.setattr(sys, "stderr", terminal)
     bar = progress_mod.progress(range(5), desc="x")
     assert bar.disable
     assert list(bar) == [0, 1, 2, 3, 4]
     with progress_mod.progress(total=10, unit="B") as manual:
         manual.update(4)
-        assert manual.n == 4 or manual.disable
+    assert manual.disable and terminal.getvalue() == ""
+
+
+def test_progress_draws_on_a_terminal(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.delenv("CI", raising=False)
+    terminal = io.StringIO()
+    terminal.isatty = lambda: True  # type: ignore[method-assign]
+    monkeypatch.setattr(sys, "stderr", terminal)
+    progress_mod.set_quiet(False)
+    assert list(progress_mod.progress(range(3), desc="ingest")) == [0, 1, 2]
+    with progress_mod.progress(total=10, unit="B", desc="bytes") as manual:
+        manual.update(4)
+        assert not manual.disable and manual.n == 4
+    drawn = terminal.getvalue()
+    assert "ingest:" in drawn and "bytes:" in drawn and "0/10" in drawn
 
 
 def test_quiet_flag_disables_progress(runner: CliRunner, tmp_path: Path) -> None:

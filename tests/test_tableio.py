@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import signal
+import subprocess
+import sys
 from pathlib import Path
 
 import pyarrow as pa
@@ -12,6 +15,7 @@ import toolkit
 import toolkit.tableio as tableio
 from toolkit.errors import SchemaError, WorkspaceError
 from toolkit.tableio import (
+    TableWriter,
     load_table_schema,
     parse_arrow_type,
     read_table,
@@ -261,18 +265,134 @@ def test_reserved_metadata_keys(tmp_path: Path) -> None:
         )
 
 
+def _heading(t_ns: list[int]) -> pa.Table:
+    n = len(t_ns)
+    return pa.table({"t_ns": t_ns, "yaw": [0.1] * n, "yaw_std": [0.01] * n})
+
+
 def test_failed_write_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The disk fills up on the second piece: no partial file, and an older table is kept."""
     path = tmp_path / "heading.parquet"
-    real = pq.write_table
+    write_table(path, _heading([1, 2]), "heading", source_sha256=SHA, config_hash=CFG)
+    before = path.read_bytes()
+    real = pq.ParquetWriter.write_table
+    calls = {"n": 0}
 
-    def dying_writer(table: pa.Table, where: Path, **kwargs: object) -> None:
-        real(table.slice(0, 1), where, **kwargs)  # a partial file...
-        raise OSError(28, "No space left on device")  # ...then the disk fills up
+    def filling_disk(self: pq.ParquetWriter, table: pa.Table, **kwargs: object) -> None:
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise OSError(28, "No space left on device")
+        real(self, table, **kwargs)
 
-    monkeypatch.setattr(tableio.pq, "write_table", dying_writer)
-    with pytest.raises(WorkspaceError, match="No space left"):
-        write_table(path, heading_table(), "heading", source_sha256=SHA, config_hash=CFG)
+    monkeypatch.setattr(pq.ParquetWriter, "write_table", filling_disk)
+    with (
+        pytest.raises(WorkspaceError, match="No space left"),
+        TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG) as writer,
+    ):
+        writer.write(_heading([5, 6]))
+        writer.write(_heading([7, 8]))
+    assert calls["n"] == 2
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["heading.parquet"]
+    assert path.read_bytes() == before
+
+
+def test_interrupted_writer_leaves_nothing(tmp_path: Path) -> None:
+    """Any exception inside ``with`` (here Ctrl-C) removes the hidden file."""
+    path = tmp_path / "heading.parquet"
+    with (
+        pytest.raises(KeyboardInterrupt),
+        TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG) as writer,
+    ):
+        writer.write(_heading([1, 2, 3]))
+        assert len(list(tmp_path.iterdir())) == 1  # written aside, under a hidden name
+        raise KeyboardInterrupt
     assert list(tmp_path.iterdir()) == []
+
+
+def test_killed_writer_process_never_publishes(tmp_path: Path) -> None:
+    """SIGKILL in the middle of a stream: the table's name never holds a partial file."""
+    path = tmp_path / "heading.parquet"
+    script = (
+        "import sys, pyarrow as pa\n"
+        "from toolkit.tableio import TableWriter\n"
+        f"w = TableWriter({str(path)!r}, 'heading', source_sha256={SHA!r}, config_hash={CFG!r})\n"
+        "for i in range(10**6):\n"
+        "    w.write(pa.table({'t_ns': [i], 'yaw': [0.0], 'yaw_std': [0.1]}))\n"
+        "    if i == 100: print('writing', flush=True)\n"
+    )
+    child = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE)
+    try:
+        assert child.stdout is not None and child.stdout.readline() == b"writing\n"
+        child.send_signal(signal.SIGKILL)
+    finally:
+        child.wait(timeout=30)
+    assert child.returncode == -signal.SIGKILL
+    assert not path.exists()
+    assert all(p.name.startswith(".heading.parquet.") for p in tmp_path.iterdir())
+
+
+def test_streamed_pieces_are_one_sorted_checked_table(tmp_path: Path) -> None:
+    path = tmp_path / "heading.parquet"
+    with TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG, sort_by="t_ns") as writer:
+        writer.write(_heading([10, 20, 30]))
+        writer.add_metadata({"enu_origin": "{}"})
+        writer.write(_heading([25, 40]))  # one row behind what is written: re-sorted at the end
+        writer.add_metadata({"learnt_late": "yes"})
+        with pytest.raises(SchemaError, match="column 'yaw'"):
+            writer.write(pa.table({"t_ns": [50], "yaw_std": [0.1]}))
+    assert writer.rows == 5 and writer.late_rows == 1 and writer.resorted
+    table = read_table(path, "heading")
+    assert table.column("t_ns").to_pylist() == [10, 20, 25, 30, 40]
+    meta = read_table_metadata(path)
+    assert meta["enu_origin"] == "{}" and meta["learnt_late"] == "yes"
+    assert meta["schema_name"] == "heading" and meta["source_sha256"] == SHA
+    assert table.schema.field("yaw").metadata[b"unit"] == b"rad"
+    column = pq.ParquetFile(path).metadata.row_group(0).column(0)
+    assert column.compression == "ZSTD"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["heading.parquet"]
+
+
+def test_table_without_rows_is_written_empty_with_its_columns(tmp_path: Path) -> None:
+    path = tmp_path / "heading.parquet"
+    with TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG):
+        pass
+    table = read_table(path, "heading")
+    assert table.num_rows == 0 and table.column_names == ["t_ns", "yaw", "yaw_std"]
+
+
+def test_flipped_byte_in_a_data_page_is_an_error_not_a_value(tmp_path: Path) -> None:
+    path = tmp_path / "heading.parquet"
+    yaw = [1.25 + i for i in range(1000)]
+    table = pa.table({"t_ns": list(range(1000)), "yaw": yaw, "yaw_std": [0.5] * 1000})
+    with TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG) as writer:
+        writer.write(table)
+    column = pq.ParquetFile(path).metadata.row_group(0).column(1)  # yaw
+    data = bytearray(path.read_bytes())
+    # A byte in the middle of the yaw column's data page (after its page header).
+    at = column.data_page_offset + column.total_compressed_size // 2
+    data[at] ^= 0x40
+    path.write_bytes(bytes(data))
+    with pytest.raises(SchemaError, match="cannot read table 'heading'"):
+        read_table(path, "heading")
+
+
+def test_finish_fsyncs_before_publish_renames(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    events: list[str] = []
+    real_fsync, real_replace = tableio.fsync_file, tableio.os.replace
+    monkeypatch.setattr(tableio, "fsync_file", lambda p: (events.append("fsync"), real_fsync(p)))
+    monkeypatch.setattr(
+        tableio.os, "replace", lambda a, b: (events.append("rename"), real_replace(a, b))
+    )
+    writer = TableWriter(tmp_path / "h.parquet", "heading", source_sha256=SHA, config_hash=CFG)
+    writer.write(_heading([1]))
+    assert writer.finish()
+    assert events == ["fsync"] and not (tmp_path / "h.parquet").exists()
+    writer.publish()
+    assert events == ["fsync", "rename"] and (tmp_path / "h.parquet").exists()
+    with pytest.raises(WorkspaceError, match="writer is published"):
+        writer.write(_heading([2]))
 
 
 # -- reading ------------------------------------------------------------------------------

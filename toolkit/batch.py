@@ -508,13 +508,12 @@ def run_ingest_batch(
         unique.setdefault(os.path.abspath(log), log)
     picked = set(shard(list(unique.values()), shard_index, num_shards))
     mine = [log for log in unique.values() if log in picked]  # reported in the user's order
-    from toolkit.stages.ingest import _check_workspace_config
 
     workspace = Workspace(workspace_root).create()
     config = _config_in_force(workspace, config_path)
     # ingest_log's own rule (record the config, refuse another unless overwrite), applied
     # once here so a mismatch fails the command once, not once per log.
-    _check_workspace_config(workspace, config, overwrite)
+    workspace.use_config(config, overwrite=overwrite)
     config_toml = dump_toml(config)
     task = functools.partial(
         ingest_task,

@@ -16,11 +16,14 @@ accepted and cast to the schema's type, so every file of one table has the same 
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib.resources
 import json
-from collections.abc import Mapping, Sequence
+import os
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from importlib.resources.abc import Traversable
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +32,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from toolkit.errors import SchemaError, WorkspaceError
-from toolkit.workspace import atomic_output
+from toolkit.workspace import fsync_dir, fsync_file, temp_path_beside
 
 #: Key-value metadata keys every table carries.
 META_SCHEMA_NAME = "schema_name"
@@ -132,7 +135,7 @@ class TableSchema:
         return self.arrow_schema().empty_table()
 
 
-def _tables_dir() -> Any:
+def _tables_dir() -> Traversable:
     return importlib.resources.files("toolkit.schemas").joinpath("tables")
 
 
@@ -295,6 +298,252 @@ def contract_metadata(
     }
 
 
+#: Rows per Parquet row group at most (big enough for fast scans, small enough to stream).
+ROW_GROUP_ROWS = 65_536
+
+#: Parquet writer options every table is written with: zstd, and a CRC on every data page so
+#: flipped bytes are an error when read (:func:`read_table` verifies them), not values.
+PARQUET_OPTIONS: dict[str, Any] = {"compression": "zstd", "write_page_checksum": True}
+
+
+class TableWriter:
+    """The one way a table reaches the disk: streamed aside, checked, then published whole.
+
+    Rows arrive in pieces (:meth:`write`); each piece is checked against the table schema
+    (:func:`conform_table`) and appended to a hidden file beside the destination, as zstd
+    Parquet with page checksums, every row group at most :data:`ROW_GROUP_ROWS` rows. The
+    contract metadata (:func:`contract_metadata`) is stamped when the file is closed, so
+    metadata learnt while streaming (:meth:`add_metadata`) is kept. :meth:`finish` closes the
+    file, re-sorts it out of core when ``sort_by`` is given and rows arrived out of order, and
+    fsyncs it; :meth:`publish` renames it over the destination and fsyncs the directory.
+    :meth:`abort` (or any exception inside ``with``) removes every file the writer made, so
+    nothing half-written is ever left behind or seen.
+
+    Use as a context manager for one table (finish and publish on success), or call
+    :meth:`finish` on several writers and :meth:`publish` them together once all succeeded.
+
+    ``schema_name`` names a table schema of ``schemas/tables``; ``None`` writes a table that
+    has none (e.g. the simulator's ``truth_features``) as given, stamped with ``table_name``
+    at version 1. A table that got no rows is written empty with its schema's columns
+    (a schema-less one with no row ever written has no columns to write: :meth:`finish`
+    then returns False and nothing is published).
+    """
+
+    def __init__(
+        self,
+        path: str | Path,
+        schema_name: str | None,
+        *,
+        source_sha256: str | Sequence[str],
+        config_hash: str,
+        extra_metadata: Mapping[str, str] | None = None,
+        table_name: str | None = None,
+        sort_by: str | None = None,
+    ) -> None:
+        self.path = Path(path)
+        self.schema = load_table_schema(schema_name) if schema_name is not None else None
+        if self.schema is None and not table_name:
+            raise ValueError("a table without a schema needs a table_name")
+        self.table_name = self.schema.name if self.schema is not None else str(table_name)
+        self._source_sha256 = source_sha256
+        self._config_hash = config_hash
+        self._extra: dict[str, str] = dict(extra_metadata or {})
+        self.sort_by = sort_by
+        self.rows = 0
+        #: Rows that arrived before the largest ``sort_by`` value already written.
+        self.late_rows = 0
+        self.resorted = False
+        self._tmp = temp_path_beside(self.path, "partial")
+        self._writer: pq.ParquetWriter | None = None
+        self._arrow_schema: pa.Schema | None = None
+        self._max_key: Any = None
+        self._stamped: dict[str, str] = {}
+        self._state = "open"  # open -> finished -> published, or -> aborted
+
+    # -- the context manager ---------------------------------------------------------------
+
+    def __enter__(self) -> TableWriter:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, *_: object) -> None:
+        if exc_type is not None:
+            self.abort()
+            return
+        try:
+            if self.finish():
+                self.publish()
+        except BaseException:
+            self.abort()
+            raise
+
+    # -- writing ---------------------------------------------------------------------------
+
+    def add_metadata(self, metadata: Mapping[str, str]) -> None:
+        """Key-value metadata for the file (first value of a key wins)."""
+        for key, value in metadata.items():
+            self._extra.setdefault(key, value)
+
+    def write(self, table: pa.Table) -> None:
+        """Append rows (checked against the schema; extra columns kept after its own)."""
+        self._require("open")
+        if self.schema is not None:
+            table = conform_table(table, self.schema, self.path)
+        writer = self._writer
+        if writer is None:
+            writer = self._open(table.schema)
+        elif self._arrow_schema is not None and not table.schema.equals(
+            self._arrow_schema, check_metadata=False
+        ):
+            try:
+                table = table.cast(self._arrow_schema)
+            except (pa.ArrowInvalid, ValueError) as exc:
+                raise SchemaError(
+                    f"table {self.table_name!r}: a piece whose columns differ from the first "
+                    f"({exc})",
+                    path=self.path,
+                ) from exc
+        if table.num_rows == 0:
+            return
+        self._track_order(table)
+        try:
+            writer.write_table(table, row_group_size=ROW_GROUP_ROWS)
+        except (OSError, pa.ArrowException) as exc:
+            raise WorkspaceError(
+                f"cannot write table {self.table_name!r}: {exc}", self.path
+            ) from exc
+        self.rows += table.num_rows
+
+    def _track_order(self, table: pa.Table) -> None:
+        if self.sort_by is None:
+            return
+        key = table.column(self.sort_by)
+        if self._max_key is not None:
+            self.late_rows += int(pc.sum(pc.less(key, self._max_key)).as_py() or 0)
+        top = pc.max(key).as_py()
+        if top is not None and (self._max_key is None or top > self._max_key):
+            self._max_key = top
+        if not self._is_sorted(key):
+            self.late_rows += 1  # out of order within the piece: the file needs sorting
+
+    @staticmethod
+    def _is_sorted(key: pa.ChunkedArray) -> bool:
+        values = key.to_numpy()
+        return len(values) < 2 or bool((values[1:] >= values[:-1]).all())
+
+    def _open(self, schema: pa.Schema) -> pq.ParquetWriter:
+        self._arrow_schema = schema.remove_metadata()
+        # The metadata known now goes into the Arrow schema (what every reader shows); keys
+        # learnt later are added to the file's key-value metadata when it is closed.
+        self._stamped = self._metadata()
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            self._writer = pq.ParquetWriter(
+                self._tmp, self._arrow_schema.with_metadata(self._stamped), **PARQUET_OPTIONS
+            )
+        except (OSError, pa.ArrowException) as exc:
+            raise WorkspaceError(
+                f"cannot write table {self.table_name!r}: {exc}", self.path
+            ) from exc
+        return self._writer
+
+    def _metadata(self) -> dict[str, str]:
+        version = self.schema.version if self.schema is not None else 1
+        return contract_metadata(
+            self.table_name,
+            version,
+            source_sha256=self._source_sha256,
+            config_hash=self._config_hash,
+            extra_metadata=self._extra,
+        )
+
+    # -- finishing -------------------------------------------------------------------------
+
+    def finish(self) -> bool:
+        """Close the hidden file (sorted, fsynced); False when there is nothing to publish."""
+        self._require("open")
+        try:
+            writer = self._writer
+            if writer is None:
+                if self.schema is None:
+                    self._state = "finished"
+                    return False
+                writer = self._open(self.schema.arrow_schema())
+            late = {k: v for k, v in self._metadata().items() if k not in self._stamped}
+            if late:
+                writer.add_key_value_metadata(late)
+            self._writer = None
+            writer.close()
+            if self.sort_by is not None and self.late_rows:
+                self._resort(self.sort_by)
+            fsync_file(self._tmp)
+        except (OSError, pa.ArrowException) as exc:
+            raise WorkspaceError(
+                f"cannot write table {self.table_name!r}: {exc}", self.path
+            ) from exc
+        self._state = "finished"
+        return True
+
+    def _resort(self, key: str) -> None:
+        """Sort the hidden file by ``key`` out of core: polars streams a sorted copy, which is
+        written back through pyarrow with the file's own schema and metadata (polars would
+        drop the field metadata that carries units)."""
+        import polars as pl
+
+        scratch = temp_path_beside(self.path, "sorting")
+        final = temp_path_beside(self.path, "partial")
+        try:
+            pl.scan_parquet(self._tmp).sort(key, maintain_order=True).sink_parquet(
+                scratch, compression="zstd", row_group_size=ROW_GROUP_ROWS
+            )
+            schema = pq.read_schema(self._tmp)
+            with pq.ParquetWriter(final, schema, **PARQUET_OPTIONS) as writer:
+                for batch in pq.ParquetFile(scratch).iter_batches(batch_size=ROW_GROUP_ROWS):
+                    writer.write_table(pa.Table.from_batches([batch]).cast(schema))
+                late = {k: v for k, v in self._metadata().items() if k not in self._stamped}
+                if late:
+                    writer.add_key_value_metadata(late)
+            self._tmp.unlink()
+            self._tmp = final
+            self.resorted = True
+        except BaseException:
+            with contextlib.suppress(FileNotFoundError):
+                final.unlink()
+            raise
+        finally:
+            with contextlib.suppress(FileNotFoundError):
+                scratch.unlink()
+
+    def publish(self) -> Path:
+        """Rename the finished file over the destination; returns the destination."""
+        self._require("finished")
+        try:
+            os.replace(self._tmp, self.path)
+        except OSError as exc:
+            raise WorkspaceError(
+                f"cannot publish table {self.table_name!r}: {exc}", self.path
+            ) from exc
+        fsync_dir(self.path.parent)
+        self._state = "published"
+        return self.path
+
+    def abort(self) -> None:
+        """Close and remove everything this writer made (safe to call more than once)."""
+        if self._writer is not None:
+            with contextlib.suppress(Exception):
+                self._writer.close()
+            self._writer = None
+        if self._state != "published":
+            with contextlib.suppress(FileNotFoundError):
+                self._tmp.unlink()
+            self._state = "aborted"
+
+    def _require(self, state: str) -> None:
+        if self._state != state:
+            raise WorkspaceError(
+                f"table {self.table_name!r}: writer is {self._state}, not {state}", self.path
+            )
+
+
 def write_table(
     path: str | Path,
     table: pa.Table,
@@ -304,28 +553,20 @@ def write_table(
     config_hash: str,
     extra_metadata: Mapping[str, str] | None = None,
 ) -> None:
-    """Validate ``table`` against ``schema_name`` and write it as zstd Parquet, atomically.
+    """Write a whole table at once through :class:`TableWriter` (checked, atomic).
 
     ``source_sha256`` is the source log's sha256, or for tables built from several logs a
     sequence of them (stored sorted, comma-separated). ``extra_metadata`` adds key-value
     metadata (e.g. the ENU origin as JSON); it may not override the provenance keys.
     """
-    path = Path(path)
-    schema = load_table_schema(schema_name)
-    conformed = conform_table(table, schema, path)
-    metadata = contract_metadata(
-        schema.name,
-        schema.version,
+    with TableWriter(
+        path,
+        schema_name,
         source_sha256=source_sha256,
         config_hash=config_hash,
         extra_metadata=extra_metadata,
-    )
-    conformed = conformed.replace_schema_metadata(metadata)
-    try:
-        with atomic_output(path) as tmp:
-            pq.write_table(conformed, tmp, compression="zstd")
-    except (OSError, pa.ArrowException) as exc:
-        raise WorkspaceError(f"cannot write table {schema.name!r}: {exc}", path=path) from exc
+    ) as writer:
+        writer.write(table)
 
 
 def _read_schema(path: Path) -> pa.Schema:
@@ -338,21 +579,24 @@ def _read_schema(path: Path) -> pa.Schema:
 
 
 def read_table_metadata(path: str | Path) -> dict[str, str]:
-    """The key-value metadata of a Parquet table written by :func:`write_table`."""
-    meta = _read_schema(Path(path)).metadata or {}
-    return {k.decode("utf-8", "replace"): v.decode("utf-8", "replace") for k, v in meta.items()}
-
-
-def read_table(
-    path: str | Path, schema_name: str, *, columns: Sequence[str] | None = None
-) -> pa.Table:
-    """Read a table, checking it was written for ``schema_name`` at the current version.
-
-    A file of another table, or of an older schema version (a stale workspace), is a
-    SchemaError; so is a file missing one of the schema's columns.
-    """
+    """The key-value metadata of a Parquet table written by :class:`TableWriter` (the file's,
+    which holds the Arrow schema's and any key added when the file was closed)."""
     path = Path(path)
-    schema = load_table_schema(schema_name)
+    _read_schema(path)  # a missing or unreadable file is our error, naming it
+    try:
+        meta = pq.read_metadata(path).metadata or {}
+    except (OSError, pa.ArrowException) as exc:
+        raise SchemaError(f"not a readable Parquet file: {exc}", path=path) from exc
+    return {
+        k.decode("utf-8", "replace"): v.decode("utf-8", "replace")
+        for k, v in meta.items()
+        if k != b"ARROW:schema"
+    }
+
+
+def _check_contract(path: Path, schema: TableSchema) -> None:
+    """SchemaError unless ``path`` holds ``schema``'s table at its current version, with every
+    one of its columns."""
     meta = read_table_metadata(path)
     found = meta.get(META_SCHEMA_NAME)
     if found != schema.name:
@@ -368,7 +612,50 @@ def read_table(
     missing = [c for c in schema.column_names if c not in names]
     if missing:
         raise SchemaError(f"table {schema.name!r}, column {missing[0]!r}: missing", path=path)
+
+
+def read_table(
+    path: str | Path, schema_name: str, *, columns: Sequence[str] | None = None
+) -> pa.Table:
+    """Read a table, checking it was written for ``schema_name`` at the current version.
+
+    A file of another table, or of an older schema version (a stale workspace), is a
+    SchemaError; so is a file missing one of the schema's columns, and one whose data pages
+    fail their checksums.
+    """
+    path = Path(path)
+    schema = load_table_schema(schema_name)
+    _check_contract(path, schema)
     try:
-        return pq.read_table(path, columns=list(columns) if columns is not None else None)
+        return pq.read_table(
+            path,
+            columns=list(columns) if columns is not None else None,
+            page_checksum_verification=True,
+        )
+    except (OSError, pa.ArrowException) as exc:
+        raise SchemaError(f"cannot read table {schema.name!r}: {exc}", path=path) from exc
+
+
+def table_num_rows(path: str | Path, schema_name: str) -> int:
+    """Rows of a table, from its footer (the contract checked as by :func:`read_table`)."""
+    path = Path(path)
+    _check_contract(path, load_table_schema(schema_name))
+    try:
+        return int(pq.ParquetFile(path).metadata.num_rows)
+    except (OSError, pa.ArrowException) as exc:
+        raise SchemaError(f"cannot read table {schema_name!r}: {exc}", path=path) from exc
+
+
+def iter_table_batches(
+    path: str | Path, schema_name: str, *, columns: Sequence[str], batch_rows: int
+) -> Iterator[pa.RecordBatch]:
+    """Stream a table in record batches of at most ``batch_rows`` rows (memory bounded by a
+    batch), checked as by :func:`read_table`, page checksums verified."""
+    path = Path(path)
+    schema = load_table_schema(schema_name)
+    _check_contract(path, schema)
+    try:
+        with pq.ParquetFile(path, page_checksum_verification=True) as f:
+            yield from f.iter_batches(batch_size=batch_rows, columns=list(columns))
     except (OSError, pa.ArrowException) as exc:
         raise SchemaError(f"cannot read table {schema.name!r}: {exc}", path=path) from exc

@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from toolkit.config import PipelineConfig, dump_toml, load_config
-from toolkit.errors import WorkspaceError
+from toolkit.config import PipelineConfig, config_hash, dump_toml, load_config
+from toolkit.errors import ConfigError, WorkspaceError
 
 #: Version of the manifest's JSON layout.
 MANIFEST_FORMAT = 1
@@ -82,7 +82,22 @@ def log_id_for(path: str | Path) -> str:
 # --------------------------------------------------------------------------------------
 
 
-def _fsync_dir(directory: Path) -> None:
+def temp_path_beside(path: Path, suffix: str = "tmp") -> Path:
+    """A fresh hidden name beside ``path`` for writing aside: ``.<name>.<random>.<suffix>``."""
+    return path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.{suffix}")
+
+
+def fsync_file(path: Path) -> None:
+    """Flush a written file's data to the disk, so a rename after it cannot publish a file
+    whose bytes a crash would lose."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def fsync_dir(directory: Path) -> None:
     """Make a rename durable (best effort: some filesystems refuse fsync on directories)."""
     try:
         fd = os.open(directory, os.O_RDONLY)
@@ -105,22 +120,18 @@ def atomic_output(path: str | Path) -> Iterator[Path]:
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.tmp")
+    tmp = temp_path_beside(path)
     try:
         yield tmp
         if not tmp.exists():
             raise WorkspaceError("nothing was written to the temporary file", path=tmp)
-        fd = os.open(tmp, os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
+        fsync_file(tmp)
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
         raise
-    _fsync_dir(path.parent)
+    fsync_dir(path.parent)
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
@@ -520,6 +531,30 @@ class Workspace:
         """Record ``cfg`` as the configuration in force."""
         self.create()
         atomic_write_text(self.config_path, dump_toml(cfg))
+
+    def use_config(self, cfg: PipelineConfig, *, overwrite: bool) -> None:
+        """Make ``cfg`` the configuration in force, or refuse one that differs from it.
+
+        A workspace holds the results of one configuration: a different one is a ConfigError
+        (naming both) unless ``overwrite``, which replaces it.
+        """
+        if not self.config_path.is_file():
+            self.write_config(cfg)
+            return
+        with contextlib.suppress(OSError, UnicodeDecodeError):
+            if self.config_path.read_text(encoding="utf-8") == dump_toml(cfg):
+                return  # the file this configuration writes: equal without parsing it
+        current = self.read_config()
+        if current == cfg:
+            return
+        if not overwrite:
+            raise ConfigError(
+                f"the workspace was set up with another configuration ({current.name}, "
+                f"{config_hash(current)[:12]}) than the one given ({cfg.name}, "
+                f"{config_hash(cfg)[:12]}); use a new workspace or --overwrite to replace it",
+                path=self.config_path,
+            )
+        self.write_config(cfg)
 
     def is_up_to_date(
         self,

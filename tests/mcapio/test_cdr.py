@@ -1,4 +1,8 @@
-"""CDR encoding and decoding, checked against mcap_ros2's reference serialiser and decoder."""
+"""CDR encoding and decoding: message definitions, layouts, both encoders, the decoder, errors.
+
+What we encode is read back with ``mcap_ros2``'s public decoder; the other direction (our codec
+against ``mcap_ros2``'s public writer) is in ``test_cdr_reference.py``.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +12,9 @@ import numpy as np
 import pytest
 
 from toolkit.errors import CdrError, SchemaError
-from toolkit.mcapio.cdr import decode_batch, encode_batch, encode_message, layout
+from toolkit.mcapio.cdr import decode_batch
+from toolkit.mcapio.cdr_encode import encode_batch, encode_message
+from toolkit.mcapio.cdr_layout import align, layout
 from toolkit.mcapio.msgdefs import (
     SEPARATOR,
     known_types,
@@ -141,13 +147,13 @@ def test_encode_batch_decodes_with_reference(
     for i, payload in enumerate(payloads):
         assert payload[:4] == b"\x00\x01\x00\x00"
         assert_object_matches(spec, decode(payload), cols, i)
-        # and byte for byte what the reference serialiser writes
+        # and byte for byte what the per-message encoder writes
         assert payload == encode_message(type_name, row(spec, cols, i))
 
 
 @pytest.mark.parametrize("type_name", WRITTEN_TYPES)
 @pytest.mark.parametrize("vary", [False, True], ids=["fixed-shape", "varying-shape"])
-def test_decode_batch_of_reference_payloads(
+def test_decode_batch_of_per_message_payloads(
     type_name: str, vary: bool, rng: np.random.Generator
 ) -> None:
     spec = parse_msgdef(type_name)
@@ -208,6 +214,13 @@ def test_broadcast_and_defaults() -> None:
         encode_message("terrain_msgs/msg/WheelSpeeds", {})
     ]
     assert encode_batch("sensor_msgs/msg/Imu", {"linear_acceleration.x": np.zeros(0)}) == []
+
+
+def test_alignment_counts_from_the_end_of_the_header() -> None:
+    assert [align(off, 8) for off in (4, 5, 11, 12, 13)] == [4, 12, 12, 12, 20]
+    assert [align(off, 4) for off in (4, 5, 8, 9)] == [4, 8, 8, 12]
+    assert [align(off, 2) for off in (5, 6)] == [6, 6]
+    assert [align(off, 1) for off in (5, 6)] == [5, 6]
 
 
 def test_layout_offsets_follow_cdr_alignment() -> None:
@@ -292,7 +305,7 @@ def test_bad_columns_are_refused() -> None:
         encode_batch("sensor_msgs/msg/Imu", {"orientation_covariance": np.zeros((2, 4))})
 
 
-def test_messages_with_nested_sequences_take_the_reference_path() -> None:
+def test_messages_with_nested_sequences_take_the_per_message_path() -> None:
     transforms = [
         [
             {
@@ -310,3 +323,37 @@ def test_messages_with_nested_sequences_take_the_reference_path() -> None:
     assert first["transform.translation.x"].tolist() == [1.0]
     assert first["transform.rotation.w"].tolist() == [1.0]
     assert len(out["transforms"][1]["child_frame_id"]) == 0
+
+
+def test_encode_message_takes_nested_dotted_and_none_values() -> None:
+    nested = {"header": {"stamp": {"sec": 3}, "frame_id": "gps"}, "yaw": 0.25}
+    dotted = {"header.stamp.sec": 3, "header.frame_id": "gps", "yaw": np.float64(0.25)}
+    mixed = {"header": {"frame_id": "gps"}, "header.stamp.sec": np.int32(3), "yaw_std": None}
+    payload = encode_message("terrain_msgs/msg/GpsHeading", nested)
+    assert encode_message("terrain_msgs/msg/GpsHeading", dotted) == payload
+    assert encode_message("terrain_msgs/msg/GpsHeading", {**mixed, "yaw": 0.25}) == payload
+    assert payload == encode_batch("terrain_msgs/msg/GpsHeading", dotted)[0]
+    # None means "not given": the nested message keeps its defaults
+    tf = encode_message("tf2_msgs/msg/TFMessage", {"transforms": [{"header": None}]})
+    assert tf == encode_message("tf2_msgs/msg/TFMessage", {"transforms": [{}]})
+    out = decode_batch("tf2_msgs/msg/TFMessage", [tf])
+    assert out["transforms"][0]["transform.rotation.w"].tolist() == [1.0]
+
+
+def test_encode_message_refuses_what_encode_batch_refuses() -> None:
+    with pytest.raises(CdrError, match="no field 'header.stamp.secs'"):
+        encode_message("sensor_msgs/msg/Imu", {"header": {"stamp": {"secs": 1}}})
+    with pytest.raises(CdrError, match=r"no field 'transforms\[1\]\.child'"):
+        encode_message("tf2_msgs/msg/TFMessage", {"transforms": [{}, {"child": "x"}]})
+    with pytest.raises(CdrError, match="out of range"):
+        encode_message("sensor_msgs/msg/NavSatFix", {"status": {"status": 300}})
+    with pytest.raises(CdrError, match="floating-point"):
+        encode_message("sensor_msgs/msg/Imu", {"header.stamp.sec": 1.5})
+    with pytest.raises(CdrError, match=r"float64\[9\], got shape \(3,\)"):
+        encode_message("sensor_msgs/msg/Imu", {"orientation_covariance": [1.0, 2.0, 3.0]})
+    with pytest.raises(CdrError, match="expected str"):
+        encode_message("sensor_msgs/msg/Imu", {"header.frame_id": 5})
+    with pytest.raises(CdrError, match="is an array"):
+        encode_message("tf2_msgs/msg/TFMessage", {"transforms": "odom"})
+    with pytest.raises(CdrError, match="must be a mapping"):
+        encode_message("tf2_msgs/msg/TFMessage", {"transforms": ["odom"]})

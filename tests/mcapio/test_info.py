@@ -10,7 +10,7 @@ import pytest
 from mcap.writer import CompressionType, IndexType, Writer
 
 from toolkit.errors import LogReadError
-from toolkit.mcapio.cdr import encode_batch
+from toolkit.mcapio.cdr_encode import encode_batch
 from toolkit.mcapio.info import LogInfo, render_table, scan_log
 from toolkit.mcapio.msgdefs import load_msgdef
 from toolkit.mcapio.writer import LogWriter, merge_by_time
@@ -106,11 +106,19 @@ def test_corrupt_chunk_fails_its_crc(tmp_path: Path) -> None:
     bad = tmp_path / "bad.mcap"
     bad.write_bytes(bytes(data))
     info = scan_log(bad, full=True)
-    assert info.problem_kinds() == {"crc", "empty_topic"}
-    crc = [p.message for p in info.problems if p.kind == "crc"]
-    assert any(m.startswith("chunk at offset") for m in crc)
-    assert "data section fails its CRC" in crc
-    assert info.message_count == 1150  # the damaged chunk is still read
+    assert info.problem_kinds() == {"chunk_crc", "empty_topic"}
+    (crc,) = [p.message for p in info.problems if p.kind == "chunk_crc"]
+    assert crc.startswith("chunk at offset") and "CRC" in crc
+    # The chunk is lost as ingest loses it, and every one of its messages is counted.
+    topics = {t.topic: t for t in info.topics}
+    assert 0 < info.messages_lost < 1150
+    assert info.message_count + info.messages_lost == 1150
+    assert topics["/imu"].messages_lost > 0
+    assert info.damage_summary is not None
+    assert f"lost {info.messages_lost} messages (" in info.damage_summary
+    assert info.damage_summary in render_table(info)
+    # The index pass reads no chunk, so it cannot see the bad CRC: it says so in its mode.
+    assert scan_log(bad).scan == "index"
 
 
 def test_disorder_duplicates_and_foreign_schemas_are_reported(tmp_path: Path) -> None:

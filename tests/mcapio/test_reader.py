@@ -14,7 +14,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 from toolkit.errors import LogReadError
 from toolkit.mcapio import reader as reader_module
-from toolkit.mcapio.cdr import encode_batch
+from toolkit.mcapio.cdr_encode import encode_batch
 from toolkit.mcapio.msgdefs import load_msgdef
 from toolkit.mcapio.reader import LogReader, ReadReport
 from toolkit.mcapio.writer import LogWriter, merge_by_time

@@ -12,7 +12,7 @@ from mcap.stream_reader import StreamReader
 from mcap_ros2.decoder import DecoderFactory
 
 from toolkit.errors import SchemaError
-from toolkit.mcapio.cdr import encode_batch
+from toolkit.mcapio.cdr_encode import encode_batch
 from toolkit.mcapio.writer import LogWriter, Record, merge_by_time
 
 

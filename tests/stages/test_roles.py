@@ -17,7 +17,8 @@ from scipy.spatial.transform import Rotation
 
 from toolkit.config import default_config
 from toolkit.errors import StageError
-from toolkit.mcapio.cdr import decode_batch, encode_batch, encode_message
+from toolkit.mcapio.cdr import decode_batch
+from toolkit.mcapio.cdr_encode import encode_batch, encode_message
 from toolkit.stages.roles import (
     ROLE_SPECS,
     ConvertContext,
@@ -47,7 +48,6 @@ def convert(
     log_time_ns: np.ndarray | None = None,
     topic: str = "/t",
     correction_ns: int = 0,
-    heading_noise_rad: float = 0.01,
 ) -> RoleRows:
     payloads = encode_batch(type_name, cols)
     decoded = decode_batch(type_name, payloads)
@@ -56,7 +56,7 @@ def convert(
         + decoded["header.stamp.nanosec"]
     )
     log_t = stamps if log_time_ns is None else np.asarray(log_time_ns, dtype=np.int64)
-    ctx = ConvertContext(topic, role, type_name, correction_ns, heading_noise_rad)
+    ctx = ConvertContext(topic, role, type_name, correction_ns)
     rows = ROLE_SPECS[role].converter_for(topic, type_name)(decoded, log_t, ctx)
     table_name = ROLE_SPECS[role].table
     if table_name not in ("truth_features", "tf_static"):
@@ -159,9 +159,9 @@ def test_heading_from_quaternion_stamped() -> None:
         "quaternion.z": quat[:, 2],
         "quaternion.w": quat[:, 3],
     }
-    rows = convert("heading", "geometry_msgs/msg/QuaternionStamped", cols, heading_noise_rad=0.02)
+    rows = convert("heading", "geometry_msgs/msg/QuaternionStamped", cols)
     np.testing.assert_allclose(col(rows, "yaw"), yaw, atol=1e-12)
-    assert col(rows, "yaw_std") == [0.02] * 4
+    assert col(rows, "yaw_std") == [None] * 4  # no uncertainty in the message: unknown
     assert rows.finite.all()
 
 
@@ -345,7 +345,7 @@ def test_truth_features_and_tf_explode_into_rows() -> None:
         "terrain_msgs/msg/RoughFeatureArray",
         [encode_message("terrain_msgs/msg/RoughFeatureArray", msg)],
     )
-    ctx = ConvertContext("/truth/features", "truth_features", "x", 0, 0.01)
+    ctx = ConvertContext("/truth/features", "truth_features", "x", 0)
     conv = ROLE_SPECS["truth_features"].converter_for(
         "/truth/features", "terrain_msgs/RoughFeatureArray"
     )

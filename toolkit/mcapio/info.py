@@ -1,77 +1,49 @@
 """What is in an MCAP log, and what is wrong with it: the ``terrain info`` verb.
 
-:func:`scan_log` reports per topic the message type, count, first and last log time, mean rate,
-largest gap and the number of gaps longer than three median periods; overall the time span,
-header, metadata and attachment names, chunks and their compression; and the problems found:
-no summary, truncation, CRC failures, messages out of log-time order, duplicate messages, topics
-without messages, schemas that cannot be decoded, summaries that disagree with the data.
+:func:`scan_log` reports per topic the message type, count, messages lost, first and last log
+time, mean rate, largest gap and the number of gaps longer than three median periods; overall
+the time span, header, metadata and attachment names, chunks and their compression; and the
+problems found.
 
-When the log has a summary with chunk and message indexes the scan reads only those (fast: no
-chunk is decompressed, except the few holding duplicate candidates); chunk CRCs are then not
-checked. ``full=True``, or a log without a usable summary, streams the whole file instead with
-CRC checks, tolerating truncation and corruption: it reports the problem and keeps what it read.
-Only a file that is missing or not MCAP at all raises :class:`~toolkit.errors.LogReadError`.
+It reads the log through the toolkit's one MCAP reader (:class:`~toolkit.mcapio.reader.LogReader`),
+the same one ingest uses, so both report the same damage: every :class:`~toolkit.mcapio.reader.
+Damage` the reader finds becomes a problem whose kind is the damage's reason (``no_summary``,
+``bad_index``, ``truncated``, ``chunk_crc``, ``chunk_decompress``, ``unsupported_compression``,
+``bad_record``, ``unknown_channel``), and messages the reader could not salvage are counted per
+topic as lost, exactly as ingest's manifest counts them. To those, ``info`` adds what it sees in
+the messages themselves: ``out_of_order`` (a message of a topic earlier in log time than one
+before it in the file), ``duplicates`` (same topic, log time and bytes), ``empty_topic``,
+``unknown_schema`` (not decodable as ROS 2 CDR) and ``summary_mismatch`` (the summary's
+message count disagrees with the data).
+
+When the log has a complete summary with chunk and message indexes the scan reads only those
+(``scan == "index"``: fast, no chunk is decompressed, so chunk CRCs are not checked; chunks
+holding same-topic same-time messages force a full read to compare their bytes). ``full=True``,
+or a log whose index cannot vouch for every message, reads every chunk with CRC checks
+(``scan == "full"``). Only a file that is missing or not MCAP at all raises
+:class:`~toolkit.errors.LogReadError`.
 """
 
 from __future__ import annotations
 
-import struct
-import zlib
-from array import array
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import numpy as np
-from mcap.data_stream import ReadDataStream
-from mcap.exceptions import EndOfFile, McapError
-from mcap.opcode import Opcode
-from mcap.reader import SeekingReader
-from mcap.records import (
-    Attachment,
-    Channel,
-    Chunk,
-    ChunkIndex,
-    DataEnd,
-    Footer,
-    Header,
-    Message,
-    Metadata,
-    Schema,
-)
-from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
-from mcap.summary import Summary
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
-from toolkit.errors import LogReadError, ToolkitError
+from toolkit.errors import ToolkitError
 from toolkit.mcapio.msgdefs import parse_schema_text
-from toolkit.mcapio.reader import open_mcap
-
-MAGIC = b"\x89MCAP0\r\n"
-_FOOTER_RECORD = 1 + 8 + 8 + 8 + 4
-#: Errors a damaged file can provoke inside the mcap library (besides its own McapError).
-_READ_ERRORS = (
-    McapError,
-    CRCValidationError,
-    struct.error,
-    ValueError,
-    KeyError,
-    IndexError,
-    UnicodeDecodeError,
-    EOFError,
-    OSError,
-    MemoryError,
-    RuntimeError,
-)
+from toolkit.mcapio.reader import Channel, LogReader, ReadReport
 
 
 @dataclass(frozen=True)
 class Problem:
     """One thing wrong with a log: a short machine-readable ``kind`` and a readable message.
 
-    Kinds: ``no_summary``, ``truncated``, ``corrupt``, ``crc``, ``out_of_order``,
+    Kinds: the reader's damage reasons (see :mod:`toolkit.mcapio.reader`) and ``out_of_order``,
     ``duplicates``, ``empty_topic``, ``unknown_schema``, ``summary_mismatch``.
     """
 
@@ -85,7 +57,8 @@ class TopicInfo:
 
     ``mean_rate_hz`` is (count - 1) / (last - first); ``max_gap_s`` the largest step between
     consecutive log times; ``long_gaps`` the number of steps longer than three times the median
-    (non-zero) step. Rate and gap are None with fewer than two messages.
+    (non-zero) step. Rate and gap are None with fewer than two messages. ``messages_lost`` is
+    what the reader knows it could not salvage from a damaged file (not in ``message_count``).
     """
 
     topic: str
@@ -98,14 +71,17 @@ class TopicInfo:
     mean_rate_hz: float | None
     max_gap_s: float | None
     long_gaps: int
+    messages_lost: int = 0
 
     def to_dict(self) -> dict[str, Any]:
+        """A JSON-able dict."""
         return {
             "topic": self.topic,
             "message_type": self.message_type,
             "schema_encoding": self.schema_encoding,
             "message_encoding": self.message_encoding,
             "message_count": self.message_count,
+            "messages_lost": self.messages_lost,
             "first_time_ns": self.first_time_ns,
             "last_time_ns": self.last_time_ns,
             "mean_rate_hz": self.mean_rate_hz,
@@ -133,6 +109,8 @@ class LogInfo:
     has_summary: bool
     scan: str
     problems: tuple[Problem, ...]
+    messages_lost: int = 0
+    damage_summary: str | None = None
 
     @property
     def duration_s(self) -> float:
@@ -156,6 +134,7 @@ class LogInfo:
             "end_time_ns": self.end_time_ns,
             "duration_s": self.duration_s,
             "message_count": self.message_count,
+            "messages_lost": self.messages_lost,
             "topics": [t.to_dict() for t in self.topics],
             "metadata_names": list(self.metadata_names),
             "attachment_names": list(self.attachment_names),
@@ -163,255 +142,46 @@ class LogInfo:
             "compression": list(self.compression),
             "has_summary": self.has_summary,
             "scan": self.scan,
+            "damage_summary": self.damage_summary,
             "problems": [{"kind": p.kind, "message": p.message} for p in self.problems],
         }
 
 
 @dataclass
 class _Scan:
-    """What a pass over the file collects."""
+    """What a pass over the log collects: per channel id, log times and payload digests in
+    file order (digests only from a full read)."""
 
-    header: Header | None = None
-    schemas: dict[int, Schema] = field(default_factory=dict)
-    channels: dict[int, Channel] = field(default_factory=dict)
-    metadata_names: list[str] = field(default_factory=list)
-    attachment_names: list[str] = field(default_factory=list)
-    chunk_count: int = 0
-    compression: set[str] = field(default_factory=set)
-    # One entry per message, in file order.
-    channel_ids: array[int] = field(default_factory=lambda: array("H"))
-    times: array[int] = field(default_factory=lambda: array("Q"))
-    digests: array[int] | None = field(default_factory=lambda: array("q"))
+    times: dict[int, list[np.ndarray]] = field(default_factory=dict)
+    digests: dict[int, list[np.ndarray]] = field(default_factory=dict)
     problems: list[Problem] = field(default_factory=list)
 
     def problem(self, kind: str, message: str) -> None:
         self.problems.append(Problem(kind, message))
 
+    def channel_times(self, channel_id: int) -> np.ndarray:
+        parts = self.times.get(channel_id)
+        return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
 
-# --------------------------------------------------------------------------------------------
-# Opening, header and summary
-# --------------------------------------------------------------------------------------------
-
-
-def _read_header(f: IO[bytes], path: Path, size: int) -> Header:
-    f.seek(0)
-    try:
-        record = next(iter(StreamReader(f, record_size_limit=size).records))
-    except (StopIteration, *_READ_ERRORS) as exc:
-        raise LogReadError(f"MCAP file without a readable header record ({exc!r})", path) from exc
-    if not isinstance(record, Header):
-        raise LogReadError(f"MCAP file starts with {type(record).__name__}, not Header", path)
-    return record
+    def channel_digests(self, channel_id: int) -> np.ndarray | None:
+        parts = self.digests.get(channel_id)
+        return np.concatenate(parts) if parts else None
 
 
-def _read_summary(f: IO[bytes], size: int, scan: _Scan) -> tuple[Summary | None, Footer | None]:
-    """The summary section and footer, or None where absent or unreadable (problems noted)."""
-    f.seek(max(size - len(MAGIC), 0))
-    if size < 2 * len(MAGIC) or f.read(len(MAGIC)) != MAGIC:
-        return None, None  # no footer: the stream pass tells truncation from a missing summary
-    try:
-        f.seek(0)
-        reader = SeekingReader(f, record_size_limit=size)
-        f.seek(size - len(MAGIC) - _FOOTER_RECORD)
-        footer = next(iter(StreamReader(f, skip_magic=True, record_size_limit=size).records))
-        if not isinstance(footer, Footer):
-            raise McapError(f"expected a footer, found {type(footer).__name__}")
-        summary = reader.get_summary()
-    except (StopIteration, *_READ_ERRORS) as exc:
-        scan.problem("corrupt", f"the footer or summary section cannot be read: {exc}")
-        return None, None
-    if footer.summary_start and footer.summary_crc:
-        f.seek(footer.summary_start)
-        data = f.read(size - len(MAGIC) - 4 - footer.summary_start)
-        if zlib.crc32(data) != footer.summary_crc:
-            scan.problem("crc", "the summary section fails its CRC")
-    return summary, footer
+def _full_pass(reader: LogReader, scan: _Scan) -> ReadReport:
+    """Every message of every topic through the reader (CRCs checked, damage salvaged)."""
+    for batch in reader.batches():
+        cid = batch.channel.id
+        scan.times.setdefault(cid, []).append(batch.log_time_ns)
+        # hash() per payload: a digest to find exact copies without keeping the bytes.
+        digests = np.fromiter((hash(p) for p in batch.payloads), np.int64, len(batch.payloads))
+        scan.digests.setdefault(cid, []).append(digests)
+    return reader.report
 
 
-# --------------------------------------------------------------------------------------------
-# Index pass (fast)
-# --------------------------------------------------------------------------------------------
-
-# A MessageIndex record body: channel_id u16, byte length u32 of (log_time u64, offset u64)[].
-_INDEX_ENTRY = np.dtype([("time", "<u8"), ("offset", "<u8")])
-
-
-def _message_index(f: IO[bytes], offset: int, size: int) -> tuple[int, np.ndarray]:
-    f.seek(offset)
-    head = f.read(9)
-    if len(head) != 9 or head[0] != Opcode.MESSAGE_INDEX:
-        raise McapError(f"no message index record at offset {offset}")
-    length = struct.unpack_from("<Q", head, 1)[0]
-    if length < 6 or offset + 9 + length > size:
-        raise McapError(f"message index record at offset {offset} has a bad length")
-    body = f.read(length)
-    channel_id, nbytes = struct.unpack_from("<HI", body, 0)
-    if nbytes % 16 or 6 + nbytes > len(body):
-        raise McapError(f"message index record at offset {offset} is malformed")
-    return channel_id, np.frombuffer(body, dtype=_INDEX_ENTRY, count=nbytes // 16, offset=6)
-
-
-def _index_pass(f: IO[bytes], size: int, summary: Summary, scan: _Scan) -> bool:
-    """Collect message times from the message indexes; False when they are incomplete."""
-    chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
-    if not chunks or any(not c.message_index_offsets for c in chunks):
-        return False
-    parts: list[tuple[int, int, np.ndarray]] = []  # (chunk number, channel id, entries)
-    try:
-        for number, chunk in enumerate(chunks):
-            for channel_id, offset in sorted(chunk.message_index_offsets.items()):
-                found, entries = _message_index(f, offset, size)
-                if found != channel_id:
-                    raise McapError(f"message index at {offset} is for channel {found}")
-                parts.append((number, channel_id, entries))
-    except (*_READ_ERRORS,) as exc:
-        scan.problem("corrupt", f"message indexes cannot be read ({exc}); streamed the file")
-        return False
-    total = sum(len(e) for _, _, e in parts)
-    stats = summary.statistics
-    if stats is not None and stats.message_count != total:
-        return False  # messages outside chunks, or a lying index: the stream pass decides
-    channels = {c for _, c, _ in parts}
-    if not channels <= set(summary.channels) or any(
-        ch.schema_id and ch.schema_id not in summary.schemas for ch in summary.channels.values()
-    ):
-        return False  # channels or schemas not repeated in the summary: they are in the chunks
-    scan.schemas = dict(summary.schemas)
-    scan.channels = dict(summary.channels)
-    scan.chunk_count = len(chunks)
-    scan.compression = {c.compression or "none" for c in chunks}
-    scan.metadata_names = [m.name for m in summary.metadata_indexes]
-    scan.attachment_names = [a.name for a in summary.attachment_indexes]
-    if not parts:
-        scan.digests = None
-        return True
-    chunk_no = np.concatenate([np.full(len(e), n, dtype=np.int64) for n, _, e in parts])
-    chan = np.concatenate([np.full(len(e), c, dtype=np.uint16) for _, c, e in parts])
-    times = np.concatenate([e["time"] for _, _, e in parts])
-    offs = np.concatenate([e["offset"] for _, _, e in parts])
-    order = np.lexsort((offs, chunk_no))  # file order
-    scan.channel_ids = array("H", chan[order].tobytes())
-    scan.times = array("Q", times[order].astype(np.uint64).tobytes())
-    scan.digests = None
-    _confirm_duplicates(f, chunks, chunk_no[order], chan[order], times[order], scan)
-    return True
-
-
-def _confirm_duplicates(
-    f: IO[bytes],
-    chunks: list[ChunkIndex],
-    chunk_no: np.ndarray,
-    chan: np.ndarray,
-    times: np.ndarray,
-    scan: _Scan,
-) -> None:
-    """Read only the chunks holding same-channel same-time messages, to compare their bytes."""
-    keys = np.stack([chan.astype(np.uint64), times], axis=1)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    suspect = counts[inverse.reshape(-1)] > 1
-    if not suspect.any():
-        return
-    wanted = {(int(c), int(t)) for c, t in zip(chan[suspect], times[suspect], strict=True)}
-    digests: list[tuple[int, int, int]] = []
-    for number in sorted(set(chunk_no[suspect].tolist())):
-        index = chunks[number]
-        try:
-            f.seek(index.chunk_start_offset + 9)
-            chunk = Chunk.read(ReadDataStream(f))
-            records = breakup_chunk(chunk, validate_crc=False)
-        except (*_READ_ERRORS,) as exc:
-            scan.problem("corrupt", f"chunk at offset {index.chunk_start_offset}: {exc}")
-            continue
-        for rec in records:
-            if isinstance(rec, Message) and (rec.channel_id, rec.log_time) in wanted:
-                digests.append((rec.channel_id, rec.log_time, hash(rec.data)))
-    _report_duplicates(np.asarray(digests, dtype=np.int64).reshape(-1, 3), scan)
-
-
-# --------------------------------------------------------------------------------------------
-# Stream pass (full, tolerant)
-# --------------------------------------------------------------------------------------------
-
-
-def _chunk_records(chunk: Chunk, scan: _Scan, offset: int) -> list[Any]:
-    try:
-        return breakup_chunk(chunk, validate_crc=True)
-    except CRCValidationError:
-        scan.problem("crc", f"chunk at offset {offset} fails its CRC")
-    except (*_READ_ERRORS,) as exc:
-        scan.problem("corrupt", f"chunk at offset {offset} cannot be decompressed: {exc}")
-        return []
-    try:
-        return breakup_chunk(chunk, validate_crc=False)
-    except (*_READ_ERRORS,) as exc:
-        scan.problem("corrupt", f"chunk at offset {offset} cannot be read: {exc}")
-        return []
-
-
-def _stream_pass(f: IO[bytes], size: int, scan: _Scan) -> None:
-    """Read every record from the start; stop at the first unreadable one, keeping the rest."""
-    f.seek(0)
-    reader = StreamReader(f, emit_chunks=True, validate_crcs=True, record_size_limit=size)
-    records: Iterator[Any] = iter(reader.records)
-    digests = scan.digests if scan.digests is not None else array("q")
-    scan.digests = digests
-    saw_footer = False
-    while True:
-        offset = f.tell()
-        try:
-            record = next(records)
-        except StopIteration:
-            break
-        except CRCValidationError as exc:
-            kind = "data section" if isinstance(exc.record, DataEnd) else type(exc.record).__name__
-            scan.problem("crc", f"{kind} fails its CRC")
-            break
-        except (*_READ_ERRORS,) as exc:
-            if isinstance(exc, EndOfFile | EOFError | struct.error) and f.tell() >= size:
-                scan.problem(
-                    "truncated", f"the file ends inside a record that starts at offset {offset}"
-                )
-            else:
-                scan.problem("corrupt", f"unreadable record at offset {offset}: {exc!r}")
-            break
-        inner = _chunk_records(record, scan, offset) if isinstance(record, Chunk) else [record]
-        if isinstance(record, Chunk):
-            scan.chunk_count += 1
-            scan.compression.add(record.compression or "none")
-        for rec in inner:
-            if isinstance(rec, Message):
-                scan.channel_ids.append(rec.channel_id)
-                scan.times.append(rec.log_time)
-                digests.append(hash(rec.data))
-            elif isinstance(rec, Schema):
-                scan.schemas.setdefault(rec.id, rec)
-            elif isinstance(rec, Channel):
-                scan.channels.setdefault(rec.id, rec)
-            elif isinstance(rec, Metadata):
-                scan.metadata_names.append(rec.name)
-            elif isinstance(rec, Attachment):
-                scan.attachment_names.append(rec.name)
-            elif isinstance(rec, Footer):
-                saw_footer = True
-    if not saw_footer and not any(p.kind in ("truncated", "corrupt", "crc") for p in scan.problems):
-        scan.problem("truncated", "the file ends before its footer")
-    if len(scan.digests or ()):
-        chan = np.frombuffer(scan.channel_ids, dtype=np.uint16).astype(np.int64)
-        times = np.frombuffer(scan.times, dtype=np.uint64).astype(np.int64)
-        dig = np.frombuffer(digests, dtype=np.int64)
-        _report_duplicates(np.stack([chan, times, dig], axis=1), scan)
-
-
-def _summary_counts(summary: Summary, scan: _Scan) -> None:
-    """Compare the summary's statistics with what the stream pass counted."""
-    stats = summary.statistics
-    if stats is None:
-        return
-    if stats.message_count != len(scan.times):
-        scan.problem(
-            "summary_mismatch",
-            f"the summary counts {stats.message_count} messages, the data holds {len(scan.times)}",
-        )
+def _has_same_time_pairs(times: dict[int, np.ndarray]) -> bool:
+    """Whether some topic has two messages at the same log time (duplicate candidates)."""
+    return any(len(t) != len(np.unique(t)) for t in times.values())
 
 
 # --------------------------------------------------------------------------------------------
@@ -419,20 +189,24 @@ def _summary_counts(summary: Summary, scan: _Scan) -> None:
 # --------------------------------------------------------------------------------------------
 
 
-def _report_duplicates(rows: np.ndarray, scan: _Scan) -> None:
-    """``rows`` of (channel, log time, digest): report extra copies of identical messages."""
-    if not len(rows):
-        return
-    _, counts = np.unique(rows, axis=0, return_counts=True)
-    extra = int((counts - 1).sum())
-    if extra:
-        scan.problem(
-            "duplicates",
-            f"{extra} duplicate messages (same topic, log time and bytes as another)",
-        )
+def _duplicates(times: np.ndarray, digests: np.ndarray) -> int:
+    """Extra copies among messages of one topic with equal log time and bytes digest."""
+    if len(times) < 2:
+        return 0
+    keys = np.stack([times, digests], axis=1)
+    return int(len(keys) - len(np.unique(keys, axis=0)))
 
 
-def _topic_info(channel: Channel, schema: Schema | None, times: np.ndarray) -> TopicInfo:
+def _out_of_order(times: np.ndarray) -> tuple[int, int]:
+    """(count, first index) of messages earlier in log time than one before them."""
+    if len(times) < 2:
+        return 0, -1
+    behind = times[1:] < np.maximum.accumulate(times)[:-1]
+    n = int(behind.sum())
+    return n, (int(np.flatnonzero(behind)[0]) + 1 if n else -1)
+
+
+def _topic_info(channel: Channel, times: np.ndarray, lost: int) -> TopicInfo:
     count = len(times)
     first = int(times.min()) if count else None
     last = int(times.max()) if count else None
@@ -448,8 +222,8 @@ def _topic_info(channel: Channel, schema: Schema | None, times: np.ndarray) -> T
             long_gaps = int((diffs > 3.0 * float(np.median(positive))).sum())
     return TopicInfo(
         topic=channel.topic,
-        message_type=schema.name if schema is not None else "",
-        schema_encoding=schema.encoding if schema is not None else "",
+        message_type=channel.schema_name,
+        schema_encoding=channel.schema_encoding,
         message_encoding=channel.message_encoding,
         message_count=count,
         first_time_ns=first,
@@ -457,108 +231,138 @@ def _topic_info(channel: Channel, schema: Schema | None, times: np.ndarray) -> T
         mean_rate_hz=rate,
         max_gap_s=gap,
         long_gaps=long_gaps,
+        messages_lost=lost,
     )
 
 
-def _schema_problem(channel: Channel, schema: Schema | None) -> str:
+def _schema_problem(channel: Channel) -> str:
     """Why a channel's messages cannot be decoded as ROS 2 CDR, or "" when they can."""
     if channel.schema_id == 0:
         return f"topic {channel.topic} has no schema"
-    if schema is None:
+    if not channel.schema_name and not channel.schema_encoding:
         return f"topic {channel.topic} refers to undefined schema id {channel.schema_id}"
-    if schema.encoding != SchemaEncoding.ROS2 or channel.message_encoding != MessageEncoding.CDR:
+    if (
+        channel.schema_encoding != SchemaEncoding.ROS2
+        or channel.message_encoding != MessageEncoding.CDR
+    ):
         return (
-            f"topic {channel.topic}: schema {schema.name!r} ({schema.encoding or 'none'}) with "
-            f"message encoding {channel.message_encoding!r} is not ROS 2 ros2msg/cdr"
+            f"topic {channel.topic}: schema {channel.schema_name!r} "
+            f"({channel.schema_encoding or 'none'}) with message encoding "
+            f"{channel.message_encoding!r} is not ROS 2 ros2msg/cdr"
         )
     try:
-        parse_schema_text(schema.name, schema.data.decode("utf-8"))
+        parse_schema_text(channel.schema_name, channel.schema_data.decode("utf-8"))
     except (ToolkitError, UnicodeDecodeError) as exc:
-        return f"topic {channel.topic}: schema {schema.name!r} cannot be parsed: {exc}"
+        return f"topic {channel.topic}: schema {channel.schema_name!r} cannot be parsed: {exc}"
     return ""
 
 
-def _findings(path: Path, size: int, scan: _Scan, has_summary: bool, mode: str) -> LogInfo:
-    chan = (
-        np.frombuffer(scan.channel_ids, dtype=np.uint16)
-        if len(scan.channel_ids)
-        else (np.zeros(0, dtype=np.uint16))
-    )
-    times = (
-        np.frombuffer(scan.times, dtype=np.uint64).astype(np.int64)
-        if len(scan.times)
-        else (np.zeros(0, dtype=np.int64))
-    )
-    if times.size >= 2:
-        behind = times[1:] < np.maximum.accumulate(times)[:-1]
-        late = int(behind.sum())
-        if late:
-            k = int(np.flatnonzero(behind)[0]) + 1
-            ch = scan.channels.get(int(chan[k]))
-            scan.problem(
-                "out_of_order",
-                f"{late} messages are out of log-time order (first on "
-                f"{ch.topic if ch else f'channel {int(chan[k])}'} at log time {int(times[k])} ns)",
-            )
-    unknown = sorted(set(np.unique(chan).tolist()) - set(scan.channels))
-    if unknown:
-        scan.problem("corrupt", f"messages on undefined channel ids {unknown}")
-    topics: list[TopicInfo] = []
-    for channel_id in sorted(scan.channels):
-        channel = scan.channels[channel_id]
-        schema = scan.schemas.get(channel.schema_id)
-        info = _topic_info(channel, schema, times[chan == channel_id])
-        topics.append(info)
-        if info.message_count == 0:
+def _content_problems(channels: dict[int, Channel], scan: _Scan, topics: list[TopicInfo]) -> None:
+    """What info sees in the messages themselves (the reader reports the file's damage)."""
+    late_total, first_late = 0, ""
+    dup_total = 0
+    for (channel_id, channel), info in zip(channels.items(), topics, strict=True):
+        times = scan.channel_times(channel_id)
+        late, k = _out_of_order(times)
+        if late and not first_late:
+            first_late = f"{channel.topic} at log time {int(times[k])} ns"
+        late_total += late
+        digests = scan.channel_digests(channel_id)
+        if digests is not None:
+            dup_total += _duplicates(times, digests)
+        if info.message_count == 0 and info.messages_lost == 0:
             scan.problem("empty_topic", f"topic {channel.topic} has no messages")
-        why = _schema_problem(channel, schema)
+        why = _schema_problem(channel)
         if why:
             scan.problem("unknown_schema", why)
-    if not has_summary:
-        scan.problems.insert(0, Problem("no_summary", "the log has no summary section or index"))
-    header = scan.header
+    if late_total:
+        scan.problem(
+            "out_of_order",
+            f"{late_total} messages are out of log-time order (first on {first_late})",
+        )
+    if dup_total:
+        scan.problem(
+            "duplicates",
+            f"{dup_total} duplicate messages (same topic, log time and bytes as another)",
+        )
+
+
+def _findings(
+    path: Path, reader: LogReader, scan: _Scan, report: ReadReport | None, mode: str
+) -> LogInfo:
+    channels = reader.channel_by_id()
+    lost_by_topic = report.lost if report is not None else {}
+    if report is not None:
+        for d in report.damage:
+            scan.problem(d.reason, d.detail)
+    topics = [
+        _topic_info(
+            channel,
+            scan.channel_times(channel_id),
+            sum(lost_by_topic.get(channel.topic, {}).values()),
+        )
+        for channel_id, channel in channels.items()
+    ]
+    _content_problems(channels, scan, topics)
+    delivered = sum(t.message_count for t in topics)
+    lost = sum(sum(r.values()) for r in lost_by_topic.values())
+    stats = reader.statistics
+    if report is not None and stats is not None and stats.message_count != delivered + lost:
+        scan.problem(
+            "summary_mismatch",
+            f"the summary counts {stats.message_count} messages, the data holds "
+            f"{delivered + lost}" + (f" ({lost} of them lost)" if lost else ""),
+        )
+    starts = [t.first_time_ns for t in topics if t.first_time_ns is not None]
+    ends = [t.last_time_ns for t in topics if t.last_time_ns is not None]
+    if report is not None:
+        metadata = list(report.metadata)
+        metadata += [n for n in reader.summary_metadata_names if n not in metadata]
+        attachments = list(report.attachment_names)
+        chunk_count, compression = report.chunk_count, report.compression
+    else:
+        metadata = reader.summary_metadata_names
+        attachments = reader.summary_attachment_names
+        chunks = reader.chunk_indexes()
+        chunk_count = len(chunks)
+        compression = {c.compression or "none" for c in chunks}
     return LogInfo(
         path=path,
-        size_bytes=size,
-        profile=header.profile if header else "",
-        library=header.library if header else "",
-        start_time_ns=int(times.min()) if times.size else None,
-        end_time_ns=int(times.max()) if times.size else None,
-        message_count=int(times.size),
+        size_bytes=path.stat().st_size,
+        profile=reader.profile,
+        library=reader.library,
+        start_time_ns=min(starts) if starts else None,
+        end_time_ns=max(ends) if ends else None,
+        message_count=delivered,
         topics=tuple(topics),
-        metadata_names=tuple(scan.metadata_names),
-        attachment_names=tuple(scan.attachment_names),
-        chunk_count=scan.chunk_count,
-        compression=tuple(sorted(scan.compression)),
-        has_summary=has_summary,
+        metadata_names=tuple(metadata),
+        attachment_names=tuple(attachments),
+        chunk_count=chunk_count,
+        compression=tuple(sorted(compression)),
+        has_summary=reader.has_summary,
         scan=mode,
         problems=tuple(scan.problems),
+        messages_lost=lost,
+        damage_summary=report.summary_line() if report is not None else None,
     )
 
 
 def scan_log(path: str | Path, *, full: bool = False) -> LogInfo:
     """Inspect an MCAP log (see the module docstring); never raises on a damaged MCAP file.
 
-    ``full`` streams the whole file with CRC checks even when a summary would do.
+    ``full`` reads every chunk with CRC checks even when the summary's indexes would do.
     Raises :class:`LogReadError` for a missing file or one that is not MCAP at all.
     """
     path = Path(path)
-    f, size = open_mcap(path)
-    try:
-        scan = _Scan(header=_read_header(f, path, size))
-        summary, _footer = _read_summary(f, size, scan)
-        has_summary = summary is not None
-        if summary is not None and not full and _index_pass(f, size, summary, scan):
-            return _findings(path, size, scan, has_summary, "index")
-        _stream_pass(f, size, scan)
-        if summary is not None:
-            _summary_counts(summary, scan)
-            for name in (m.name for m in summary.metadata_indexes):
-                if name not in scan.metadata_names:
-                    scan.metadata_names.append(name)
-        return _findings(path, size, scan, has_summary, "full")
-    finally:
-        f.close()
+    with LogReader(path) as reader:
+        if not full:
+            indexed = reader.index_times()
+            if indexed is not None and not _has_same_time_pairs(indexed):
+                scan = _Scan(times={cid: [t] for cid, t in indexed.items()})
+                return _findings(path, reader, scan, None, "index")
+        scan = _Scan()
+        report = _full_pass(reader, scan)
+        return _findings(path, reader, scan, report, "full")
 
 
 # --------------------------------------------------------------------------------------------
@@ -595,7 +399,8 @@ def render_table(info: LogInfo) -> str:
         f"end:          {_clock(info.end_time_ns)}",
         f"duration:     {info.duration_s:.3f} s",
         f"messages:     {info.message_count} in {info.chunk_count} chunks "
-        f"({', '.join(info.compression) or 'not chunked'})",
+        f"({', '.join(info.compression) or 'not chunked'})"
+        + (f"; {info.messages_lost} lost" if info.messages_lost else ""),
         f"metadata:     {', '.join(info.metadata_names) or '-'}",
         f"attachments:  {', '.join(info.attachment_names) or '-'}",
         f"scan:         {info.scan}"
@@ -607,7 +412,17 @@ def render_table(info: LogInfo) -> str:
         "",
     ]
     start = info.start_time_ns or 0
-    header = ("topic", "type", "count", "first s", "last s", "rate Hz", "max gap s", "gaps>3x")
+    header = (
+        "topic",
+        "type",
+        "count",
+        "lost",
+        "first s",
+        "last s",
+        "rate Hz",
+        "max gap s",
+        "gaps>3x",
+    )
     rows = [header]
     for t in info.topics:
         rows.append(
@@ -615,6 +430,7 @@ def render_table(info: LogInfo) -> str:
                 t.topic,
                 t.message_type or "-",
                 str(t.message_count),
+                str(t.messages_lost),
                 _fmt(None if t.first_time_ns is None else (t.first_time_ns - start) / 1e9, 3),
                 _fmt(None if t.last_time_ns is None else (t.last_time_ns - start) / 1e9, 3),
                 _fmt(t.mean_rate_hz, 2),
@@ -632,6 +448,8 @@ def render_table(info: LogInfo) -> str:
         if k == 0:
             lines.append("  ".join("-" * w for w in widths))
     lines.append("")
+    if info.damage_summary:
+        lines.append(info.damage_summary)
     if info.problems:
         lines.append(f"problems found ({len(info.problems)}):")
         lines.extend(f"  - [{p.kind}] {p.message}" for p in info.problems)

@@ -8,8 +8,9 @@ each dependency). :func:`parse_msgdef` turns the same definitions into a small t
 concatenated schema text read from a log, so logs written by other tools decode by their own
 definitions.
 
-Parsing of single ``.msg`` texts is delegated to the parser vendored in ``mcap_ros2`` (the ROS 2
-``rosidl_adapter`` one), so constants, default values and bounds follow ROS 2 exactly.
+Parsing of single ``.msg`` texts is delegated to ROS 2's own ``rosidl_adapter`` parser, vendored
+as :mod:`toolkit.vendor.rosidl_adapter` (Apache-2.0, see its ``NOTICE``), so constants, default
+values and bounds follow ROS 2 exactly.
 """
 
 from __future__ import annotations
@@ -22,9 +23,8 @@ from dataclasses import dataclass
 from functools import cache
 from importlib.resources import files
 
-from mcap_ros2._vendor.rosidl_adapter import parser as rosidl
-
 from toolkit.errors import SchemaError
+from toolkit.vendor.rosidl_adapter import parser as rosidl
 
 #: The separator line rosbag2 writes between the blocks of a concatenated definition.
 SEPARATOR = "=" * 80
@@ -128,11 +128,19 @@ def _parse_one(pkg: str, typ: str, text: str) -> rosidl.MessageSpecification:
         raise SchemaError(f"cannot parse the definition of {pkg}/msg/{typ}: {exc}") from exc
 
 
+def _is_primitive(t: rosidl.BaseType) -> bool:
+    """Whether a parsed field type is primitive (``string`` included): one without a package.
+
+    The same test as the parser's ``BaseType.is_primitive_type``, which it leaves unannotated.
+    """
+    return t.pkg_name is None
+
+
 def _dependencies(spec: rosidl.MessageSpecification) -> list[str]:
     """Full names of the message types a definition's fields refer to, in field order."""
     out: list[str] = []
     for f in spec.fields:
-        if not f.type.is_primitive_type():
+        if not _is_primitive(f.type):
             out.append(f"{f.type.pkg_name}/msg/{f.type.type}")
     return out
 
@@ -199,7 +207,7 @@ def _build(
     fields: list[FieldSpec] = []
     for f in raw.fields:
         t = f.type
-        if t.is_primitive_type():
+        if _is_primitive(t):
             type_name: str = t.type
             nested = None
         else:
@@ -208,7 +216,7 @@ def _build(
         size: int | None = t.array_size
         fixed = int(size) if t.is_array and size and not t.is_upper_bound else None
         upper = size if t.is_array and t.is_upper_bound else None
-        if not t.is_array and t.is_primitive_type() and t.string_upper_bound:
+        if not t.is_array and _is_primitive(t) and t.string_upper_bound:
             upper = t.string_upper_bound
         fields.append(
             FieldSpec(
@@ -217,7 +225,7 @@ def _build(
                 is_array=bool(t.is_array),
                 array_length=fixed,
                 upper_bound=upper,
-                is_primitive=t.is_primitive_type(),
+                is_primitive=_is_primitive(t),
                 nested=nested,
                 default=_default(f),
             )

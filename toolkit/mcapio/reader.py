@@ -68,7 +68,7 @@ from collections.abc import Collection, Generator, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any
+from typing import IO, Any, cast
 
 import lz4.frame
 import numpy as np
@@ -122,6 +122,7 @@ class Channel:
     schema_name: str
     schema_encoding: str
     schema_data: bytes
+    schema_id: int = 0
 
 
 @dataclass(frozen=True)
@@ -147,17 +148,56 @@ class Damage:
 
 @dataclass
 class ReadReport:
-    """What a pass of :meth:`LogReader.batches` delivered, and what it could not."""
+    """What a pass of :meth:`LogReader.batches` delivered, and what it could not.
+
+    Besides messages: the Metadata records met (name -> key -> value, records of one name
+    merged, later keys winning), the Attachment records' names, and the Chunk records met with
+    their compression (``"none"`` for uncompressed). This report is the one account of a
+    log's damage: ``terrain info`` and ``terrain ingest`` both print it (:meth:`summary_line`).
+    """
 
     used_index: bool
     messages_read: dict[str, int] = field(default_factory=dict)
     lost: dict[str, dict[str, int]] = field(default_factory=dict)
     damage: list[Damage] = field(default_factory=list)
     unknown_lost_bytes: dict[str, int] = field(default_factory=dict)
+    metadata: dict[str, dict[str, str]] = field(default_factory=dict)
+    attachment_names: list[str] = field(default_factory=list)
+    chunk_count: int = 0
+    compression: set[str] = field(default_factory=set)
 
     def reasons(self) -> set[str]:
         """The reasons of every damage found."""
         return {d.reason for d in self.damage}
+
+    def lost_total(self) -> dict[str, int]:
+        """Messages lost, by reason, over every topic."""
+        total: dict[str, int] = {}
+        for by_reason in self.lost.values():
+            for reason, n in by_reason.items():
+                total[reason] = total.get(reason, 0) + n
+        return {k: v for k, v in sorted(total.items()) if v}
+
+    def summary_line(self) -> str | None:
+        """One line on what is wrong with the file and what that cost, or None if intact.
+
+        ``no_summary`` alone loses nothing: a log written without an index is not damaged,
+        so it gets no line either."""
+        reasons: dict[str, int] = {}
+        for d in self.damage:
+            reasons[d.reason] = reasons.get(d.reason, 0) + 1
+        lost = self.lost_total()
+        unknown = sum(self.unknown_lost_bytes.values())
+        if set(reasons) <= {NO_SUMMARY} and not lost and not unknown:
+            return None
+        what = ", ".join(f"{k} x{v}" if v > 1 else k for k, v in sorted(reasons.items()))
+        line = f"damaged log ({what or 'damage'}): read {sum(self.messages_read.values())} messages"
+        if lost:
+            detail = ", ".join(f"{v} {k}" for k, v in lost.items())
+            line += f", lost {sum(lost.values())} messages ({detail})"
+        if unknown:
+            line += f", {unknown} bytes of unknown content lost"
+        return line
 
 
 # --------------------------------------------------------------------------------------------
@@ -185,9 +225,15 @@ class _Strict(ReadDataStream):
         return data
 
 
-def _parse(cls: Any, body: bytes) -> Any:
-    """Parse one record body with mcap's record class ``cls`` (padding after it is ignored)."""
-    return cls.read(_Strict(io.BytesIO(body)))
+def _parse(cls: Any, body: bytes) -> mr.McapRecord:
+    """Parse one record body with mcap's record class ``cls`` (padding after it is ignored).
+
+    ``cls`` is typed Any because mcap's record classes declare their ``read`` untyped; the
+    result is checked to be a ``cls``."""
+    record: object = cls.read(_Strict(io.BytesIO(body)))
+    if isinstance(record, cls) and isinstance(record, mr.McapRecord):
+        return record
+    raise _MalformedError(BAD_RECORD, f"not a {cls.__name__} record")  # pragma: no cover
 
 
 def _opcode_name(op: int) -> str:
@@ -252,7 +298,7 @@ class _Catalog:
     def copy(self) -> _Catalog:
         return _Catalog(dict(self.schemas), dict(self.raw), dict(self.resolved))
 
-    def add(self, record: Any) -> None:
+    def add(self, record: mr.McapRecord) -> None:
         if isinstance(record, mr.Schema):
             if record.id != 0:
                 self.schemas.setdefault(record.id, record)
@@ -274,6 +320,7 @@ class _Catalog:
             schema_name=schema.name if schema else "",
             schema_encoding=schema.encoding if schema else "",
             schema_data=bytes(schema.data) if schema else b"",
+            schema_id=raw.schema_id,
         )
         if schema is not None or raw.schema_id == 0:
             self.resolved[channel_id] = channel  # else a later Schema record may still come
@@ -297,6 +344,10 @@ class _Layout:
     chunks: dict[int, mr.ChunkIndex] = field(default_factory=dict)  # by chunk_start_offset
     chunk_starts: list[int] = field(default_factory=list)  # sorted
     channels_complete: bool = False  # the summary holds every channel of the file
+    summary_read: bool = False  # a summary section was found and parsed
+    statistics: mr.Statistics | None = None
+    metadata_names: list[str] = field(default_factory=list)  # from the summary's indexes
+    attachment_names: list[str] = field(default_factory=list)
     profile: str = ""
     library: str = ""
     damage: list[Damage] = field(default_factory=list)
@@ -329,7 +380,7 @@ def _read_header(f: IO[bytes], path: Path, size: int) -> _Layout:
     if end > size:
         raise LogReadError("MCAP file whose Header record is cut off", path)
     try:
-        header = _parse(mr.Header, _read_at(f, len(MAGIC) + 9, length))
+        header = cast(mr.Header, _parse(mr.Header, _read_at(f, len(MAGIC) + 9, length)))
     except _PARSE_ERRORS as exc:
         raise LogReadError(f"MCAP file with an unreadable Header record ({exc!r})", path) from exc
     return _Layout(
@@ -356,7 +407,7 @@ def _read_footer(f: IO[bytes], layout: _Layout) -> tuple[int, int, int] | None:
     return start, offset_start, crc
 
 
-def _summary_records(section: bytes) -> Iterator[Any]:
+def _summary_records(section: bytes) -> Iterator[mr.McapRecord]:
     pos = 0
     while pos < len(section):
         if pos + 9 > len(section):
@@ -370,6 +421,8 @@ def _summary_records(section: bytes) -> Iterator[Any]:
             Opcode.CHANNEL: mr.Channel,
             Opcode.CHUNK_INDEX: mr.ChunkIndex,
             Opcode.STATISTICS: mr.Statistics,
+            Opcode.METADATA_INDEX: mr.MetadataIndex,
+            Opcode.ATTACHMENT_INDEX: mr.AttachmentIndex,
         }.get(op)
         if cls is not None:
             yield _parse(cls, section[pos + 9 : end])
@@ -409,18 +462,28 @@ def _read_summary(f: IO[bytes], layout: _Layout) -> None:
     catalog = _Catalog()
     chunks: list[mr.ChunkIndex] = []
     stats: mr.Statistics | None = None
+    metadata_names: list[str] = []
+    attachment_names: list[str] = []
     try:
         for record in _summary_records(_read_at(f, start, end - start)):
             if isinstance(record, mr.ChunkIndex):
                 chunks.append(record)
             elif isinstance(record, mr.Statistics):
                 stats = record
+            elif isinstance(record, mr.MetadataIndex):
+                metadata_names.append(record.name)
+            elif isinstance(record, mr.AttachmentIndex):
+                attachment_names.append(record.name)
             else:
                 catalog.add(record)
     except (_MalformedError, *_PARSE_ERRORS) as exc:
         layout.damage.append(Damage(BAD_INDEX, start, f"the summary section is unreadable: {exc}"))
         return
     layout.summary = catalog
+    layout.summary_read = True
+    layout.statistics = stats
+    layout.metadata_names = metadata_names
+    layout.attachment_names = attachment_names
     for ci in chunks:
         if _chunk_index_fits(ci, layout):
             layout.chunks.setdefault(ci.chunk_start_offset, ci)
@@ -601,6 +664,30 @@ class _Walk:
         except _PARSE_ERRORS as exc:
             self.damage(BAD_RECORD, offset, f"unreadable {_opcode_name(op)} record: {exc!r}")
 
+    def metadata(self, body: bytes, offset: int) -> None:
+        """A Metadata record: merged into the report by name (later keys win)."""
+        try:
+            record = cast(mr.Metadata, _parse(mr.Metadata, body))
+        except _PARSE_ERRORS as exc:
+            self.damage(BAD_RECORD, offset, f"unreadable Metadata record: {exc!r}")
+            return
+        merged = self.report.metadata.setdefault(record.name, {})
+        merged.update({str(k): str(v) for k, v in record.metadata.items()})
+
+    def attachment(self, pos: int, length: int) -> None:
+        """An Attachment record: only its name is kept (log_time u64, create_time u64, then
+        the name as a u32-length string), so its data is never read."""
+        head = _read_at(self.f, pos + 9, min(length, 20))
+        if len(head) < 20:
+            self.damage(BAD_RECORD, pos, "Attachment record too short for its fixed fields")
+            return
+        n = struct.unpack_from("<I", head, 16)[0]
+        if 20 + n > length:
+            self.damage(BAD_RECORD, pos, "Attachment name overruns its record")
+            return
+        name = _read_at(self.f, pos + 29, n).decode("utf-8", errors="replace")
+        self.report.attachment_names.append(name)
+
     def settle_pending(self) -> None:
         """A failed chunk with no Message Index after it: its size is all we know of it."""
         if self.pending is not None and not self.pending_counted:
@@ -649,6 +736,10 @@ class _Walk:
                 yield from self.message(pos, length)
             elif op in (Opcode.SCHEMA, Opcode.CHANNEL):
                 self.register(op, _read_at(self.f, pos + 9, length), pos)
+            elif op == Opcode.METADATA:
+                self.metadata(_read_at(self.f, pos + 9, length), pos)
+            elif op == Opcode.ATTACHMENT:
+                self.attachment(pos, length)
             elif op == Opcode.MESSAGE_INDEX:
                 self.index_after_failed_chunk(pos, length)
             elif op in (Opcode.DATA_END, Opcode.FOOTER):
@@ -734,6 +825,7 @@ class _Walk:
     # -- chunks -----------------------------------------------------------------------------
 
     def chunk(self, pos: int, length: int) -> Iterator[MessageBatch]:
+        self.report.chunk_count += 1
         ci = self.layout.chunks.get(pos)
         if ci is not None and ci.chunk_length != 9 + length:
             self.damage(
@@ -743,6 +835,8 @@ class _Walk:
                 f"Chunk record has {9 + length}; parsed without the index",
             )
             ci = None
+        if ci is not None:
+            self.report.compression.add(ci.compression or "none")
         ids = ci.message_index_offsets if ci is not None else {}
         indexed = bool(ids) and all(self.catalog.get(c) is not None for c in ids)
         if indexed and self.layout.channels_complete and not any(self.wants(c) for c in ids):
@@ -753,6 +847,7 @@ class _Walk:
         window = _read_at(self.f, pos, span)
         try:
             compression, usize, crc, data = _chunk_fields(window, 9 + length)
+            self.report.compression.add(compression or "none")
             records = _decompress(compression, data, usize, self.zstd)
             if crc and zlib.crc32(records) != crc:
                 raise _MalformedError(CHUNK_CRC, f"records fail the chunk's CRC {crc:#010x}")
@@ -770,6 +865,7 @@ class _Walk:
 
     def cut_chunk(self, pos: int) -> Iterator[MessageBatch]:
         """The complete Message records at the start of a Chunk cut off by the end of file."""
+        self.report.chunk_count += 1
         record = _read_at(self.f, pos, self.layout.size - pos)
         length = _HEAD.unpack_from(record)[1]
         fixed_end = 9 + _CHUNK_FIXED.size
@@ -780,6 +876,7 @@ class _Walk:
         if at + 8 > len(record):
             return
         compression = record[fixed_end:at].decode("utf-8", errors="replace")
+        self.report.compression.add(compression or "none")
         rlen = struct.unpack_from("<Q", record, at)[0]
         data = record[at + 8 : min(at + 8 + rlen, 9 + length)]
         records = _decompress_prefix(compression, data, self.zstd)
@@ -1039,6 +1136,80 @@ class LogReader:
     def report(self) -> ReadReport:
         """What the last :meth:`batches` pass delivered and lost; complete once it is exhausted."""
         return self._report
+
+    # -- the summary alone ------------------------------------------------------------------
+
+    @property
+    def has_summary(self) -> bool:
+        """Whether a readable summary section was found (its indexes may still be partial)."""
+        return self._layout.summary_read
+
+    @property
+    def statistics(self) -> mr.Statistics | None:
+        """The summary's Statistics record, if it has one."""
+        return self._layout.statistics
+
+    @property
+    def summary_metadata_names(self) -> list[str]:
+        """Names of the Metadata records the summary's Metadata Index records list."""
+        return list(self._layout.metadata_names)
+
+    @property
+    def summary_attachment_names(self) -> list[str]:
+        """Names of the Attachment records the summary's Attachment Index records list."""
+        return list(self._layout.attachment_names)
+
+    def index_times(self) -> dict[int, np.ndarray] | None:
+        """Channel id -> log times (int64 ns, file order) from the Message Index records
+        alone: no chunk is decompressed, so no CRC is checked.
+
+        None when the index cannot vouch for every message: no Chunk Index, a chunk without
+        message indexes, channels defined only inside chunks, an unreadable Message Index,
+        or a Statistics message count that the indexes do not reach (messages outside
+        chunks). The caller then reads the file with :meth:`batches`.
+        """
+        layout = self._layout
+        if not layout.chunks or not layout.channels_complete:
+            return None
+        f = self._open_file()
+        walk = _Walk(f, layout, frozenset(), self._new_report())
+        parts: dict[int, list[np.ndarray]] = {}
+        total = 0
+        for start in layout.chunk_starts:
+            ci = layout.chunks[start]
+            if not ci.message_index_offsets:
+                return None
+            for channel_id, offset in sorted(ci.message_index_offsets.items()):
+                found = walk.message_index(offset, None, start)
+                if found is None or found[0] != channel_id:
+                    return None
+                entries = np.sort(found[1], order="offset")  # file order within the chunk
+                parts.setdefault(channel_id, []).append(entries["time"].view(np.int64))
+                total += len(entries)
+        stats = layout.statistics
+        if stats is not None and stats.message_count != total:
+            return None
+        return {
+            channel_id: np.concatenate(parts.get(channel_id, [np.zeros(0, np.int64)]))
+            for channel_id in sorted(layout.summary.raw)
+        }
+
+    def chunk_indexes(self) -> list[mr.ChunkIndex]:
+        """The summary's usable Chunk Index records, in file order."""
+        return [self._layout.chunks[s] for s in self._layout.chunk_starts]
+
+    def channel_by_id(self) -> dict[int, Channel]:
+        """Channel id -> channel, for every channel known (see :meth:`channels`)."""
+        self.channels()
+        catalog = self._catalog
+        if catalog is None:  # pragma: no cover - channels() always sets it
+            return {}
+        out: dict[int, Channel] = {}
+        for channel_id in sorted(catalog.raw):
+            channel = catalog.get(channel_id)
+            if channel is not None:
+                out[channel_id] = channel
+        return out
 
 
 __all__ = [

@@ -43,7 +43,7 @@ from scipy.spatial.transform import Rotation
 
 import toolkit
 from toolkit.geodesy import enu_to_geodetic
-from toolkit.mcapio.cdr import Column, encode_batch, encode_message
+from toolkit.mcapio.cdr_encode import Column, encode_batch, encode_message
 from toolkit.mcapio.writer import LogWriter
 from toolkit.progress import progress
 from toolkit.sim.drive import Driver, TrueBlock, make_driven_path

@@ -49,31 +49,26 @@ import contextlib
 import dataclasses
 import functools
 import logging
-import os
-import struct
 import time
-import uuid
 from collections import Counter, defaultdict
-from collections.abc import Callable, Collection, Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pyarrow as pa
-import pyarrow.compute as pc
-import pyarrow.parquet as pq
-from mcap.exceptions import McapError
-from mcap.reader import make_reader as mcap_make_reader
 
-from toolkit.config import REQUIRED_ROLES, PipelineConfig, config_hash, dump_toml
-from toolkit.errors import CdrError, ConfigError, LogReadError, SchemaError, StageError
+from toolkit.config import REQUIRED_ROLES, PipelineConfig, config_hash
+from toolkit.errors import CdrError, LogReadError, SchemaError, StageError
 from toolkit.mcapio.cdr import decode_batch
 from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_text
 from toolkit.mcapio.reader import Channel, Damage, LogReader, MessageBatch, ReadReport
 from toolkit.progress import progress
+from toolkit.stages.dedup import DuplicateFilter
+from toolkit.stages.reorder import DEFAULT_REORDER_BUFFER_BYTES, ReorderBuffer
 from toolkit.stages.roles import ROLE_SPECS, ConvertContext, Converter, RoleRows
-from toolkit.tableio import TableSchema, conform_table, contract_metadata, load_table_schema
+from toolkit.tableio import TableWriter
 from toolkit.workspace import (
     StageRecord,
     Workspace,
@@ -88,8 +83,9 @@ _log = logging.getLogger(__name__)
 #: The manifest's name for this stage.
 STAGE = "ingest"
 
-#: Configuration sections ingest reads (topics, timing, and pose.heading_noise_rad).
-CONFIG_SECTIONS: tuple[str, ...] = ("topics", "time", "pose")
+#: Configuration sections ingest reads: its identity (a pose tuning change must not make
+#: every ingest stale, so ``[pose]`` is not among them).
+CONFIG_SECTIONS: tuple[str, ...] = ("topics", "time")
 
 #: Sensor tables always written, empty when their role is absent (role -> table).
 SENSOR_TABLES: dict[str, str] = {
@@ -111,17 +107,6 @@ TF_STATIC_OUTPUT = "tf_static.json"
 
 #: Output name of the log's MCAP metadata records (record name -> key -> value).
 MCAP_METADATA_OUTPUT = "mcap_metadata.json"
-
-#: Exact duplicates are looked for among messages of the same topic this close in log time.
-DUPLICATE_WINDOW_NS = 2_000_000_000
-
-#: Bytes of rows a table holds back to sort them before they are written.
-DEFAULT_REORDER_BUFFER_BYTES = 8 * 1024 * 1024
-
-#: Rows per Parquet row group at most.
-ROW_GROUP_ROWS = 65_536
-# Buffered pieces of a table folded into one once there are this many.
-COMPACT_PIECES = 64
 
 #: Reject reasons, in the order they are checked.
 REJECT_REASONS: tuple[str, ...] = ("duplicate", "bad_payload", "clock_skew", "non_finite")
@@ -192,244 +177,6 @@ class TopicAccount:
             "counts": dict(sorted(self.counts.items())),
             "lost": dict(sorted(self.lost.items())),
         }
-
-
-# --------------------------------------------------------------------------------------
-# Exact duplicates
-# --------------------------------------------------------------------------------------
-
-
-class DuplicateFilter:
-    """Finds exact duplicates of one topic: same log time and same payload bytes.
-
-    Only messages sharing a log time with another are compared byte for byte, so the common
-    case costs one sort of the batch's times. Messages of the last ``window_ns`` of log time
-    are remembered across batches (a repeated chunk lands in another batch).
-    """
-
-    def __init__(self, window_ns: int = DUPLICATE_WINDOW_NS) -> None:
-        self.window_ns = window_ns
-        self._times = np.zeros(0, dtype=np.int64)
-        self._payloads: list[bytes] = []
-
-    def check(self, log_time_ns: np.ndarray, payloads: Sequence[bytes]) -> np.ndarray:
-        """Boolean mask of the batch's messages that duplicate an earlier one."""
-        times = np.asarray(log_time_ns, dtype=np.int64)
-        n_old = len(self._times)
-        all_t = np.concatenate([self._times, times])
-        dup = np.zeros(len(times), dtype=bool)
-        order = np.argsort(all_t, kind="stable")
-        sorted_t = all_t[order]
-        same = sorted_t[1:] == sorted_t[:-1]
-        if same.any():
-            flag = np.zeros(len(all_t), dtype=bool)
-            flag[order[1:][same]] = True
-            flag[order[:-1][same]] = True
-            seen: set[tuple[int, bytes]] = set()
-            # Rare: only messages sharing a log time with another are compared.
-            for i in np.flatnonzero(flag).tolist():
-                data = self._payloads[i] if i < n_old else bytes(payloads[i - n_old])
-                key = (int(all_t[i]), data)
-                if key in seen:
-                    if i >= n_old:
-                        dup[i - n_old] = True
-                else:
-                    seen.add(key)
-        if len(all_t):
-            keep_from = int(all_t.max()) - self.window_ns
-            keep_old = np.flatnonzero(self._times >= keep_from)
-            keep_new = np.flatnonzero((times >= keep_from) & ~dup)
-            self._times = np.concatenate([self._times[keep_old], times[keep_new]])
-            self._payloads = [self._payloads[i] for i in keep_old.tolist()] + [
-                payloads[i] for i in keep_new.tolist()
-            ]
-        return dup
-
-
-# --------------------------------------------------------------------------------------
-# Streaming table writer
-# --------------------------------------------------------------------------------------
-
-
-def _sort_by_time(table: pa.Table) -> pa.Table:
-    t = table.column("t_ns").to_numpy()
-    if len(t) < 2 or bool(np.all(t[1:] >= t[:-1])):
-        return table
-    return table.take(pc.sort_indices(table, sort_keys=[("t_ns", "ascending")]))
-
-
-class TableSink:
-    """One output table, streamed to a partial file in time order, renamed into place later.
-
-    Rows arrive batch by batch from one or more topics (``sources``). They are held in a
-    reorder buffer of about ``buffer_bytes``; when it is full the rows no source can still
-    precede (t_ns up to the least recent time of every source) are sorted and written. Rows
-    that arrive earlier than rows already written make the table need an out-of-core re-sort
-    when it is finished (:meth:`finish`). ``schema`` is the contract schema (None for a table
-    without one, written as given); the file carries the contract metadata (tableio).
-    """
-
-    def __init__(
-        self,
-        final_path: Path,
-        name: str,
-        schema: TableSchema | None,
-        sources: Collection[str],
-        *,
-        source_sha256: str,
-        config_hash: str,
-        buffer_bytes: int = DEFAULT_REORDER_BUFFER_BYTES,
-    ) -> None:
-        self.final_path = final_path
-        self.name = name
-        self.schema = schema
-        self.source_sha256 = source_sha256
-        self.config_hash = config_hash
-        self.extra_metadata: dict[str, str] = {}
-        self.buffer_bytes = buffer_bytes
-        tag = uuid.uuid4().hex[:8]
-        self.partial_path = final_path.with_name(f".{final_path.name}.{tag}.partial")
-        self._latest: dict[str, int | None] = {s: None for s in sources}
-        self._buffer: list[pa.Table] = []
-        self._buffered_bytes = 0
-        self._writer: pq.ParquetWriter | None = None
-        self._arrow_schema: pa.Schema | None = None
-        self._flushed_max: int | None = None
-        self.rows = 0
-        self.late_rows = 0
-        self.resorted = False
-
-    # -- adding rows -------------------------------------------------------------------
-
-    def add(self, table: pa.Table, source: str, metadata: Mapping[str, str]) -> None:
-        """Append rows of one source (already filtered); they may be out of order."""
-        for key, value in metadata.items():
-            self.extra_metadata.setdefault(key, value)
-        if table.num_rows == 0:
-            return
-        if self.schema is not None:
-            table = conform_table(table, self.schema, self.final_path)
-        t = table.column("t_ns").to_numpy()
-        if self._flushed_max is not None:
-            self.late_rows += int(np.count_nonzero(t < self._flushed_max))
-        prev = self._latest.get(source)
-        newest = int(t.max())
-        self._latest[source] = newest if prev is None else max(prev, newest)
-        self._buffer.append(table)
-        self._buffered_bytes += table.nbytes
-        if self._buffered_bytes >= self.buffer_bytes:
-            self._flush(final=False)
-        elif len(self._buffer) >= COMPACT_PIECES:
-            # A small table (GPS, heading) may stay buffered for a whole log, arriving as one
-            # tiny table per chunk; each piece's own buffers cost far more than its rows, so
-            # fold them into one contiguous table to keep memory independent of log length.
-            self._buffer = [pa.concat_tables(self._buffer).combine_chunks()]
-
-    def _flush(self, *, final: bool) -> None:
-        if not self._buffer:
-            return
-        table = _sort_by_time(pa.concat_tables(self._buffer))
-        t = table.column("t_ns").to_numpy()
-        if final:
-            n_out = len(t)
-        else:
-            latest = list(self._latest.values())
-            if any(v is None for v in latest):
-                n_out = 0  # a source has not spoken yet: it may still precede everything
-            else:
-                watermark = min(v for v in latest if v is not None)
-                n_out = int(np.searchsorted(t, watermark, side="right"))
-            if table.nbytes - table.nbytes * n_out / max(len(t), 1) > 2 * self.buffer_bytes:
-                n_out = max(n_out, len(t) // 2)  # a stalled source: keep memory bounded
-        out, rest = table.slice(0, n_out), table.slice(n_out)
-        if out.num_rows:
-            self._write(out)
-            top = int(t[n_out - 1])
-            self._flushed_max = top if self._flushed_max is None else max(self._flushed_max, top)
-        self._buffer = [rest] if rest.num_rows else []
-        self._buffered_bytes = rest.nbytes if rest.num_rows else 0
-
-    def _metadata(self) -> dict[str, str]:
-        name, version = (
-            (self.name, 1) if self.schema is None else (self.schema.name, self.schema.version)
-        )
-        return contract_metadata(
-            name,
-            version,
-            source_sha256=self.source_sha256,
-            config_hash=self.config_hash,
-            extra_metadata=self.extra_metadata,
-        )
-
-    def _open(self, schema: pa.Schema) -> pq.ParquetWriter:
-        self._arrow_schema = schema.with_metadata(self._metadata())
-        self.partial_path.parent.mkdir(parents=True, exist_ok=True)
-        return pq.ParquetWriter(self.partial_path, self._arrow_schema, compression="zstd")
-
-    def _write(self, table: pa.Table) -> None:
-        if self._writer is None:
-            self._writer = self._open(table.schema)
-        elif self._arrow_schema is not None and not table.schema.equals(
-            self._arrow_schema, check_metadata=False
-        ):
-            table = table.cast(self._arrow_schema)
-        self._writer.write_table(table, row_group_size=ROW_GROUP_ROWS)
-        self.rows += table.num_rows
-
-    # -- finishing ---------------------------------------------------------------------
-
-    def finish(self) -> bool:
-        """Write what is buffered, close, re-sort if needed; False if there is no file
-        (a table without a schema that got no rows)."""
-        self._flush(final=True)
-        if self._writer is None:
-            if self.schema is None:
-                return False
-            self._writer = self._open(self.schema.arrow_schema())
-            self._writer.write_table(self.schema.empty_table().cast(self._arrow_schema))
-        self._writer.close()
-        self._writer = None
-        if self.late_rows:
-            self._resort()
-        return True
-
-    def _resort(self) -> None:
-        """Sort the partial file by t_ns out of core (polars streaming), keeping the schema
-        and metadata: polars sorts into a scratch file, which is copied back batch by batch."""
-        import polars as pl
-
-        scratch = self.partial_path.with_name(self.partial_path.name + ".sorted")
-        final_tmp = self.partial_path.with_name(self.partial_path.name + ".resorted")
-        try:
-            pl.scan_parquet(self.partial_path).sort("t_ns", maintain_order=True).sink_parquet(
-                scratch, compression="zstd", row_group_size=ROW_GROUP_ROWS
-            )
-            if self._arrow_schema is None:  # pragma: no cover - a file always has a schema
-                raise StageError(f"table {self.name}: no schema to re-sort into")
-            source = pq.ParquetFile(scratch)
-            with pq.ParquetWriter(final_tmp, self._arrow_schema, compression="zstd") as writer:
-                for batch in source.iter_batches(batch_size=ROW_GROUP_ROWS):
-                    writer.write_table(pa.Table.from_batches([batch]).cast(self._arrow_schema))
-            os.replace(final_tmp, self.partial_path)
-            self.resorted = True
-        finally:
-            for p in (scratch, final_tmp):
-                with contextlib.suppress(FileNotFoundError):
-                    p.unlink()
-
-    def commit(self) -> None:
-        """Move the finished partial file to its final name."""
-        os.replace(self.partial_path, self.final_path)
-
-    def discard(self) -> None:
-        """Close and delete everything this sink wrote (after an error)."""
-        if self._writer is not None:
-            with contextlib.suppress(Exception):
-                self._writer.close()
-            self._writer = None
-        for suffix in ("", ".sorted", ".resorted"):
-            with contextlib.suppress(FileNotFoundError):
-                self.partial_path.with_name(self.partial_path.name + suffix).unlink()
 
 
 # --------------------------------------------------------------------------------------
@@ -637,27 +384,6 @@ def stage_config_hash(config: PipelineConfig) -> str:
     return config_hash(config, CONFIG_SECTIONS)
 
 
-def _check_workspace_config(workspace: Workspace, config: PipelineConfig, overwrite: bool) -> None:
-    """Record the configuration in force, or refuse one that differs from the workspace's."""
-    if not workspace.config_path.is_file():
-        workspace.write_config(config)
-        return
-    with contextlib.suppress(OSError, UnicodeDecodeError):
-        if workspace.config_path.read_text(encoding="utf-8") == dump_toml(config):
-            return  # the file this configuration writes: equal without parsing it
-    current = workspace.read_config()
-    if current == config:
-        return
-    if not overwrite:
-        raise ConfigError(
-            f"the workspace was set up with another configuration ({current.name}, "
-            f"{config_hash(current)[:12]}) than the one given ({config.name}, "
-            f"{config_hash(config)[:12]}); use a new workspace or --overwrite to replace it",
-            path=workspace.config_path,
-        )
-    workspace.write_config(config)
-
-
 def _result_from_record(
     log_path: Path, log_id: str, record: StageRecord, detail: Mapping[str, Any], seconds: float
 ) -> IngestResult:
@@ -689,19 +415,21 @@ def _damage_json(damage: Iterable[Damage]) -> list[dict[str, Any]]:
 
 
 class _Run:
-    """The state of one ingest pass: a plan, account and duplicate filter per topic, a sink
-    per table. :meth:`consume` takes the reader's batches; :meth:`finish` completes the
-    tables; :meth:`commit` moves them into place; :meth:`discard` removes everything."""
+    """The state of one ingest pass: a plan, account and duplicate filter per topic, a
+    writer behind a reorder buffer per table. :meth:`consume` takes the reader's batches;
+    :meth:`finish` completes the tables aside; :meth:`commit` publishes them all;
+    :meth:`discard` removes everything."""
 
     def __init__(
         self,
         plans: dict[str, TopicPlan],
-        sinks: dict[str, TableSink],
+        buffers: dict[str, ReorderBuffer],
         config: PipelineConfig,
         log_path: Path,
     ) -> None:
         self.plans = plans
-        self.sinks = sinks
+        self.buffers = buffers
+        self.writers = {name: b.writer for name, b in buffers.items()}
         self.config = config
         self.log_path = log_path
         self.accounts = {t: TopicAccount(t, p.role, p.type_name, p.table) for t, p in plans.items()}
@@ -744,7 +472,7 @@ class _Run:
             if plan.role == "tf_static":
                 self.tf_rows.append(out.rows)
             else:
-                self.sinks[plan.table].add(out.rows, plan.topic, out.metadata)
+                self.buffers[plan.table].add(out.rows, plan.topic, out.metadata)
         self.timings["decode_convert"] += t1 - t0
         self.timings["write"] += time.perf_counter() - t1
 
@@ -755,14 +483,14 @@ class _Run:
                 self.accounts[topic].lost = {k: int(v) for k, v in by_reason.items() if v}
         _require_usable(self.accounts, self.log_path)
         t0 = time.perf_counter()
-        self.outputs = [name for name, sink in self.sinks.items() if sink.finish()]
+        for buffer in self.buffers.values():
+            buffer.flush()
+        self.outputs = [name for name, w in self.writers.items() if w.finish()]
         self.timings["finish"] = time.perf_counter() - t0
 
     def commit(self, log_dir: Path) -> list[str]:
-        """Move the finished tables into place, then write tf_static.json; the file names."""
-        files = [self.sinks[name].final_path.name for name in self.outputs]
-        for name in self.outputs:
-            self.sinks[name].commit()
+        """Publish the finished tables, then write the JSON outputs; the file names."""
+        files = [self.writers[name].publish().name for name in self.outputs]
         if self.tf_rows:
             atomic_write_json(log_dir / TF_STATIC_OUTPUT, _tf_json(self.tf_rows))
             files.append(TF_STATIC_OUTPUT)
@@ -773,12 +501,12 @@ class _Run:
 
     def discard(self) -> None:
         """Remove every partial file (after an error)."""
-        for sink in self.sinks.values():
-            sink.discard()
+        for writer in self.writers.values():
+            writer.abort()
 
     def row_counts(self) -> dict[str, int]:
         """Rows per output (tf_static: transforms)."""
-        counts = {name: self.sinks[name].rows for name in self.outputs}
+        counts = {name: self.writers[name].rows for name in self.outputs}
         if self.tf_rows:
             counts["tf_static"] = sum(t.num_rows for t in self.tf_rows)
         return counts
@@ -800,7 +528,7 @@ class _Run:
             "used_index": report.used_index,
             "damage": _damage_json(report.damage),
             "unknown_lost_bytes": dict(report.unknown_lost_bytes),
-            "resorted_tables": sorted(n for n, sink in self.sinks.items() if sink.resorted),
+            "resorted_tables": sorted(n for n, w in self.writers.items() if w.resorted),
             "counts": _count_totals(self.accounts),
         }
 
@@ -830,7 +558,7 @@ def ingest_log(
     sha256 = file_sha256(log_path)
     log_id = make_log_id(log_path.stem, sha256)
     workspace.create()
-    _check_workspace_config(workspace, config, overwrite)
+    workspace.use_config(config, overwrite=overwrite)
     cfg_hash = stage_config_hash(config)
     log_dir = workspace.log_dir(log_id)
     manifest = workspace.manifest(log_id)
@@ -855,7 +583,7 @@ def ingest_log(
     try:
         with LogReader(log_path, topics=_configured_topics(config)) as reader:
             plans, missing, warnings = resolve_topics(config, reader.channels(), log_path)
-            sinks = _make_sinks(
+            buffers = _make_buffers(
                 plans,
                 workspace,
                 log_id,
@@ -863,7 +591,7 @@ def ingest_log(
                 config_hash=cfg_hash,
                 buffer_bytes=reorder_buffer_bytes,
             )
-            run = _Run(plans, sinks, config, log_path)
+            run = _Run(plans, buffers, config, log_path)
             t_read = time.perf_counter()
             for batch in progress(reader.batches(), desc=f"ingest {log_path.name}", unit="batch"):
                 run.consume(batch)
@@ -871,10 +599,8 @@ def ingest_log(
             run.timings["read"] = time.perf_counter() - t_read - spent
             report = reader.report
         run.finish(report)
-        run.mcap_metadata, meta_warning = read_mcap_metadata(log_path)
-        if meta_warning:
-            warnings.append(meta_warning)
-        damage_warning = _damage_warning(report, run.accounts)
+        run.mcap_metadata = report.metadata
+        damage_warning = report.summary_line()  # the same line `terrain info` prints
         if damage_warning:
             warnings.append(damage_warning)
         for w in warnings:
@@ -929,7 +655,7 @@ def _configured_topics(config: PipelineConfig) -> list[str]:
     return [t for topics in config.topics.by_role().values() for t in topics]
 
 
-def _make_sinks(
+def _make_buffers(
     plans: Mapping[str, TopicPlan],
     workspace: Workspace,
     log_id: str,
@@ -937,8 +663,9 @@ def _make_sinks(
     source_sha256: str,
     config_hash: str,
     buffer_bytes: int,
-) -> dict[str, TableSink]:
-    """One sink per sensor table (always) and per truth table the log has."""
+) -> dict[str, ReorderBuffer]:
+    """A writer behind a reorder buffer per sensor table (always) and per truth table the
+    log has."""
     sources: dict[str, list[str]] = {}
     for topic, plan in plans.items():
         sources.setdefault(plan.table, []).append(topic)
@@ -946,13 +673,16 @@ def _make_sinks(
         TRUTH_TABLES[r] for r in TRUTH_TABLES if any(p.role == r for p in plans.values())
     ]
     return {
-        name: TableSink(
-            workspace.log_table(log_id, name),
-            name,
-            load_table_schema(name) if name in SCHEMA_TABLES else None,
+        name: ReorderBuffer(
+            TableWriter(
+                workspace.log_table(log_id, name),
+                name if name in SCHEMA_TABLES else None,
+                table_name=name,
+                source_sha256=source_sha256,
+                config_hash=config_hash,
+                sort_by="t_ns",
+            ),
             sources.get(name, []),
-            source_sha256=source_sha256,
-            config_hash=config_hash,
             buffer_bytes=buffer_bytes,
         )
         for name in tables
@@ -978,26 +708,6 @@ def _require_usable(accounts: Mapping[str, TopicAccount], log_path: Path) -> Non
                 f"({', '.join(a.topic for a in accs)}: {', '.join(parts)})",
                 path=log_path,
             )
-
-
-def _damage_warning(report: ReadReport, accounts: Mapping[str, TopicAccount]) -> str | None:
-    """One line on what a damaged file lost, or None for an intact one."""
-    damage = report.damage
-    lost_all: Counter[str] = Counter()
-    for by_reason in report.lost.values():
-        lost_all.update({k: int(v) for k, v in by_reason.items()})
-    unknown = {k: int(v) for k, v in report.unknown_lost_bytes.items() if v}
-    if not damage and not sum(lost_all.values()) and not unknown:
-        return None
-    reasons = Counter(d.reason for d in damage)
-    what = ", ".join(f"{k} x{v}" if v > 1 else k for k, v in sorted(reasons.items())) or "damage"
-    lost_text = ", ".join(f"{v} {k}" for k, v in sorted(lost_all.items()) if v)
-    salvaged = sum(a.read for a in accounts.values())
-    line = f"damaged log ({what}): salvaged {salvaged} messages"
-    line += f", lost {sum(lost_all.values())} messages ({lost_text})" if lost_text else ""
-    if unknown:
-        line += f", {sum(unknown.values())} bytes of unknown content lost"
-    return line
 
 
 def _count_totals(accounts: Mapping[str, TopicAccount]) -> dict[str, int]:
@@ -1026,29 +736,6 @@ def _tf_json(tables: Sequence[pa.Table]) -> dict[str, Any]:
     return {"transforms": transforms}
 
 
-def read_mcap_metadata(log_path: Path) -> tuple[dict[str, dict[str, str]], str | None]:
-    """The log's MCAP metadata records (name -> key -> value) from the summary's index.
-
-    Records of the same name are merged, later keys winning. A log without a readable
-    summary (unindexed or damaged) gives ``{}`` and a warning line instead of an error: the
-    records are provenance, not sensor data.
-    """
-    out: dict[str, dict[str, str]] = {}
-    try:
-        with log_path.open("rb") as fh:
-            reader = mcap_make_reader(fh)
-            summary = reader.get_summary()
-            if summary is None or not summary.metadata_indexes:
-                return out, None
-            for record in reader.iter_metadata():
-                out.setdefault(record.name, {}).update(
-                    {str(k): str(v) for k, v in record.metadata.items()}
-                )
-    except (McapError, OSError, ValueError, struct.error) as exc:
-        return {}, f"MCAP metadata records not read: {exc}"
-    return out, None
-
-
 def _remove_stale_outputs(log_dir: Path, old: StageRecord | None, current: Sequence[str]) -> None:
     """Remove outputs a previous ingest wrote that this one did not (e.g. a role dropped)."""
     if old is None:
@@ -1062,18 +749,14 @@ def _remove_stale_outputs(log_dir: Path, old: StageRecord | None, current: Seque
 
 __all__ = [
     "CONFIG_SECTIONS",
-    "DUPLICATE_WINDOW_NS",
     "STAGE",
-    "DuplicateFilter",
     "IngestResult",
     "MCAP_METADATA_OUTPUT",
-    "TableSink",
     "TopicAccount",
     "TopicPlan",
     "convert_batch",
     "ingest_log",
     "plan_topic",
-    "read_mcap_metadata",
     "resolve_topics",
     "stage_config_hash",
 ]

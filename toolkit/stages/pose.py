@@ -43,11 +43,10 @@ from toolkit.fusion.estimator import (
 from toolkit.fusion.rotations import FloatArray, wrap_angle
 from toolkit.fusion.ukf import NoiseModel
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
-from toolkit.tableio import conform_table, contract_metadata, load_table_schema, read_table
+from toolkit.tableio import TableWriter, iter_table_batches, read_table
 from toolkit.workspace import (
     StageRecord,
     Workspace,
-    atomic_output,
     check_up_to_date,
     file_sha256,
 )
@@ -115,15 +114,14 @@ def _lever_arms(log_dir: Path) -> tuple[FloatArray, FloatArray, list[str]]:
     return gps - imu, -imu, warnings
 
 
-def _batches(path: Path, columns: list[str]) -> Iterator[pa.RecordBatch]:
+def _batches(path: Path, table: str, columns: list[str]) -> Iterator[pa.RecordBatch]:
     """Record batches of a table, in file (time) order, BATCH_ROWS at a time."""
-    with pq.ParquetFile(path) as f:
-        yield from f.iter_batches(batch_size=BATCH_ROWS, columns=columns)
+    return iter_table_batches(path, table, columns=columns, batch_rows=BATCH_ROWS)
 
 
 def _last_t_ns(path: Path) -> int:
     """The last t_ns of a time-sorted table, reading only its last row group."""
-    with pq.ParquetFile(path) as f:
+    with pq.ParquetFile(path, page_checksum_verification=True) as f:
         rg = f.read_row_group(f.metadata.num_row_groups - 1, columns=["t_ns"])
     return int(rg.column("t_ns")[-1].as_py())
 
@@ -155,7 +153,7 @@ def _sensor_data(
         )
     first = int(np.flatnonzero(valid)[0])
     origin = GeodeticOrigin(float(lat[first]), float(lon[first]), float(alt[first]))
-    first_batch = next(_batches(imu_path, ["t_ns"]))
+    first_batch = next(_batches(imu_path, "imu", ["t_ns"]))
     t_first = np.asarray(first_batch.column(0).to_numpy(), dtype=np.int64)
     t0_ns = int(t_first[0])
     period = float(np.median(np.diff(t_first) * 1e-9)) if t_first.size > 1 else 0.01
@@ -168,7 +166,7 @@ def _sensor_data(
         return rel_ns(table.column("t_ns").to_numpy())
 
     def imu_windows() -> Iterator[ImuWindow]:
-        for b in _batches(imu_path, IMU_COLUMNS):
+        for b in _batches(imu_path, "imu", IMU_COLUMNS):
             t = rel_ns(b.column(0).to_numpy())
             cols = [
                 np.asarray(b.column(i).to_numpy(zero_copy_only=False), np.float64)
@@ -250,8 +248,8 @@ class TruthAccuracy:
         self.origin = origin
         read_table(truth_path, "truth_pose", columns=[])  # checks the contract
         cols = ["t_ns", "x", "y", "z", "roll", "pitch", "yaw"]
-        self._batches = _batches(truth_path, cols)
-        first = next(_batches(truth_path, ["t_ns"]))
+        self._batches = _batches(truth_path, "truth_pose", cols)
+        first = next(_batches(truth_path, "truth_pose", ["t_ns"]))
         self.tt0 = int(first.column(0)[0].as_py())
         self.tr_end = float(_last_t_ns(truth_path) - self.tt0)
         self._buf: pa.Table | None = None
@@ -362,17 +360,6 @@ def truth_accuracy(log_dir: Path, origin: GeodeticOrigin) -> TruthAccuracy | Non
     return TruthAccuracy(truth_path, sim, origin)
 
 
-def accuracy_vs_truth(
-    log_dir: Path, t_ns: np.ndarray, cols: dict[str, FloatArray], origin: GeodeticOrigin
-) -> dict[str, Any] | None:
-    """Errors of a pose held in memory against the simulator's truth, or None for a real log."""
-    acc = truth_accuracy(log_dir, origin)
-    if acc is None:
-        return None
-    acc.add(t_ns, cols)
-    return acc.result()
-
-
 def run_pose(
     workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
 ) -> PoseResult:
@@ -416,16 +403,6 @@ def run_pose(
             "altitude_m": origin.altitude_m,
         }
     )
-    schema = load_table_schema("pose")
-    arrow_schema = schema.arrow_schema().with_metadata(
-        contract_metadata(
-            schema.name,
-            schema.version,
-            source_sha256=sha,
-            config_hash=cfg_hash,
-            extra_metadata={"enu_origin": origin_json, "frame_id": "enu_first_fix"},
-        )
-    )
     acc = truth_accuracy(log_dir, origin)
     timings["read"] += time.perf_counter() - t
     est = EstimateResult({}, np.zeros(0, np.int64), {}, {}, 0, 0, 0, 0, "")
@@ -440,39 +417,37 @@ def run_pose(
         period=period,
         result=est,
     )
-    try:
-        with (
-            atomic_output(out_path) as tmp,
-            pq.ParquetWriter(tmp, arrow_schema, compression="zstd") as writer,
-        ):
-            while True:
+    with TableWriter(
+        out_path,
+        "pose",
+        source_sha256=sha,
+        config_hash=cfg_hash,
+        extra_metadata={"enu_origin": origin_json, "frame_id": "enu_first_fix"},
+    ) as writer:
+        while True:
+            t = time.perf_counter()
+            chunk: OutputChunk | None = next(chunks, None)
+            timings["filter"] += time.perf_counter() - t
+            if chunk is None:
+                break
+            t_ns, cols = chunk
+            t = time.perf_counter()
+            table = pa.table(
+                {
+                    "t_ns": pa.array(t_ns, pa.int64()),
+                    **{k: pa.array(v, pa.float64()) for k, v in cols.items()},
+                }
+            )
+            writer.write(table)
+            timings["write"] += time.perf_counter() - t
+            rows += table.num_rows
+            if t_ns.size:
+                t_first = int(t_ns[0]) if t_first is None else t_first
+                t_last = int(t_ns[-1])
+            if acc is not None:
                 t = time.perf_counter()
-                chunk: OutputChunk | None = next(chunks, None)
-                timings["filter"] += time.perf_counter() - t
-                if chunk is None:
-                    break
-                t_ns, cols = chunk
-                t = time.perf_counter()
-                table = pa.table(
-                    {
-                        "t_ns": pa.array(t_ns, pa.int64()),
-                        **{k: pa.array(v, pa.float64()) for k, v in cols.items()},
-                    }
-                )
-                writer.write_table(conform_table(table, schema, out_path).cast(arrow_schema))
-                timings["write"] += time.perf_counter() - t
-                rows += table.num_rows
-                if t_ns.size:
-                    t_first = int(t_ns[0]) if t_first is None else t_first
-                    t_last = int(t_ns[-1])
-                if acc is not None:
-                    t = time.perf_counter()
-                    acc.add(t_ns, cols)
-                    timings["accuracy"] += time.perf_counter() - t
-            if rows == 0:
-                writer.write_table(schema.empty_table().cast(arrow_schema))
-    except (OSError, pa.ArrowException) as exc:
-        raise StageError(f"cannot write table 'pose': {exc}", path=out_path) from exc
+                acc.add(t_ns, cols)
+                timings["accuracy"] += time.perf_counter() - t
     warnings += est.warnings
     accuracy = acc.result() if acc is not None else None
     timings["total"] = time.perf_counter() - start
@@ -509,7 +484,6 @@ __all__ = [
     "STAGE",
     "PoseResult",
     "TruthAccuracy",
-    "accuracy_vs_truth",
     "run_pose",
     "stage_config_hash",
 ]

@@ -77,7 +77,6 @@ class ConvertContext:
     role: str
     type_name: str
     correction_ns: int
-    heading_noise_rad: float
 
     @classmethod
     def for_topic(
@@ -89,7 +88,6 @@ class ConvertContext:
             role=role,
             type_name=full_type_name(type_name),
             correction_ns=config.time.correction_ns(role),
-            heading_noise_rad=config.pose.heading_noise_rad,
         )
 
 
@@ -319,8 +317,9 @@ def heading_from_gps_heading(cols: Columns, log_time_ns: IntArray, ctx: ConvertC
 
 
 def heading_from_quaternion(cols: Columns, log_time_ns: IntArray, ctx: ConvertContext) -> RoleRows:
-    """geometry_msgs/QuaternionStamped -> t_ns, yaw (Z-Y-X, rad),
-    yaw_std = pose.heading_noise_rad (the message carries no uncertainty)."""
+    """geometry_msgs/QuaternionStamped -> t_ns, yaw (Z-Y-X, rad), yaw_std null: the message
+    carries no uncertainty, so the table says "unknown" and the pose stage applies its
+    configured ``pose.heading_noise_rad`` (ingest stays independent of pose tuning)."""
     t_ns, missing = stamp_times(cols, log_time_ns, ctx)
     _, _, yaw = quaternion_to_euler_zyx(
         _f64(cols, "quaternion.x"),
@@ -328,8 +327,8 @@ def heading_from_quaternion(cols: Columns, log_time_ns: IntArray, ctx: ConvertCo
         _f64(cols, "quaternion.z"),
         _f64(cols, "quaternion.w"),
     )
-    std = np.full(len(yaw), ctx.heading_noise_rad, dtype=np.float64)
-    table = pa.table({"t_ns": t_ns, "yaw": yaw, "yaw_std": std})
+    unknown = np.full(len(yaw), np.nan)
+    table = pa.table({"t_ns": t_ns, "yaw": yaw, "yaw_std": _nullable(unknown, np.isnan(unknown))})
     return RoleRows(table, _finite(yaw), missing)
 
 
