@@ -126,7 +126,8 @@ def test_bad_shard_indices_name_the_values(index: Any, count: Any, names: list[s
 
 @pytest.fixture(scope="module")
 def dask_cluster() -> Iterator[Any]:
-    distributed = pytest.importorskip("distributed")
+    import distributed  # the [distributed] extra: installed by the README's test command
+
     cluster = distributed.LocalCluster(
         processes=False, n_workers=1, threads_per_worker=2, dashboard_address=None
     )
@@ -156,7 +157,8 @@ def test_run_batch_on_in_process_dask_cluster(dask_cluster: Any) -> None:
 
 
 def test_dask_executor_from_an_existing_client(dask_cluster: Any) -> None:
-    distributed = pytest.importorskip("distributed")
+    import distributed  # the [distributed] extra: installed by the README's test command
+
     with distributed.Client(dask_cluster, set_as_default=False) as client:
         summary = run_batch(fake_task, ["a", "bad"], client.get_executor(), desc="fake")
     assert summary.done == ["a"]
@@ -205,8 +207,9 @@ def test_missing_distributed_package_says_how_to_install(monkeypatch: pytest.Mon
 
 
 def test_unreachable_scheduler_is_a_config_error() -> None:
-    dask = pytest.importorskip("dask")
-    pytest.importorskip("distributed")
+    import dask
+    import distributed  # noqa: F401 - the [distributed] extra, installed for the tests
+
     with (
         dask.config.set({"distributed.comm.timeouts.connect": "2s"}),
         pytest.raises(ConfigError, match="cannot connect to the Dask scheduler at tcp://127"),

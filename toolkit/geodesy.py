@@ -42,9 +42,17 @@ def geodetic_to_ecef(lat_deg: ArrayLike, lon_deg: ArrayLike, alt_m: ArrayLike) -
 
 
 def ecef_to_geodetic(ecef_m: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """ECEF (..., 3) to (latitude_deg, longitude_deg, altitude_m), by Bowring's iteration.
+    """ECEF (..., 3) metres to (latitude_deg, longitude_deg, altitude_m).
 
-    Three iterations reach well below a millimetre anywhere near the Earth's surface.
+    With ``rho`` the distance from the polar axis and ``N(lat)`` the prime-vertical radius,
+    the geodetic latitude is the fixed point of ``lat = atan2(z + e^2 N(lat) sin(lat), rho)``,
+    started from its value on the ellipsoid; each iteration shrinks the error by about
+    ``e^2`` (1/150), so four reach float64 round-off anywhere near the Earth's surface.
+    The altitude is the distance along the normal from the ellipsoid point at ``lat``::
+
+        h = rho cos(lat) + (z + e^2 N sin(lat)) sin(lat) - N
+
+    which, unlike ``rho / cos(lat) - N``, stays exact at and near the poles.
     """
     p = np.asarray(ecef_m, dtype=np.float64)
     x, y, z = p[..., 0], p[..., 1], p[..., 2]
@@ -57,7 +65,9 @@ def ecef_to_geodetic(ecef_m: ArrayLike) -> tuple[FloatArray, FloatArray, FloatAr
         lat = np.arctan2(z + WGS84_E2 * prime_vertical_m * sin_lat, rho)
     sin_lat = np.sin(lat)
     prime_vertical_m = WGS84_A_M / np.sqrt(1.0 - WGS84_E2 * sin_lat**2)
-    alt = rho / np.cos(lat) - prime_vertical_m
+    alt = (
+        rho * np.cos(lat) + (z + WGS84_E2 * prime_vertical_m * sin_lat) * sin_lat - prime_vertical_m
+    )
     return np.degrees(lat), np.degrees(lon), alt
 
 

@@ -1,13 +1,23 @@
-"""The pose UKF: angle wrapping, gating, the vectorised process model."""
+"""The pose UKF: angle wrapping, gating, the process model, and the predict, update and restart
+pinned against the closed-form linear Kalman filter where the UKF is exact."""
 
 from __future__ import annotations
 
 import numpy as np
+import pytest
+from filterpy.kalman import unscented_transform as filterpy_unscented_transform
 
 from toolkit.fusion.rotations import euler_to_rot, rot_to_euler, wrap_angle
 from toolkit.fusion.ukf import (
+    ATT,
+    BA,
+    BG,
     DIM_X,
     GRAVITY,
+    MOTION,
+    POS,
+    VEL,
+    YAW,
     ImuIncrement,
     NoiseModel,
     PoseUKF,
@@ -17,39 +27,113 @@ from toolkit.fusion.ukf import (
     propagate,
     state_mean,
     state_residual,
+    unscented_transform,
+    yaw_model,
 )
 
+#: Process noise densities of the test filter: accel, gyro, accel bias walk, gyro bias walk.
+NOISE = NoiseModel(accel=0.5, gyro=0.01, accel_bias_walk=0.001, gyro_bias_walk=0.0001)
+#: Initial standard deviations of the test filter, per state block.
+STD0 = {"pos": 1.0, "vel": 0.5, "att": 0.1, "ba": 0.01, "bg": 0.001}
 
-def make_filter(yaw: float = 0.0) -> PoseUKF:
+
+def initial_covariance() -> np.ndarray:
+    """Diagonal P0 (15, 15) from :data:`STD0`."""
+    std = np.empty(DIM_X)
+    std[POS], std[VEL], std[ATT] = STD0["pos"], STD0["vel"], STD0["att"]
+    std[BA], std[BG] = STD0["ba"], STD0["bg"]
+    return np.diag(std**2)
+
+
+def make_filter(yaw: float = 0.0, P0: np.ndarray | None = None) -> PoseUKF:
     x0 = np.zeros(DIM_X)
-    x0[8] = yaw
-    P0 = np.diag([1.0] * 3 + [0.25] * 3 + [0.01] * 3 + [1e-4] * 3 + [1e-6] * 3)
-    return PoseUKF(x0, P0, NoiseModel(0.5, 0.01, 0.001, 0.0001), alpha=1e-3, beta=2.0, kappa=0.0)
+    x0[YAW] = yaw
+    P = initial_covariance() if P0 is None else P0
+    return PoseUKF(x0, P, NOISE, alpha=1e-3, beta=2.0, kappa=0.0)
+
+
+def correlated_covariance(seed: int) -> np.ndarray:
+    """An SPD P (15, 15) with the scales of :func:`initial_covariance` and strong correlations."""
+    rng = np.random.default_rng(seed)
+    std = np.sqrt(np.diag(initial_covariance()))
+    A = rng.normal(size=(DIM_X, DIM_X))
+    C = A @ A.T + 0.5 * np.eye(DIM_X)
+    d = np.sqrt(np.diag(C))
+    return np.asarray((C / np.outer(d, d)) * np.outer(std, std), dtype=np.float64)
 
 
 def test_residuals_wrap_angles() -> None:
     a = np.zeros(DIM_X)
     b = np.zeros(DIM_X)
-    a[8], b[8] = np.pi - 0.01, -np.pi + 0.01
-    assert np.isclose(state_residual(a, b)[8], -0.02)
+    a[YAW], b[YAW] = np.pi - 0.01, -np.pi + 0.01
+    assert np.isclose(state_residual(a, b)[YAW], -0.02)
     assert np.isclose(angle_residual(np.array([-np.pi + 0.01]), np.array([np.pi - 0.01]))[0], 0.02)
 
 
 def test_means_wrap_angles() -> None:
     sig = np.zeros((3, DIM_X))
-    sig[:, 8] = [np.pi - 0.01, -np.pi + 0.01, np.pi - 0.01]
+    sig[:, YAW] = [np.pi - 0.01, -np.pi + 0.01, np.pi - 0.01]
     wm = np.array([1 / 3, 1 / 3, 1 / 3])
     m = state_mean(sig, wm)
-    assert abs(abs(m[8]) - (np.pi - 0.01 / 3)) < 1e-9
+    assert abs(abs(m[YAW]) - (np.pi - 0.01 / 3)) < 1e-9
     z = angle_mean(np.array([[np.pi - 0.02], [-np.pi + 0.02]]), np.array([0.5, 0.5]))
     assert np.isclose(abs(z[0]), np.pi)
 
 
+def test_vectorised_unscented_transform_equals_filterpys() -> None:
+    """Ours runs on all sigma points at once; filterpy's loops. Same numbers."""
+    rng = np.random.default_rng(1)
+    sigmas = rng.normal(size=(2 * DIM_X + 1, DIM_X))
+    sigmas[:, YAW] = wrap_angle(np.pi + 0.1 * rng.normal(size=2 * DIM_X + 1))  # across +-pi
+    wm = rng.uniform(0.01, 0.1, 2 * DIM_X + 1)
+    wm /= wm.sum()
+    wc = wm.copy()
+    wc[0] += 0.3
+    Q = np.diag(rng.uniform(0.1, 1.0, DIM_X))
+    ours = unscented_transform(sigmas, wm, wc, Q, state_mean, state_residual)
+    theirs = filterpy_unscented_transform(sigmas, wm, wc, Q, state_mean, state_residual)
+    np.testing.assert_allclose(ours[0], theirs[0], rtol=0, atol=1e-14)
+    np.testing.assert_allclose(ours[1], theirs[1], rtol=0, atol=1e-14)
+
+
+def test_state_views_are_read_only() -> None:
+    ukf = make_filter()
+    with pytest.raises(ValueError, match="read-only"):
+        ukf.x[0] = 1.0
+    with pytest.raises(ValueError, match="read-only"):
+        ukf.P[0, 0] = 1.0
+
+
+def test_update_equals_the_kalman_update_for_a_linear_measurement() -> None:
+    """GPS with no lever arm measures z = H x, H = [I3 0]: linear, so the UKF is exact.
+
+    Closed form: S = H P H^T + R, K = P H^T S^-1, x+ = x + K (z - H x), P+ = P - K S K^T, and
+    the gate's d2 = y^T S^-1 y. The correlated P makes every state move, not only position.
+    """
+    P = correlated_covariance(seed=2)
+    ukf = make_filter(P0=P)
+    x = ukf.x.copy()
+    z = np.array([0.8, -0.5, 0.3])
+    R = np.diag([0.09, 0.16, 0.25])
+    H = np.zeros((3, DIM_X))
+    H[:, POS] = np.eye(3)
+    S = H @ P @ H.T + R
+    K = P @ H.T @ np.linalg.inv(S)
+    y = z - H @ x
+    x_expected = x + K @ y
+    P_expected = P - K @ S @ K.T
+
+    assert ukf.update("gps", z, R, gps_model(np.zeros(3)), gate_chi2=1e9)
+
+    assert ukf.last_d2 == pytest.approx(float(y @ np.linalg.solve(S, y)), rel=1e-9)
+    np.testing.assert_allclose(ukf.x, x_expected, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(ukf.P, P_expected, rtol=0, atol=1e-11 * np.abs(P).max())
+    assert np.abs(ukf.x - x).max() > 0.1  # the update moved the state: the test has teeth
+
+
 def test_yaw_update_across_pi_moves_the_short_way() -> None:
     ukf = make_filter(yaw=np.pi - 0.02)
-    from toolkit.fusion.ukf import yaw_model
-
-    ok = ukf.update_gated(
+    ok = ukf.update(
         "heading",
         np.array([-np.pi + 0.02]),
         np.array([[1e-4]]),
@@ -59,43 +143,134 @@ def test_yaw_update_across_pi_moves_the_short_way() -> None:
         mean_fn=angle_mean,
     )
     assert ok
-    assert abs(wrap_angle(ukf.x[8] - np.pi)) < 0.02  # moved towards +-pi, not through 0
+    assert abs(wrap_angle(ukf.x[YAW] - np.pi)) < 0.02  # moved towards +-pi, not through 0
 
 
 def test_gating_rejects_an_outlier_and_counts_it() -> None:
     ukf = make_filter()
     hx = gps_model(np.zeros(3))
     R = np.eye(3) * 0.25
-    assert ukf.update_gated("gps", np.array([0.5, -0.3, 0.2]), R, hx, 21.11)
+    assert ukf.update("gps", np.array([0.5, -0.3, 0.2]), R, hx, 21.11)
     x_before = ukf.x.copy()
-    assert not ukf.update_gated("gps", np.array([50.0, 0.0, 0.0]), R, hx, 21.11)
+    P_before = ukf.P.copy()
+    assert not ukf.update("gps", np.array([50.0, 0.0, 0.0]), R, hx, 21.11)
     assert ukf.gated["gps"] == 1 and ukf.accepted["gps"] == 1
+    assert ukf.gated["wheels"] == 0
     assert ukf.last_d2 > 21.11
     np.testing.assert_array_equal(ukf.x, x_before)
+    np.testing.assert_array_equal(ukf.P, P_before)
+
+
+def stationary_increment(T: float, steps: int) -> ImuIncrement:
+    """Level and at rest: the accelerometer reads exactly -g (specific force), gyro 0."""
+    inc = ImuIncrement(np.zeros(3), np.zeros(3))
+    for _ in range(steps):
+        inc.add(-GRAVITY, np.zeros(3), T / steps)
+    return inc
+
+
+def test_predict_equals_the_kalman_predict_for_zero_motion() -> None:
+    """Level, at rest, zero biases, the IMU reading exactly gravity: the process model moves
+    only position by velocity, p' = p + v T, so with F = [[I, T I], [0, I]] on (p, v) the
+    prediction is P' = F P F^T + Q, with Q from the documented densities (not from the
+    code's NoiseModel.q, so a wrong Q fails):
+
+        Q = diag(accel^2 T^3 / 3 + 1e-9 (pos), accel^2 T (vel), gyro^2 T (att),
+                 accel_bias_walk^2 T + 1e-14 (ba), gyro_bias_walk^2 T + 1e-16 (bg))
+
+    The attitude and bias variances are made tiny so that their (nonlinear) effect on
+    position and velocity, of order g^2 T^2 P_att, stays far below the tolerance.
+    """
+    T = 0.1
+    P = np.diag(np.full(DIM_X, 1e-18))
+    P[POS, POS] = np.eye(3) * 0.5
+    P[VEL, VEL] = np.eye(3) * 0.2
+    P[POS, VEL] = P[VEL, POS] = np.eye(3) * -0.15  # correlated, so F P F^T has cross terms
+    ukf = make_filter(P0=P)
+
+    ukf.predict(stationary_increment(T, steps=10))
+
+    F = np.eye(DIM_X)
+    F[POS, VEL] = np.eye(3) * T
+    q = np.empty(DIM_X)
+    q[POS] = NOISE.accel**2 * T**3 / 3.0 + 1e-9
+    q[VEL] = NOISE.accel**2 * T
+    q[ATT] = NOISE.gyro**2 * T
+    q[BA] = NOISE.accel_bias_walk**2 * T + 1e-14
+    q[BG] = NOISE.gyro_bias_walk**2 * T + 1e-16
+    P_expected = F @ P @ F.T + np.diag(q)
+    np.testing.assert_allclose(ukf.x, np.zeros(DIM_X), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ukf.P, P_expected, rtol=0, atol=1e-13)
+
+
+def test_restart_keeps_the_covariance_positive_definite() -> None:
+    """A P whose strong cross-correlations the old element-wise max(P, P0) made indefinite.
+
+    Two error modes share px, vx, yaw and the z gyro bias with mixed signs; all four
+    variances exceed P0's, so max(P, P0) keeps them and only zeroes the negative
+    cross-covariances, which leaves an indefinite matrix.
+    """
+    P0 = initial_covariance()
+    idx = [POS.start, VEL.start, YAW, BG.start + 2]  # px, vx, yaw, bgz
+    std = 2.0 * np.sqrt(np.diag(P0)[idx])
+    u, w = np.array([1.0, 1.0, 0.0, 1.0]), np.array([1.0, 0.0, 1.0, -1.0])
+    corr = (np.outer(u, u) + np.outer(w, w) + 0.01 * np.eye(4)) / 2.01
+    P = 4.0 * P0
+    P[np.ix_(idx, idx)] = corr * np.outer(std, std)
+    assert np.linalg.eigvalsh(P).min() > 0
+    assert np.linalg.eigvalsh(np.maximum(P, P0)).min() < 0  # the old rule's failure
+
+    ukf = make_filter(P0=P)
+    ukf.restart(P0)
+    P_new = ukf.P.copy()
+
+    np.testing.assert_array_equal(P_new, P_new.T)
+    assert np.linalg.eigvalsh(P_new).min() > 0
+    # At least as uncertain as before, and as the start in position, velocity, attitude.
+    assert np.linalg.eigvalsh(P_new - P).min() > -1e-12
+    assert np.linalg.eigvalsh(P_new[MOTION, MOTION] - P0[MOTION, MOTION]).min() > -1e-12
+    # The biases keep their covariance and their correlation with the motion.
+    np.testing.assert_array_equal(P_new[BA.start :, :], P[BA.start :, :])
+    # Idempotent: the estimator restarts at every epoch inside a gap.
+    ukf.restart(P0)
+    np.testing.assert_allclose(ukf.P, P_new, rtol=0, atol=1e-12 * np.abs(P_new).max())
+
+    # The next predict and update run (their sigma points need a Cholesky of P).
+    ukf.predict(stationary_increment(0.1, steps=10))
+    assert ukf.update(
+        "gps", np.array([0.3, 0.1, -0.2]), np.eye(3) * 0.25, gps_model(np.zeros(3)), 1e9
+    )
+    assert np.linalg.eigvalsh(ukf.P).min() > 0
+
+
+def test_restart_of_an_uncertain_filter_changes_nothing() -> None:
+    """Directions already more uncertain than P0 keep their covariance."""
+    P = 3.0 * correlated_covariance(seed=4)
+    P[MOTION, MOTION] += 2.0 * initial_covariance()[MOTION, MOTION]
+    ukf = make_filter(P0=P)
+    ukf.restart(initial_covariance())
+    np.testing.assert_allclose(ukf.P, P, rtol=0, atol=1e-12 * np.abs(P).max())
 
 
 def test_process_model_level_constant_speed() -> None:
     """Level, 10 m/s east, IMU reading exactly -g: position advances v T, nothing else."""
     x = np.zeros((1, DIM_X))
-    x[0, 3] = 10.0
-    inc = ImuIncrement(np.zeros(3), np.zeros(3))
-    for _ in range(10):
-        inc.add(-GRAVITY, np.zeros(3), 0.01)
+    x[0, VEL.start] = 10.0
+    inc = stationary_increment(0.1, steps=10)
     out = propagate(x, inc)[0]
-    np.testing.assert_allclose(out[:3], [1.0, 0.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(out[3:6], [10.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(out[POS], [1.0, 0.0, 0.0], atol=1e-12)
+    np.testing.assert_allclose(out[VEL], [10.0, 0.0, 0.0], atol=1e-12)
 
 
-def test_process_model_turns_with_gyro_and_matches_predict() -> None:
+def test_process_model_turns_with_gyro_and_predict_follows() -> None:
     inc = ImuIncrement(np.zeros(3), np.zeros(3))
     for _ in range(10):
         inc.add(-GRAVITY, np.array([0.0, 0.0, 0.1]), 0.01)
     x = np.zeros((1, DIM_X))
-    assert np.isclose(propagate(x, inc)[0, 8], 0.01)
+    assert np.isclose(propagate(x, inc)[0, YAW], 0.01)
     ukf = make_filter()
-    ukf.predict_imu(inc)
-    assert np.isclose(ukf.x[8], 0.01, atol=1e-9)
-    assert ukf.P[0, 0] > 1.0  # covariance grew
+    ukf.predict(inc)
+    assert np.isclose(ukf.x[YAW], 0.01, atol=1e-9)
 
 
 def test_euler_round_trip() -> None:

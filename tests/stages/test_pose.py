@@ -257,3 +257,43 @@ def test_cli_pose_exit_codes(
     lines = bad.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("terrain: error: ")
     assert "no-such-log" in lines[0]
+
+
+def test_sample_pose_roll_and_pitch_rates_follow_the_truth(
+    sample_pose: tuple[Workspace, str, PoseResult],
+) -> None:
+    """roll_rate and pitch_rate (the paper's gamma and psi) against the truth's Euler rates.
+
+    The pose's rates are the bias-corrected gyro samples turned into Euler rates. The
+    simulated IMU reports each sample as the mean body rate over its period ``T`` (an
+    integrating IMU) plus white noise ``sigma_g``, so against the instantaneous truth the
+    error is that noise and half a period of lag, ``(T / 2) * d(rate)/dt``:
+
+        rms error ~ sqrt(sigma_g^2 + (T / 2 * rms(d rate / dt))^2)
+
+    On the sample log's rough road that is ~0.008 (roll) and ~0.006 (pitch) rad/s against
+    true rates of ~0.07 rad/s RMS; a one-sample lag would double it. The bound allows 25 %
+    over that budget. The mean error must also stay within a quarter of the simulated
+    initial gyro bias spread, which an uncorrected gyro bias would not.
+    """
+    ws, log_id, _ = sample_pose
+    pose = read_table(ws.log_table(log_id, "pose"), "pose")
+    truth = read_table(ws.log_table(log_id, "truth_pose"), "truth_pose")
+    sim = json.loads((ws.log_dir(log_id) / "mcap_metadata.json").read_text())["terrain_sim"]
+    imu = json.loads(sim["sensors"])["imu"]
+    sigma_g = float(imu["gyro_noise_radps"])
+    period_s = 1.0 / float(imu["rate_hz"])
+    t_truth_ns = truth.column("t_ns").to_numpy()
+    t_pose_ns = pose.column("t_ns").to_numpy()
+    inside = (t_pose_ns >= t_truth_ns[0]) & (t_pose_ns <= t_truth_ns[-1])
+    t_truth_s = (t_truth_ns - t_truth_ns[0]) * 1e-9
+    t_pose_s = (t_pose_ns[inside] - t_truth_ns[0]) * 1e-9
+    assert t_pose_s.size > 5900
+    for name in ("roll_rate", "pitch_rate"):
+        true_radps = truth.column(name).to_numpy()
+        error = pose.column(name).to_numpy()[inside] - np.interp(t_pose_s, t_truth_s, true_radps)
+        rms_error = float(np.sqrt(np.mean(error**2)))
+        rms_rate_change = float(np.sqrt(np.mean((np.diff(true_radps) / np.diff(t_truth_s)) ** 2)))
+        budget = float(np.hypot(sigma_g, 0.5 * period_s * rms_rate_change))
+        assert rms_error <= 1.25 * budget, f"{name}: RMS error {rms_error:.5f} rad/s"
+        assert abs(float(np.mean(error))) <= 0.25 * float(imu["gyro_bias_initial_radps"])

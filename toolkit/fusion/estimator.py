@@ -11,7 +11,8 @@ non-holonomic updates, each gated.
 IMU gaps: a sample interval longer than 1.5 nominal periods is a gap. Gaps up to
 :data:`MAX_BRIDGE_S` are bridged (the next sample's reading is held across the gap); longer
 ones restart the filter: the gap is crossed at constant velocity and attitude, and the
-covariance is reset to the initial uncertainty.
+covariance of position, velocity and attitude is raised to at least its initial value at
+every epoch in the gap (:meth:`~toolkit.fusion.ukf.PoseUKF.restart`, which says how and why).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ import numpy as np
 from toolkit.fusion.rotations import FloatArray, euler_rates, euler_to_rot, rot_to_euler, wrap_angle
 from toolkit.fusion.ukf import (
     ATT,
+    BA,
     BG,
     DIM_X,
     GRAVITY,
@@ -31,6 +33,7 @@ from toolkit.fusion.ukf import (
     NHC_STD_MPS,
     POS,
     VEL,
+    YAW,
     ImuIncrement,
     NoiseModel,
     PoseUKF,
@@ -168,30 +171,6 @@ OutputChunk = tuple[np.ndarray, dict[str, FloatArray]]
 """Output rows of one window: (t_ns (M,), pose columns)."""
 
 
-def _imu_windows_of(d: SensorData, rows: int = 65_536) -> Iterator[ImuWindow]:
-    for a in range(0, d.imu_t.size, rows):
-        yield d.imu_t[a : a + rows], d.accel[a : a + rows], d.gyro[a : a + rows]
-
-
-def estimate(d: SensorData, s: FilterSettings) -> EstimateResult:
-    """Run the causal filter over the log held in memory (see :func:`estimate_stream`)."""
-    acc = EstimateResult({}, np.zeros(0, np.int64), {}, {}, 0, 0, 0, 0, "")
-    chunks: list[OutputChunk] = list(
-        estimate_stream(
-            d,
-            lambda: _imu_windows_of(d),
-            s,
-            t_end=float(d.imu_t[-1]),
-            period=float(np.median(np.diff(d.imu_t))) if d.imu_t.size > 1 else 0.01,
-            result=acc,
-        )
-    )
-    acc.t_ns = np.concatenate([c[0] for c in chunks]) if chunks else np.zeros(0, np.int64)
-    names: list[str] = list(chunks[0][1]) if chunks else []
-    acc.columns = {n: np.concatenate([c[1][n] for c in chunks]) for n in names}
-    return acc
-
-
 def estimate_stream(
     d: SensorData,
     imu_windows: Callable[[], Iterable[ImuWindow]],
@@ -255,9 +234,9 @@ def estimate_stream(
     p0[VEL] = s.init_vel_std**2
     p0[ATT] = s.init_att_std**2
     if heading_source != "compass":
-        p0[8] = 0.3**2
-    p0[9:12] = 0.1**2
-    p0[12:15] = 0.005**2
+        p0[YAW] = 0.3**2
+    p0[BA] = 0.1**2
+    p0[BG] = 0.005**2
     P0 = np.diag(p0)
     ukf = PoseUKF(x0, P0, s.noise, alpha=s.alpha, beta=s.beta, kappa=s.kappa)
 
@@ -272,7 +251,7 @@ def estimate_stream(
     n_out_total = int(np.floor((t_end - t_start) / step))
 
     post_k = ukf.x.copy()  # posterior at the start of the current epoch interval
-    inc = ImuIncrement(ukf.x[9:12].copy(), ukf.x[BG].copy())
+    inc = ImuIncrement(ukf.x[BA].copy(), ukf.x[BG].copy())
     restart_pending = False
     prev_imu_t: float | None = None
     prev_bound = t_start  # the last segment end handled
@@ -330,17 +309,17 @@ def estimate_stream(
             if not seg_is_epoch[j]:
                 continue
             t = float(bounds[j])
-            ukf.predict_imu(inc)
+            ukf.predict(inc)
             if restart_pending:
-                ukf.P = np.maximum(ukf.P, P0)
+                ukf.restart(P0)
                 restart_pending = False
             w_now = seg_w[j]
             gi = gps_idx.get(t)
             if gi is not None:
-                ukf.update_gated("gps", d.gps_enu[gi], np.diag(d.gps_var[gi]), hx_gps, s.gate_gps)
+                ukf.update("gps", d.gps_enu[gi], np.diag(d.gps_var[gi]), hx_gps, s.gate_gps)
             hi = R_heading_idx.get(t)
             if hi is not None:
-                ukf.update_gated(
+                ukf.update(
                     "heading",
                     d.head_yaw[hi : hi + 1],
                     d.head_var[hi : hi + 1, None],
@@ -351,17 +330,17 @@ def estimate_stream(
                 )
             if d.wheel_t.size and d.wheel_t[0] <= t <= d.wheel_t[-1]:
                 speed = float(np.interp(t, d.wheel_t, d.wheel_speed))
-                ukf.update_gated(
+                ukf.update(
                     "wheels",
                     np.array([speed]),
                     wheel_var,
                     wheel_model(w_now, s.lever_axle),
                     s.gate_wheels,
                 )
-            ukf.update_gated("nhc", zero2, nhc_cov, nhc_model(w_now, s.lever_axle), NHC_GATE_CHI2)
+            ukf.update("nhc", zero2, nhc_cov, nhc_model(w_now, s.lever_axle), NHC_GATE_CHI2)
             post_k = ukf.x.copy()
             seg_post[j] = post_k
-            inc = ImuIncrement(ukf.x[9:12].copy(), ukf.x[BG].copy())
+            inc = ImuIncrement(ukf.x[BA].copy(), ukf.x[BG].copy())
         prev_bound = float(bounds[-1])
 
         # The mean carried from each epoch's posterior to every segment end (vectorised).

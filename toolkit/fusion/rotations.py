@@ -42,18 +42,38 @@ def rot_to_euler(rot: FloatArray) -> FloatArray:
     return np.stack([roll, pitch, yaw], axis=-1)
 
 
+#: Rotation angle (rad) below which :func:`so3_exp` takes its coefficients from their Taylor
+#: series: the first terms dropped (``theta^4 / 120`` and ``theta^4 / 720``) are then below
+#: 1e-18, under float64 round-off, while the kept ``theta^2`` terms still count.
+SO3_SERIES_BELOW_RAD = 1e-4
+
+
 def so3_exp(phi: FloatArray) -> FloatArray:
-    """Rodrigues: rotation vectors (..., 3) -> rotation matrices (..., 3, 3)."""
+    """Rodrigues' formula: rotation vectors ``phi`` (..., 3) -> rotation matrices (..., 3, 3).
+
+    With ``theta = |phi|`` and ``K`` the cross-product matrix of ``phi`` (``K v = phi x v``)::
+
+        Exp(phi) = I + a K + b K^2
+        a = sin(theta) / theta                 = 1 - theta^2 / 6  + theta^4 / 120 - ...
+        b = (1 - cos(theta)) / theta^2         = 1/2 - theta^2 / 24 + theta^4 / 720 - ...
+          = 1/2 (sin(theta / 2) / (theta / 2))^2
+
+    ``b`` is computed from its half-angle form: ``1 - cos(theta)`` cancels catastrophically
+    for small angles (it is exactly 0 in float64 below theta ~ 1.5e-8). Below
+    :data:`SO3_SERIES_BELOW_RAD` the two-term series are used, which also covers theta = 0.
+    """
     theta = np.linalg.norm(phi, axis=-1)[..., None, None]
     k = np.zeros((*phi.shape[:-1], 3, 3))
     k[..., 0, 1], k[..., 0, 2] = -phi[..., 2], phi[..., 1]
     k[..., 1, 0], k[..., 1, 2] = phi[..., 2], -phi[..., 0]
     k[..., 2, 0], k[..., 2, 1] = -phi[..., 1], phi[..., 0]
-    small = theta < 1e-8
-    t = np.where(small, 1.0, theta)
-    a = np.where(small, 1.0 - theta**2 / 6.0, np.sin(t) / t)
-    b = np.where(small, 0.5 - theta**2 / 24.0, (1.0 - np.cos(t)) / t**2)
-    return np.eye(3) + a * k + b * (k @ k)
+    small = theta < SO3_SERIES_BELOW_RAD
+    t = np.where(small, 1.0, theta)  # no 0 / 0 in the branch np.where discards
+    half_sinc = np.sin(0.5 * t) / (0.5 * t)
+    theta2 = theta**2
+    a = np.where(small, 1.0 - theta2 / 6.0, np.sin(t) / t)
+    b = np.where(small, 0.5 - theta2 / 24.0, 0.5 * half_sinc**2)
+    return np.asarray(np.eye(3) + a * k + b * (k @ k), dtype=np.float64)
 
 
 def euler_rates(rpy: FloatArray, omega_body: FloatArray) -> FloatArray:

@@ -28,8 +28,10 @@ Each sigma point then moves in one vectorised step, with first-order bias correc
     p' = p + v T + 1/2 g T^2 + R(rpy) (dp - Jp dba)
     ba' = ba,  bg' = bg
 
-Process noise (additive, per step): velocity ``accel_noise^2 T``, attitude
-``gyro_noise^2 T``, biases ``walk^2 T``, position ``accel_noise^2 T^3 / 3``.
+Process noise (additive, per step, diagonal; :meth:`NoiseModel.q`): velocity
+``accel_noise^2 T``, attitude ``gyro_noise^2 T``, biases ``walk^2 T``, position
+``accel_noise^2 T^3 / 3``, plus small floors (1e-9 m^2 on position, 1e-14 and 1e-16 on the
+accelerometer and gyro biases) that keep ``Q`` positive definite for a tiny ``T``.
 
 Measurement models (``R(rpy)`` world from body; ``l`` a lever arm from the IMU in base_link;
 ``w`` the bias-corrected gyro rate at the measurement time, a known input):
@@ -45,32 +47,41 @@ Measurement models (``R(rpy)`` world from body; ``l`` a lever arm from the IMU i
 Every measurement is gated: the squared Mahalanobis distance of its innovation,
 ``y^T S^-1 y``, above the sensor's threshold rejects it; rejections are counted per sensor.
 
-Angles: the state mean of the sigma points averages yaw as wrapped offsets from the first
-sigma point, and state and yaw residuals are wrapped, so a yaw near +-pi averages correctly.
+Angles: the state mean of the sigma points averages the attitude angles as wrapped offsets
+from the first sigma point, and state and yaw residuals are wrapped, so a yaw near +-pi
+averages correctly.
 
-filterpy evaluates ``fx`` and ``hx`` one sigma point at a time and its unscented transform
-loops over sigma points when given a residual function; :class:`PoseUKF` overrides
-``compute_process_sigmas`` with the vectorised process model above, passes a vectorised
-unscented transform to ``predict``, and implements the gated update over all sigma points
-at once. filterpy's sigma points (MerweScaledSigmaPoints), weights and state are used as is.
+The filter (:class:`PoseUKF`, whose docstring states the sigma points, the predict and the
+update) holds filterpy's :class:`~filterpy.kalman.MerweScaledSigmaPoints` (with
+:func:`state_residual`, so sigma points wrap their angles) and uses only its public
+``sigma_points``, ``Wm`` and ``Wc``; the process model, the unscented transform and the
+gated update run on all sigma points at once, where filterpy would loop over them.
 """
 
 from __future__ import annotations
 
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import numpy as np
-from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filterpy.kalman import MerweScaledSigmaPoints
 
+from toolkit.errors import StageError
 from toolkit.fusion.rotations import FloatArray, euler_to_rot, rot_to_euler, so3_exp, wrap_angle
 
 #: Dimension of the state vector.
 DIM_X = 15
-#: Slices of the state vector.
+#: Slices of the state vector: position, velocity, attitude, accelerometer and gyro bias.
 POS, VEL, ATT, BA, BG = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
-YAW = 8
+#: Index of yaw in the state vector (the last attitude angle).
+YAW = ATT.start + 2
+#: The motion states (position, velocity, attitude), which an unobserved interval makes
+#: uncertain; the biases (BA, BG) follow them in the state vector.
+MOTION = slice(POS.start, ATT.stop)
+#: Components of a base_link-axis vector: forward (x) and lateral and vertical (y, z).
+FORWARD, LATERAL_VERTICAL = slice(0, 1), slice(1, 3)
 #: Standard gravity, m/s^2; gravity in ENU is (0, 0, -G).
 G = 9.80665
 GRAVITY = np.array([0.0, 0.0, -G])
@@ -131,7 +142,15 @@ def unscented_transform(
     mean_fn: Callable[[FloatArray, FloatArray], FloatArray] | None = None,
     residual_fn: Callable[[FloatArray, FloatArray], FloatArray] | None = None,
 ) -> tuple[FloatArray, FloatArray]:
-    """filterpy's unscented transform, vectorised (its own loops over sigma points)."""
+    """Mean and covariance of transformed sigma points ``sigmas`` (M, k)::
+
+        mean = mean_fn(sigmas, wm)                       (default: sum_i wm_i sigmas_i)
+        d_i = residual_fn(sigmas_i, mean)                (default: sigmas_i - mean)
+        cov = sum_i wc_i d_i d_i^T + noise_cov           (k, k)
+
+    The same numbers as ``filterpy.kalman.unscented_transform``, on all M sigma points at
+    once (filterpy loops over them when given a residual function).
+    """
     mean = (mean_fn or plain_mean)(sigmas, wm)
     d = (residual_fn or plain_residual)(sigmas, mean)
     cov = (d.T * wc) @ d
@@ -147,7 +166,13 @@ def unscented_transform(
 
 @dataclass
 class ImuIncrement:
-    """IMU samples pre-integrated over one filter step, in the body frame at its start."""
+    """IMU samples pre-integrated over one filter step, in the body frame at its start.
+
+    ``ba0`` (3,) m/s^2 and ``bg0`` (3,) rad/s are the biases the samples are corrected by
+    (the prior mean's); ``T`` s the time integrated so far; ``rot_inc`` (3, 3) ``dR``,
+    ``dv`` (3,) m/s, ``dp`` (3,) m, and the bias Jacobians ``Jv`` (3, 3) s and ``Jp`` (3, 3)
+    s^2, as in the module docstring. An accumulator: :meth:`add` one sample at a time.
+    """
 
     ba0: FloatArray
     bg0: FloatArray
@@ -159,7 +184,8 @@ class ImuIncrement:
     Jp: FloatArray = field(default_factory=lambda: np.zeros((3, 3)))
 
     def add(self, accel: FloatArray, gyro: FloatArray, dt: float) -> None:
-        """Integrate one held IMU sample over ``dt`` seconds."""
+        """Integrate one sample (specific force ``accel`` (3,) m/s^2, rate ``gyro`` (3,)
+        rad/s, both in the IMU frame), held constant over ``dt`` seconds."""
         f = self.rot_inc @ (accel - self.ba0)
         half = 0.5 * dt * dt
         self.dp += self.dv * dt + f * half
@@ -171,7 +197,8 @@ class ImuIncrement:
 
 
 def propagate(sigmas: FloatArray, inc: ImuIncrement) -> FloatArray:
-    """The process model for states (M, 15) over one increment (see the module docstring)."""
+    """The process model: states (M, 15) moved over one increment, (M, 15) out (see the
+    module docstring)."""
     T = inc.T
     rot = euler_to_rot(sigmas[:, ATT])
     dba = sigmas[:, BA] - inc.ba0
@@ -221,7 +248,7 @@ def wheel_model(gyro: FloatArray, lever_axle: FloatArray) -> MeasFn:
     """z = forward speed of the rear-axle centre."""
 
     def hx(s: FloatArray) -> FloatArray:
-        return axle_velocity_body(s, gyro, lever_axle)[:, 0:1]
+        return axle_velocity_body(s, gyro, lever_axle)[:, FORWARD]
 
     return hx
 
@@ -230,7 +257,7 @@ def nhc_model(gyro: FloatArray, lever_axle: FloatArray) -> MeasFn:
     """z = (lateral, vertical) body velocity of the rear-axle centre (observed as 0)."""
 
     def hx(s: FloatArray) -> FloatArray:
-        return axle_velocity_body(s, gyro, lever_axle)[:, 1:3]
+        return axle_velocity_body(s, gyro, lever_axle)[:, LATERAL_VERTICAL]
 
     return hx
 
@@ -242,7 +269,8 @@ def nhc_model(gyro: FloatArray, lever_axle: FloatArray) -> MeasFn:
 
 @dataclass(frozen=True)
 class NoiseModel:
-    """Process noise densities (per sqrt(s))."""
+    """Process noise densities, each per sqrt(s): ``accel`` m/s^2, ``gyro`` rad/s,
+    ``accel_bias_walk`` m/s^2, ``gyro_bias_walk`` rad/s."""
 
     accel: float
     gyro: float
@@ -250,7 +278,11 @@ class NoiseModel:
     gyro_bias_walk: float
 
     def q(self, T: float) -> FloatArray:
-        """Additive process noise covariance for a step of ``T`` seconds."""
+        """Additive process noise covariance (15, 15) for a step of ``T`` seconds::
+
+        Q = diag(accel^2 T^3 / 3 + 1e-9 (POS), accel^2 T (VEL), gyro^2 T (ATT),
+                 accel_bias_walk^2 T + 1e-14 (BA), gyro_bias_walk^2 T + 1e-16 (BG))
+        """
         d = np.empty(DIM_X)
         d[POS] = self.accel**2 * T**3 / 3.0 + 1e-9
         d[VEL] = self.accel**2 * T
@@ -260,11 +292,44 @@ class NoiseModel:
         return np.diag(d)
 
 
-class PoseUKF(UnscentedKalmanFilter):
-    """filterpy's UKF with the pose models above, vectorised, with gated updates.
+class PoseUKF:
+    """The pose filter: an unscented Kalman filter over the 15-state model above.
 
-    ``gated`` counts rejected measurements per sensor name, ``accepted`` the used ones,
-    ``last_d2`` is the squared Mahalanobis distance of the last measurement tried.
+    It holds filterpy's scaled sigma points and the state privately; every public method is
+    ours. ``n = 15`` is the state dimension, ``x`` (n,) the mean, ``P`` (n, n) the covariance.
+
+    Sigma points (Van der Merwe's scaled set, filterpy's ``MerweScaledSigmaPoints``), 2n + 1
+    of them, with ``lambda = alpha^2 (n + kappa) - n`` and ``U`` the upper Cholesky factor of
+    ``(n + lambda) P`` (``U^T U = (n + lambda) P``, ``U_i`` its row i)::
+
+        X_0 = x,    X_i = x + U_i,    X_(n+i) = x - U_i          (i = 1..n, angles wrapped)
+        Wm_0 = lambda / (n + lambda),    Wc_0 = Wm_0 + 1 - alpha^2 + beta
+        Wm_i = Wc_i = 1 / (2 (n + lambda))                        (i = 1..2n)
+
+    Predict over one IMU increment (:meth:`predict`; ``f`` is :func:`propagate`, ``Q`` is
+    :meth:`NoiseModel.q` for the increment's duration ``T``)::
+
+        Y_i = f(X_i)
+        x- = sum_i Wm_i Y_i                                       (angles: wrapped mean)
+        P- = sum_i Wc_i (Y_i - x-)(Y_i - x-)^T + Q
+
+    Gated update with a measurement function ``h`` and noise covariance ``R`` (k, k)
+    (:meth:`update`; the sigma points are drawn afresh from the current ``x, P``)::
+
+        Z_i = h(X_i),    z^ = sum_i Wm_i Z_i
+        S = sum_i Wc_i (Z_i - z^)(Z_i - z^)^T + R                 (k, k)
+        y = z - z^,      d2 = y^T S^-1 y                          (rejected if d2 > gate)
+        Pxz = sum_i Wc_i (X_i - x)(Z_i - z^)^T                    (n, k)
+        K = Pxz S^-1,    x+ = x + K y,    P+ = P - K S K^T        (P+ symmetrised)
+
+    For a measurement linear in the state, ``h(x) = H x``, this is exactly the Kalman update
+    (``S = H P H^T + R``, ``K = P H^T S^-1``): the sigma points carry ``x`` and ``P`` exactly.
+
+    After an interval nobody observed (a long IMU gap), :meth:`restart` raises the
+    position, velocity and attitude block of ``P`` to at least its initial value.
+
+    Read-only: :attr:`x`, :attr:`P`, :attr:`gated` (rejected measurements per sensor name),
+    :attr:`accepted` (used ones), :attr:`last_d2` (``d2`` of the last measurement tried).
     """
 
     def __init__(
@@ -277,45 +342,65 @@ class PoseUKF(UnscentedKalmanFilter):
         beta: float,
         kappa: float,
     ) -> None:
-        points = MerweScaledSigmaPoints(
+        """Start from the mean ``x0`` (15,) and covariance ``P0`` (15, 15).
+
+        ``alpha``, ``beta``, ``kappa``: the sigma-point parameters (see the class docstring).
+        """
+        self._x = _checked(x0, (DIM_X,), "x0")
+        self._P = _checked(P0, (DIM_X, DIM_X), "P0")
+        self._noise = noise
+        # state_residual as filterpy's `subtract`: X_i = x +- U_i with the angles wrapped.
+        self._points = MerweScaledSigmaPoints(
             DIM_X, alpha=alpha, beta=beta, kappa=kappa, subtract=state_residual
         )
-        super().__init__(
-            dim_x=DIM_X,
-            dim_z=1,
-            dt=0.01,
-            hx=yaw_model,
-            fx=lambda s, dt: s,
-            points=points,
-            x_mean_fn=state_mean,
-            residual_x=state_residual,
+        self._wm: FloatArray = np.asarray(self._points.Wm, dtype=np.float64)
+        self._wc: FloatArray = np.asarray(self._points.Wc, dtype=np.float64)
+        self._gated: Counter[str] = Counter()
+        self._accepted: Counter[str] = Counter()
+        self._last_d2 = 0.0
+
+    # -- read-only views ----------------------------------------------------------------
+
+    @property
+    def x(self) -> FloatArray:
+        """The state mean (15,), a read-only view."""
+        return _read_only(self._x)
+
+    @property
+    def P(self) -> FloatArray:  # noqa: N802 (P, the covariance's textbook name)
+        """The state covariance (15, 15), a read-only view."""
+        return _read_only(self._P)
+
+    @property
+    def noise(self) -> NoiseModel:
+        """The process noise model."""
+        return self._noise
+
+    @property
+    def gated(self) -> Mapping[str, int]:
+        """Measurements rejected by their gate, per sensor name (0 for a name never seen)."""
+        return MappingProxyType(self._gated)
+
+    @property
+    def accepted(self) -> Mapping[str, int]:
+        """Measurements used, per sensor name (0 for a name never seen)."""
+        return MappingProxyType(self._accepted)
+
+    @property
+    def last_d2(self) -> float:
+        """Squared Mahalanobis distance ``y^T S^-1 y`` of the last measurement tried."""
+        return self._last_d2
+
+    # -- the filter -----------------------------------------------------------------------
+
+    def predict(self, inc: ImuIncrement) -> None:
+        """Predict over one pre-integrated IMU increment (see the class docstring)."""
+        moved = propagate(self._sigma_points(), inc)
+        self._x, self._P = unscented_transform(
+            moved, self._wm, self._wc, self._noise.q(inc.T), state_mean, state_residual
         )
-        self.x = np.asarray(x0, dtype=np.float64).copy()
-        self.P = np.asarray(P0, dtype=np.float64).copy()
-        self.noise = noise
-        self.gated: Counter[str] = Counter()
-        self.accepted: Counter[str] = Counter()
-        self.last_d2 = 0.0
-        self._inc: ImuIncrement | None = None
 
-    def compute_process_sigmas(self, dt: float, fx: object = None, **fx_args: object) -> None:
-        """All sigma points through :func:`propagate` in one call (filterpy loops)."""
-        sigmas = self.points_fn.sigma_points(self.x, self.P)
-        if self._inc is None:
-            self.sigmas_f = sigmas
-        else:
-            self.sigmas_f = propagate(sigmas, self._inc)
-
-    def predict_imu(self, inc: ImuIncrement) -> None:
-        """Predict over one pre-integrated IMU increment."""
-        self._inc = inc
-        self.Q = self.noise.q(inc.T)
-        try:
-            self.predict(dt=inc.T, UT=unscented_transform)
-        finally:
-            self._inc = None
-
-    def update_gated(
+    def update(
         self,
         name: str,
         z: FloatArray,
@@ -326,35 +411,113 @@ class PoseUKF(UnscentedKalmanFilter):
         mean_fn: Callable[[FloatArray, FloatArray], FloatArray] = plain_mean,
         residual_fn: Callable[[FloatArray, FloatArray], FloatArray] = plain_residual,
     ) -> bool:
-        """One measurement update, rejected (and counted) when its innovation is gated."""
-        sigmas = self.points_fn.sigma_points(self.x, self.P)
+        """Update with the measurement ``z`` (k,) of noise covariance ``R`` (k, k).
+
+        ``hx`` maps sigma points (M, 15) to predicted measurements (M, k); ``mean_fn`` and
+        ``residual_fn`` average and subtract measurements (the angle versions for angles).
+        Returns False, leaving the state alone and counting the rejection under ``name``,
+        when the squared Mahalanobis distance of the innovation exceeds ``gate_chi2``.
+        """
+        sigmas = self._sigma_points()
         zs = hx(sigmas)
-        zp, S = unscented_transform(zs, self.Wm, self.Wc, R, mean_fn, residual_fn)
+        zp, S = unscented_transform(zs, self._wm, self._wc, R, mean_fn, residual_fn)
         y = residual_fn(np.asarray(z, dtype=np.float64), zp)
         S_inv = np.linalg.inv(S)
         d2 = float(y @ S_inv @ y)
-        self.last_d2 = d2
+        self._last_d2 = d2
         if not np.isfinite(d2) or d2 > gate_chi2:
-            self.gated[name] += 1
+            self._gated[name] += 1
             return False
-        dx = state_residual(sigmas, self.x)
+        dx = state_residual(sigmas, self._x)
         dz = residual_fn(zs, zp)
-        Pxz = (dx.T * self.Wc) @ dz
+        Pxz = (dx.T * self._wc) @ dz
         K = Pxz @ S_inv
-        x = self.x + K @ y
+        x = self._x + K @ y
         x[ATT] = wrap_angle(x[ATT])
-        P = self.P - K @ S @ K.T
-        self.x = x
-        self.P = 0.5 * (P + P.T)
-        self.accepted[name] += 1
+        P = self._P - K @ S @ K.T
+        self._x = x
+        # K S K^T is symmetric only up to round-off; keep P exactly symmetric.
+        self._P = 0.5 * (P + P.T)
+        self._accepted[name] += 1
         return True
+
+    def restart(self, P0: FloatArray) -> None:
+        """Forget the motion after an interval nobody observed (a long IMU gap).
+
+        ``P0`` (15, 15) is the initial covariance; only its motion block ``F = P0[MOTION,
+        MOTION]`` (9, 9: position, velocity, attitude; positive definite) is used. With
+        ``A = P[MOTION, MOTION]`` and ``F = L L^T`` (Cholesky), the motion block is raised to
+        at least ``F`` in the matrix order by flooring the eigenvalues of ``A`` measured in
+        units of ``F``::
+
+            M = L^-1 A L^-T = V diag(lam) V^T            (eigen-decomposition, M symmetric)
+            A' = L V diag(max(lam, 1)) V^T L^T
+
+        and ``P[MOTION, MOTION] = A'``; the bias block and the motion-bias cross-covariances
+        are kept. The mean is left as it is.
+
+        Why this rule: the gap is crossed at constant velocity and attitude, so afterwards
+        position, velocity and attitude are at least as uncertain as at the start (``A' - F``
+        is positive semidefinite), while the biases, which a gap of a second or two does not
+        change, keep what was learnt about them (their walk over the gap is already in the
+        predict's ``Q``). ``A' - A`` is positive semidefinite, so ``P' = P + [[A' - A, 0],
+        [0, 0]]`` stays symmetric positive definite, and directions already more uncertain
+        than ``F`` keep their covariance, cross-correlations included. The rule is
+        idempotent (a second restart changes nothing), which matters because the estimator
+        restarts at every epoch inside a gap. The element-wise ``max(P, P0)`` this replaces
+        is not a covariance operation: it zeroes negative cross-covariances one entry at a
+        time, which can leave ``P`` indefinite and make the next Cholesky fail.
+        """
+        F = _checked(P0, (DIM_X, DIM_X), "P0")[MOTION, MOTION]
+        try:
+            L = np.linalg.cholesky(F)
+        except np.linalg.LinAlgError as exc:
+            raise ValueError("the motion block of P0 must be positive definite") from exc
+        L_inv = np.linalg.inv(L)
+        A = self._P[MOTION, MOTION]
+        M = L_inv @ A @ L_inv.T
+        lam, V = np.linalg.eigh(0.5 * (M + M.T))
+        A_floored = L @ ((V * np.maximum(lam, 1.0)) @ V.T) @ L.T
+        P = self._P.copy()
+        P[MOTION, MOTION] = A_floored
+        self._P = 0.5 * (P + P.T)
+
+    def _sigma_points(self) -> FloatArray:
+        """The 2n + 1 sigma points (31, 15) of the current ``x, P``."""
+        try:
+            return np.asarray(self._points.sigma_points(self._x, self._P), dtype=np.float64)
+        except np.linalg.LinAlgError as exc:
+            raise StageError(
+                f"pose filter diverged: its state covariance is no longer positive definite ({exc})"
+            ) from exc
+
+
+def _checked(a: FloatArray, shape: tuple[int, ...], name: str) -> FloatArray:
+    """A float64 copy of ``a``; a wrong shape or a non-finite value is a programming error."""
+    out = np.array(a, dtype=np.float64)
+    if out.shape != shape or not np.all(np.isfinite(out)):
+        raise ValueError(f"{name} must be a finite array of shape {shape}, got {out.shape}")
+    return out
+
+
+def _read_only(a: FloatArray) -> FloatArray:
+    view = a.view()
+    view.flags.writeable = False
+    return view
 
 
 __all__ = [
+    "ATT",
+    "BA",
+    "BG",
     "DIM_X",
     "GRAVITY",
+    "MOTION",
     "ImuIncrement",
     "NoiseModel",
+    "POS",
+    "VEL",
+    "YAW",
     "PoseUKF",
     "angle_mean",
     "angle_residual",

@@ -32,7 +32,8 @@ class Mount:
     def rotation(self) -> FloatArray:
         """``base_link_from_sensor`` rotation matrix (3, 3)."""
         r, p, y = self.rpy_rad
-        return Rotation.from_euler("ZYX", [y, p, r]).as_matrix()
+        matrix: FloatArray = Rotation.from_euler("ZYX", [y, p, r]).as_matrix()
+        return matrix
 
 
 def laser_mounts(
@@ -215,7 +216,8 @@ class RayCaster:
             tau = tt - t_expansion[rows]
             s = s_s[rows] + tau * (s1[rows] + tau * s2[rows])
             d = d_s[rows] + tau * (b1[rows] + tau * d2[rows])
-            return o[rows, 2] + tt * uz[rows] - window.height(s, d)
+            gap: FloatArray = o[rows, 2] + tt * uz[rows] - window.height(s, d)
+            return gap
 
         # 2. march down from above the ground to the first crossing. A ray already below
         # ground where the march starts meets something higher than expected (a berm, a

@@ -267,7 +267,8 @@ def iso8608_field(
     gain[(k < n_band[0]) | (k > n_band[1])] = 0.0
     white = rng.standard_normal(shape)
     spectrum = scipy.fft.rfft2(white) * gain
-    return scipy.fft.irfft2(spectrum, s=shape).astype(np.float32)
+    field: NDArray[np.float32] = scipy.fft.irfft2(spectrum, s=shape).astype(np.float32)
+    return field
 
 
 # --------------------------------------------------------------------------------------------
@@ -304,7 +305,8 @@ class Grid:
         h10 = flat[base]
         h11 = flat[base + 1]
         top = h00 + (h01 - h00) * v
-        return top + ((h10 + (h11 - h10) * v) - top) * u
+        height: FloatArray = top + ((h10 + (h11 - h10) * v) - top) * u
+        return height
 
 
 @dataclass
@@ -448,7 +450,9 @@ class Terrain:
         rough = np.concatenate([rough, self._blended_field("coarse", index + 1)[:1]], axis=0)
         offroad_weight = np.clip((np.abs(d) - (self.fine_half_width_m - 1.5)) / 1.5, 0, 1)
         z0 = np.interp(s, self.route.s_m, self.route.z0_m)
-        heights = z0[:, None] + self.crossfall(d)[None, :] + rough * offroad_weight[None, :]
+        heights: FloatArray = (
+            z0[:, None] + self.crossfall(d)[None, :] + rough * offroad_weight[None, :]
+        )
         cache[index] = heights
         while len(cache) > 8:
             cache.pop(next(iter(cache)))
@@ -607,7 +611,8 @@ def feature_height(f: RoughFeature, s: FloatArray, d: FloatArray) -> FloatArray:
     if f.kind == "ridge":
         # A smooth ridge across the road (a calibration obstacle, like a log or kerb).
         bump = np.where(inside, np.sin(np.pi * np.clip(u, 0, 1)) ** 2, 0.0)
-        return f.height_m * bump * lateral
+        ridge: FloatArray = f.height_m * bump * lateral
+        return ridge
     if f.kind == "rut":
         ramp = np.clip(np.minimum(u, 1 - u) * length / 2.0, 0, 1)
         groove = np.clip(1 - ((d - f.d_center_m) / half_w) ** 2, 0, 1)
