@@ -160,8 +160,8 @@ def test_time_correction(tmp_path: Path) -> None:
         ("[evaluate]\nfpr_points = [0.2, 0.1]\n", "evaluate.fpr_points", "increasing"),
         ("[evaluate]\nfpr_points = [0.1, 0.1]\n", "evaluate.fpr_points", "unique"),
         ("[evaluate]\nbaseline_closest_laser = '/x'\n", "evaluate.baseline_closest_laser", ""),
-        ("[topics]\nimu = ''\n", "topics.imu", "must not be empty"),
-        ("[topics]\nlasers = []\n", "topics.lasers", "at least 1"),
+        ("[topics]\nlasers = ['']\n", "topics.lasers[0]", "must not be empty"),
+        ("[topics]\nlasers = ['/a', '/a']\n", "topics.lasers", "unique"),
         ("[topics]\ngps = '/imu/data'\n", "topics.gps", "also plays"),
         ("topics = 3\n", "topics", "expected a table"),
         ("name = ''\n", "name", "must not be empty"),
@@ -275,3 +275,11 @@ def test_dump_is_complete_without_defaults(tmp_path: Path) -> None:
     assert set(raw) == {"name", *SECTIONS}
     assert set(raw["label"]) == {f.name for f in dataclasses.fields(cfg.label)}
     assert set(raw["time"]["latency_ns"]) == {"lasers", "imu", "gps", "heading", "wheels"}
+
+
+def test_every_role_may_be_absent(tmp_path: Path) -> None:
+    """A vehicle without lasers, IMU or GPS is a configuration, not an error: "" (or [])."""
+    cfg = load_config(write(tmp_path, "[topics]\nlasers = []\nimu = ''\ngps = ''\nheading = ''\n"))
+    assert cfg.topics.lasers == () and cfg.topics.imu is None and cfg.topics.gps is None
+    assert set(cfg.topics.absent_roles()) == {"lasers", "imu", "gps", "heading"}
+    assert set(cfg.topics.by_role()) == {"wheels", "tf_static", "truth_pose", "truth_features"}

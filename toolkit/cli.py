@@ -319,6 +319,9 @@ def pose(workspace: Path, log_id: str | None, overwrite: bool) -> None:
         if log_id not in ids:
             raise WorkspaceError(f"no log {log_id!r} in the workspace", path=ws.root)
         ids = [log_id]
+    if not ids:
+        click.echo(f"nothing to pose: no ingested log in {ws.root} (run `terrain ingest` first)")
+        return
     with ws.lock():
         for one in ids:
             click.echo(run_pose(ws, one, cfg, overwrite=overwrite).summary())

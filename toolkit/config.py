@@ -37,10 +37,13 @@ CONFIG_FORMAT = 1
 #: File name of the packaged default configuration (inside the ``toolkit`` package).
 DEFAULT_CONFIG_RESOURCE = "default_config.toml"
 
-#: Topic roles a log must provide for the pipeline to run.
-REQUIRED_ROLES: tuple[str, ...] = ("lasers", "imu", "gps")
-#: Topic roles that may be absent (set to "" in the file).
-OPTIONAL_ROLES: tuple[str, ...] = (
+#: Topic roles, in the order ingest reports them. Any role may be absent from a vehicle
+#: (``""``, or ``[]`` for lasers, in the file): ingest converts the roles a log has, and a
+#: stage that needs a missing role refuses with one line naming it.
+ROLES: tuple[str, ...] = (
+    "lasers",
+    "imu",
+    "gps",
     "heading",
     "wheels",
     "tf_static",
@@ -81,11 +84,11 @@ _NO_RULE = Rule()
 
 @dataclass(frozen=True)
 class TopicsConfig:
-    """Which topic plays which role. Optional roles are ``None`` when the log lacks them."""
+    """Which topic plays which role; a role the vehicle lacks is ``None`` (``()`` for lasers)."""
 
-    lasers: Annotated[tuple[str, ...], Rule(min_length=1, nonempty=True, unique=True)]
-    imu: Annotated[str, Rule(nonempty=True)]
-    gps: Annotated[str, Rule(nonempty=True)]
+    lasers: Annotated[tuple[str, ...], Rule(nonempty=True, unique=True)]
+    imu: str | None
+    gps: str | None
     heading: str | None
     wheels: str | None
     tf_static: str | None
@@ -93,13 +96,20 @@ class TopicsConfig:
     truth_features: str | None
 
     def by_role(self) -> dict[str, tuple[str, ...]]:
-        """Role -> topics (lasers may be several), leaving out absent optional roles."""
-        out: dict[str, tuple[str, ...]] = {"lasers": self.lasers}
-        for role in REQUIRED_ROLES[1:] + OPTIONAL_ROLES:
+        """Role -> topics (lasers may be several), leaving out absent roles."""
+        out: dict[str, tuple[str, ...]] = {}
+        if self.lasers:
+            out["lasers"] = self.lasers
+        for role in ROLES[1:]:
             topic = getattr(self, role)
             if topic is not None:
                 out[role] = (topic,)
         return out
+
+    def absent_roles(self) -> tuple[str, ...]:
+        """Roles the configuration says the vehicle does not have."""
+        present = self.by_role()
+        return tuple(role for role in ROLES if role not in present)
 
     def role_of(self, topic: str) -> str | None:
         """The role a topic plays, or None if the configuration does not use it."""

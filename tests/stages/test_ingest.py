@@ -410,31 +410,55 @@ def test_message_type_a_role_does_not_accept(tmp_path: Path, ws: Workspace) -> N
 # --------------------------------------------------------------------------------------
 
 
-def test_required_role_missing_names_role_topics_and_found(tmp_path: Path, ws: Workspace) -> None:
-    log = write_log(tmp_path / "log.mcap", basic_topics())
-    with pytest.raises(StageError) as err:
-        ingest_log(log, ws, make_config(imu="/imu/nowhere"))
-    text = str(err.value)
-    assert "required role imu" in text and "/imu/nowhere" in text
-    for found in ("/imu", "/gps", "/laser/a", "/wheels"):
-        assert found in text
-    assert not list(ws.logs_dir.rglob("*.parquet"))
-    assert not partial_files(ws.root)
-
-
-def test_optional_role_missing_is_a_warning_in_the_manifest(
+def test_missing_roles_are_one_warning_naming_topics_and_accepted_types(
     tmp_path: Path, ws: Workspace, caplog: pytest.LogCaptureFixture
 ) -> None:
-    topics = [m for m in basic_topics() if m.topic != "/heading"]
+    """A log without lasers or compass (a robot's, say): ingested, the two roles listed at
+    once in one terminal line with the message types each accepts, their tables empty."""
+    topics = [m for m in basic_topics() if m.topic not in ("/heading", "/laser/a", "/laser/b")]
     log = write_log(tmp_path / "log.mcap", topics)
     with caplog.at_level(logging.WARNING, logger="toolkit"):
         result = ingest_log(log, ws, make_config())
-    assert any("heading" in r.getMessage() for r in caplog.records)
-    assert any("optional role heading" in w for w in result.warnings)
-    record = ws.manifest(result.log_id).stage("ingest")
-    assert record is not None and any("heading" in w for w in record.warnings)
-    assert detail(ws, result)["missing_topics"] == {"heading": ["/heading"]}
+    lines = [r.getMessage() for r in caplog.records if "roles missing" in r.getMessage()]
+    assert len(lines) == 1
+    line = lines[0]
+    assert str(log) in line
+    assert "lasers (/laser/a, /laser/b; accepts sensor_msgs/msg/LaserScan)" in line
+    assert "heading (/heading; accepts geometry_msgs/msg/QuaternionStamped" in line
+    assert "terrain_msgs/msg/GpsHeading" in line
+    info = detail(ws, result)
+    assert info["missing_roles"] == ["heading", "lasers"]
+    assert info["missing_topics"] == {"lasers": ["/laser/a", "/laser/b"], "heading": ["/heading"]}
+    assert result.row_counts["laser"] == 0 and result.row_counts["heading"] == 0
+    assert result.row_counts["imu"] == 200
     assert read_table(ws.log_table(result.log_id, "heading"), "heading").num_rows == 0
+
+
+def test_roles_absent_on_purpose_are_recorded_not_warned(tmp_path: Path, ws: Workspace) -> None:
+    topics = [m for m in basic_topics() if m.topic not in ("/laser/a", "/laser/b")]
+    log = write_log(tmp_path / "log.mcap", topics)
+    result = ingest_log(log, ws, make_config(lasers=[]))
+    assert not any("missing" in w for w in result.warnings)
+    info = detail(ws, result)
+    assert info["missing_roles"] == [] and "lasers" in info["absent_roles"]
+    assert result.row_counts["laser"] == 0
+
+
+def test_log_without_any_configured_topic_names_what_it_has(tmp_path: Path, ws: Workspace) -> None:
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    config = make_config(
+        lasers=["/scan"], imu="/imu/nowhere", gps="/fix", heading="", wheels="/odom"
+    )
+    with pytest.raises(StageError) as err:
+        ingest_log(log, ws, config)
+    text = str(err.value)
+    assert "none of the configured topics is in the log" in text and "/imu/nowhere" in text
+    assert "accepts sensor_msgs/msg/Imu" in text
+    for found in ("/imu", "/gps", "/laser/a", "/wheels"):
+        assert found in text
+    assert "\n" not in text
+    assert not list(ws.logs_dir.rglob("*.parquet"))
+    assert not partial_files(ws.root)
 
 
 def test_one_of_several_lasers_missing_is_a_warning(tmp_path: Path, ws: Workspace) -> None:
@@ -574,9 +598,21 @@ def test_undecodable_payload_is_rejected(tmp_path: Path, ws: Workspace) -> None:
     assert_accounting(ws, result)
 
 
-def test_nothing_usable_is_a_stage_error(tmp_path: Path, ws: Workspace) -> None:
+def test_a_role_with_no_usable_message_is_a_warning(
+    tmp_path: Path, ws: Workspace, caplog: pytest.LogCaptureFixture
+) -> None:
     topics = [m for m in basic_topics() if m.topic != "/imu"]
     topics.append(imu(overrides={"linear_acceleration.x": np.full(200, np.nan)}))
+    log = write_log(tmp_path / "nan.mcap", topics)
+    with caplog.at_level(logging.WARNING, logger="toolkit"):
+        result = ingest_log(log, ws, make_config())
+    said = [r.getMessage() for r in caplog.records]
+    assert any("no usable message" in m and "200 rejected (non_finite)" in m for m in said)
+    assert result.row_counts["imu"] == 0 and result.row_counts["gps"] == 20
+
+
+def test_nothing_usable_at_all_is_a_stage_error(tmp_path: Path, ws: Workspace) -> None:
+    topics = [imu(overrides={"linear_acceleration.x": np.full(200, np.nan)})]
     log = write_log(tmp_path / "nan.mcap", topics)
     with pytest.raises(StageError, match=r"nothing usable.*imu.*200 rejected \(non_finite\)"):
         ingest_log(log, ws, make_config())
@@ -606,6 +642,25 @@ def test_rerun_is_up_to_date_and_overwrite_redoes(tmp_path: Path, ws: Workspace)
     assert redo.status == "ingested"
     after = _mtimes(log_dir(ws, first))
     assert all(after[name] != before[name] for name in before)
+
+
+def test_pose_tuning_leaves_ingest_up_to_date(tmp_path: Path, ws: Workspace) -> None:
+    """Ingest's identity covers what it reads ([topics], [time]), not the pose stage's
+    tuning: retuning the filter must not make every ingested log stale."""
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    config = make_config()
+    first = ingest_log(log, ws, config)
+    retuned = dataclasses.replace(
+        config, pose=dataclasses.replace(config.pose, heading_noise_rad=0.2, gate_chi2_gps=30.0)
+    )
+    ws.use_config(retuned, overwrite=True)
+    assert ingest_log(log, ws, retuned).status == "up_to_date"
+    other_time = dataclasses.replace(
+        retuned, time=dataclasses.replace(retuned.time, max_header_skew_ns=123_000_000)
+    )
+    ws.use_config(other_time, overwrite=True)
+    assert ingest_log(log, ws, other_time).status == "ingested"
+    assert first.status == "ingested"
 
 
 def test_missing_output_makes_the_log_not_up_to_date(tmp_path: Path, ws: Workspace) -> None:
@@ -740,15 +795,15 @@ def test_log_without_summary_ingests(tmp_path: Path, ws: Workspace) -> None:
 # --------------------------------------------------------------------------------------
 
 
-#: Why a corpus file is refused: it has no topic for the required roles, or no messages.
-CORPUS_REFUSALS = ("required role", "not an MCAP file", "nothing usable")
+#: Why a corpus file is refused: it has none of the configured topics, or no usable message.
+CORPUS_REFUSALS = ("none of the configured topics", "not an MCAP file", "nothing usable")
 
 
 def test_conformance_corpus_is_ingested_or_refused_clearly(
     tmp_path: Path, conformance_files: list[Path]
 ) -> None:
     """Every corpus file: ingested, or refused with one line naming the file. None holds ROS 2
-    sensor data, so each is refused (no topic for the required roles, or no readable file)."""
+    sensor data, so each is refused (none of the configured topics, or no readable file)."""
     ws = Workspace(tmp_path / "ws")
     outcomes: dict[str, str] = {}
     for path in conformance_files:

@@ -118,8 +118,20 @@ def test_no_gps_fix_is_a_stage_error(
     write_table(
         gps_path, bad, "gps", source_sha256=meta["source_sha256"], config_hash=meta["config_hash"]
     )
-    with pytest.raises(StageError, match="no valid GPS fix"):
+    with pytest.raises(StageError, match="pose needs roles the log lacks: gps .* no fix"):
         run_pose(ws, log_id, default_config())
+    empty = read_table(ws.log_table(log_id, "imu"), "imu").slice(0, 0)
+    meta = read_table_metadata(ws.log_table(log_id, "imu"))
+    write_table(
+        ws.log_table(log_id, "imu"),
+        empty,
+        "imu",
+        source_sha256=meta["source_sha256"],
+        config_hash=meta["config_hash"],
+    )
+    with pytest.raises(StageError) as err:  # every missing role named at once
+        run_pose(ws, log_id, default_config())
+    assert "imu (0 usable rows; accepts sensor_msgs/msg/Imu); gps (" in str(err.value)
 
 
 def test_no_compass_heading_from_gps_track(

@@ -115,6 +115,29 @@ def test_imu_values_and_non_finite_mask() -> None:
     assert rows.finite.tolist() == [True, False, False]
 
 
+def test_imu_reported_orientation_kept_only_when_given() -> None:
+    """REP 145: covariance[0] = -1 means no orientation; all-zero covariance is unknown."""
+    stamps = SEC * 10**9 + np.arange(4) * 10_000_000
+    cov = np.zeros((4, 9))
+    cov[0, [0, 4, 8]] = 0.01  # given, with its covariance
+    cov[1, 0] = -1.0  # no orientation
+    # row 2: zero covariance (unknown); row 3: a zero quaternion (nothing to use)
+    cols = {
+        **header(stamps, "imu_link"),
+        "linear_acceleration.z": [9.8] * 4,
+        "orientation.x": [0.0, 0.5, 0.0, 0.0],
+        "orientation.y": [0.0, 0.5, 0.0, 0.0],
+        "orientation.z": [0.6, 0.5, 0.0, 0.0],
+        "orientation.w": [0.8, 0.5, 2.0, 0.0],
+        "orientation_covariance": cov,
+    }
+    rows = convert("imu", "sensor_msgs/msg/Imu", cols)
+    assert col(rows, "orientation_z") == [0.6, None, 0.0, None]
+    assert col(rows, "orientation_w") == [0.8, None, 1.0, None]  # normalised
+    assert col(rows, "orientation_covariance") == [[0.01, 0.01, 0.01], None, None, None]
+    assert rows.finite.all()  # a missing orientation does not reject the sample
+
+
 def test_gps_values_status_covariance_and_no_fix() -> None:
     stamps = SEC * 10**9 + np.arange(3) * 100_000_000
     cov = np.zeros((3, 9))

@@ -59,7 +59,7 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from toolkit.config import REQUIRED_ROLES, PipelineConfig, config_hash
+from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import CdrError, LogReadError, SchemaError, StageError
 from toolkit.mcapio.cdr import decode_batch
 from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_text
@@ -223,40 +223,53 @@ def _decoder(topic: str, channel: Channel) -> Callable[[Sequence[bytes]], dict[s
     raise StageError(f"topic {topic}: no message definition for {name!r} in the log or toolkit")
 
 
+def _role_line(role: str, topics: Sequence[str]) -> str:
+    accepts = ", ".join(ROLE_SPECS[role].accepted_types)
+    return f"{role} ({', '.join(topics)}; accepts {accepts})"
+
+
 def resolve_topics(
     config: PipelineConfig, found: Mapping[str, Channel], log_path: Path
 ) -> tuple[dict[str, TopicPlan], dict[str, list[str]], list[str]]:
     """Plan every configured topic present in the log.
 
-    Returns (topic -> plan, role -> configured topics missing from the log, warnings).
-    A required role none of whose topics is in the log is a StageError naming the role, the
-    configured topics and the topics found; a message type the role does not accept is a
-    StageError naming topic, type and the accepted types.
+    Returns (topic -> plan, role -> configured topics missing from the log, warnings). Any
+    role may be missing: all missing roles are reported in one warning line, each with its
+    configured topics and the message types it accepts (their tables are written empty). A
+    log holding none of the configured topics is a StageError naming the topics it does
+    hold; a message type a role does not accept is a StageError naming topic, type and the
+    accepted types.
     """
     plans: dict[str, TopicPlan] = {}
     missing: dict[str, list[str]] = {}
     warnings: list[str] = []
-    found_list = ", ".join(sorted(found)) or "none"
-    for role, topics in config.topics.by_role().items():
+    wholly_missing: list[str] = []
+    by_role = config.topics.by_role()
+    for role, topics in by_role.items():
         absent = [t for t in topics if t not in found]
         if absent:
             missing[role] = absent
         if len(absent) == len(topics):
-            if role in REQUIRED_ROLES:
-                raise StageError(
-                    f"required role {role}: configured topic(s) {', '.join(topics)} not in the "
-                    f"log (topics found: {found_list}); set [topics] {role} in the configuration",
-                    path=log_path,
-                )
-            warnings.append(
-                f"optional role {role}: topic {', '.join(topics)} not in the log; "
-                f"{'its table is empty' if role in SENSOR_TABLES else 'skipped'}"
-            )
+            wholly_missing.append(role)
         elif absent:
             warnings.append(f"role {role}: topic(s) {', '.join(absent)} not in the log")
         for topic in topics:
             if topic in found:
                 plans[topic] = plan_topic(topic, role, found[topic], config, log_path)
+    if not plans:
+        configured = "; ".join(_role_line(r, t) for r, t in by_role.items()) or "none"
+        raise StageError(
+            f"none of the configured topics is in the log (configured: {configured}; topics "
+            f"found: {', '.join(sorted(found)) or 'none'}); give a configuration for this "
+            "vehicle with -c",
+            path=log_path,
+        )
+    if wholly_missing:
+        warnings.insert(
+            0,
+            "roles missing from the log, their tables empty: "
+            + "; ".join(_role_line(r, by_role[r]) for r in wholly_missing),
+        )
     return plans, missing, warnings
 
 
@@ -439,6 +452,7 @@ class _Run:
         self.extra_plans: dict[tuple[str, str], TopicPlan] = {}
         self.timings: defaultdict[str, float] = defaultdict(float)
         self.outputs: list[str] = []
+        self.warnings: list[str] = []
 
     def _plan(self, batch: MessageBatch) -> TopicPlan | None:
         topic = batch.channel.topic
@@ -481,7 +495,7 @@ class _Run:
         for topic, by_reason in report.lost.items():
             if topic in self.accounts:
                 self.accounts[topic].lost = {k: int(v) for k, v in by_reason.items() if v}
-        _require_usable(self.accounts, self.log_path)
+        self.warnings = _usable_roles(self.accounts, self.log_path)
         t0 = time.perf_counter()
         for buffer in self.buffers.values():
             buffer.flush()
@@ -525,6 +539,12 @@ class _Run:
         return {
             "topics": {t: a.to_json() for t, a in sorted(self.accounts.items())},
             "missing_topics": dict(missing),
+            "missing_roles": sorted(
+                role
+                for role, topics in missing.items()
+                if len(topics) == len(self.config.topics.by_role()[role])
+            ),
+            "absent_roles": list(self.config.topics.absent_roles()),
             "used_index": report.used_index,
             "damage": _damage_json(report.damage),
             "unknown_lost_bytes": dict(report.unknown_lost_bytes),
@@ -547,7 +567,7 @@ def ingest_log(
     the same configuration and its outputs exist, nothing is rewritten and the status is
     ``"up_to_date"``; ``overwrite=True`` redoes it. Writes ``WS/config.toml`` if absent and
     refuses (ConfigError) a configuration other than the workspace's unless ``overwrite``.
-    Raises StageError when a required role is missing or nothing usable is in the log,
+    Raises StageError when none of the configured topics is in the log or nothing usable is,
     LogReadError when the file cannot be read at all. ``reorder_buffer_bytes`` bounds the
     rows each table holds back for sorting.
     """
@@ -599,6 +619,7 @@ def ingest_log(
             run.timings["read"] = time.perf_counter() - t_read - spent
             report = reader.report
         run.finish(report)
+        warnings += run.warnings
         run.mcap_metadata = report.metadata
         damage_warning = report.summary_line()  # the same line `terrain info` prints
         if damage_warning:
@@ -689,25 +710,33 @@ def _make_buffers(
     }
 
 
-def _require_usable(accounts: Mapping[str, TopicAccount], log_path: Path) -> None:
-    """StageError when a required role got no usable message at all."""
-    for role in REQUIRED_ROLES:
+def _usable_roles(accounts: Mapping[str, TopicAccount], log_path: Path) -> list[str]:
+    """Warnings for roles whose topics are in the log but gave no usable message; a
+    StageError when no role gave any (nothing usable in the log at all)."""
+    warnings: list[str] = []
+    roles = sorted({a.role for a in accounts.values()})
+    empty: list[str] = []
+    for role in roles:
         accs = [a for a in accounts.values() if a.role == role]
-        if accs and sum(a.written for a in accs) == 0:
-            read = sum(a.read for a in accs)
-            rejected: Counter[str] = Counter()
-            lost: Counter[str] = Counter()
-            for a in accs:
-                rejected.update(a.rejects)
-                lost.update(a.lost)
-            parts = [f"{read} read"]
-            parts += [f"{v} rejected ({k})" for k, v in sorted(rejected.items()) if v]
-            parts += [f"{v} lost ({k})" for k, v in sorted(lost.items()) if v]
-            raise StageError(
-                f"nothing usable: no message of required role {role} "
-                f"({', '.join(a.topic for a in accs)}: {', '.join(parts)})",
-                path=log_path,
-            )
+        if sum(a.written for a in accs) > 0:
+            continue
+        read = sum(a.read for a in accs)
+        rejected: Counter[str] = Counter()
+        lost: Counter[str] = Counter()
+        for a in accs:
+            rejected.update(a.rejects)
+            lost.update(a.lost)
+        parts = [f"{read} read"]
+        parts += [f"{v} rejected ({k})" for k, v in sorted(rejected.items()) if v]
+        parts += [f"{v} lost ({k})" for k, v in sorted(lost.items()) if v]
+        empty.append(f"{role} ({', '.join(a.topic for a in accs)}: {', '.join(parts)})")
+    if empty and len(empty) == len(roles):
+        raise StageError(
+            f"nothing usable: no message of any role ({'; '.join(empty)})", path=log_path
+        )
+    if empty:
+        warnings.append(f"no usable message, tables empty: {'; '.join(empty)}")
+    return warnings
 
 
 def _count_totals(accounts: Mapping[str, TopicAccount]) -> dict[str, int]:

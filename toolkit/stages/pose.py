@@ -19,9 +19,10 @@ low-rate GPS, compass and wheel-speed arrays are held whole.
 from __future__ import annotations
 
 import json
+import logging
 import time
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -43,6 +44,7 @@ from toolkit.fusion.estimator import (
 from toolkit.fusion.rotations import FloatArray, wrap_angle
 from toolkit.fusion.ukf import NoiseModel
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.mounts import Mount, sensor_mounts
 from toolkit.tableio import TableWriter, iter_table_batches, read_table
 from toolkit.workspace import (
     StageRecord,
@@ -51,9 +53,12 @@ from toolkit.workspace import (
     file_sha256,
 )
 
+_log = logging.getLogger(__name__)
+
 STAGE = "pose"
 INPUT_TABLES = ("imu", "gps", "heading", "wheels")
-CONFIG_SECTIONS = ("pose", "time")
+#: Configuration sections pose reads: the filter, timing, and the vehicle's mounts.
+CONFIG_SECTIONS = ("pose", "time", "vehicle")
 OUTPUT = "pose.parquet"
 #: Rows per IMU / truth read batch and per output row group.
 BATCH_ROWS = 4_096
@@ -69,17 +74,34 @@ class PoseResult:
     rows: int
     accuracy: dict[str, Any] | None
     seconds: float
+    heading_source: str = ""
+    accepted: dict[str, int] = field(default_factory=dict)
+    gated: dict[str, int] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
 
     def summary(self) -> str:
-        """One line for people."""
-        acc = ""
+        """One line for people: rows, what each sensor contributed, the heading's source,
+        and (simulated logs) the accuracy against truth."""
+        parts = [f"{self.rows} rows"]
+        sensors = sorted(self.accepted.keys() | self.gated.keys())
+        if sensors:
+            parts.append(
+                "accepted/gated "
+                + ", ".join(
+                    f"{k} {self.accepted.get(k, 0)}/{self.gated.get(k, 0)}" for k in sensors
+                )
+            )
+        if self.heading_source:
+            parts.append(f"heading from {self.heading_source}")
         if self.accuracy:
             a = self.accuracy
-            acc = (
-                f"; horizontal RMSE {a['horizontal_rmse_m']:.3f} m, roll/pitch/yaw RMSE "
+            parts.append(
+                f"horizontal RMSE {a['horizontal_rmse_m']:.3f} m, roll/pitch/yaw RMSE "
                 f"{a['roll_rmse_deg']:.3f}/{a['pitch_rmse_deg']:.3f}/{a['yaw_rmse_deg']:.3f} deg"
             )
-        return f"{self.log_id}: pose {self.status.replace('_', ' ')} ({self.rows} rows{acc})"
+        if self.warnings:
+            parts.append(f"{len(self.warnings)} warning(s)")
+        return f"{self.log_id}: pose {self.status.replace('_', ' ')} ({'; '.join(parts)})"
 
 
 def stage_config_hash(config: PipelineConfig) -> str:
@@ -88,30 +110,6 @@ def stage_config_hash(config: PipelineConfig) -> str:
 
 def _col(table: pa.Table, name: str) -> FloatArray:
     return np.asarray(table.column(name).to_numpy(zero_copy_only=False), dtype=np.float64)
-
-
-def _lever_arms(log_dir: Path) -> tuple[FloatArray, FloatArray, list[str]]:
-    """(GPS antenna from IMU, base_link origin from IMU), in base_link axes."""
-    imu = np.zeros(3)
-    gps = np.zeros(3)
-    warnings = []
-    path = log_dir / "tf_static.json"
-    found: dict[str, FloatArray] = {}
-    if path.is_file():
-        for tf in json.loads(path.read_text())["transforms"]:
-            if tf["parent_frame"] == "base_link":
-                found[tf["child_frame"]] = np.asarray(tf["translation_m"], dtype=np.float64)
-    imu_keys = [k for k in found if "imu" in k]
-    gps_keys = [k for k in found if "gps" in k]
-    if imu_keys:
-        imu = found[imu_keys[0]]
-    else:
-        warnings.append("no IMU mount in tf_static.json: IMU assumed at base_link")
-    if gps_keys:
-        gps = found[gps_keys[0]]
-    else:
-        warnings.append("no GPS antenna mount in tf_static.json: antenna assumed at base_link")
-    return gps - imu, -imu, warnings
 
 
 def _batches(path: Path, table: str, columns: list[str]) -> Iterator[pa.RecordBatch]:
@@ -126,18 +124,39 @@ def _last_t_ns(path: Path) -> int:
     return int(rg.column("t_ns")[-1].as_py())
 
 
+def _require_roles(
+    log_dir: Path, n_imu: int, n_fixes: int, n_gps: int, n_wheels: int, config: PipelineConfig
+) -> None:
+    """One StageError naming every role pose needs and the log lacks: the IMU drives the
+    filter, and a valid GPS fix places the log in the world."""
+    lacking = []
+    if n_imu < 2:
+        lacking.append(f"imu ({n_imu} usable rows; accepts sensor_msgs/msg/Imu)")
+    if n_fixes == 0:
+        lacking.append(
+            f"gps ({n_gps} rows, no fix with status >= {config.pose.gps_min_status}; accepts "
+            "sensor_msgs/msg/NavSatFix"
+            + ("" if n_wheels else "; nor wheel speeds to dead-reckon")
+            + ")"
+        )
+    if lacking:
+        raise StageError(f"pose needs roles the log lacks: {'; '.join(lacking)}", path=log_dir)
+
+
 def _sensor_data(
-    log_dir: Path, config: PipelineConfig
-) -> tuple[SensorData, GeodeticOrigin, list[str], Any, float, float]:
+    log_dir: Path, config: PipelineConfig, imu_mount: Mount
+) -> tuple[SensorData, GeodeticOrigin, list[str], Callable[[], Iterator[ImuWindow]], float, float]:
     """The low-rate sensors as arrays and a re-startable stream over the IMU.
+
+    The IMU's samples are turned into base_link axes by its mount's rotation (specific force
+    and rate are vectors: ``v_base = R v_imu``), so the filter's attitude is base_link's
+    whatever way the IMU is mounted.
 
     Returns (data without IMU arrays, origin, warnings, IMU window factory, last IMU time
     (s), nominal IMU period (s, the median interval of the first batch)).
     """
     imu_path = log_dir / "imu.parquet"
     n_imu = read_table(imu_path, "imu", columns=[]).num_rows  # checks the contract
-    if n_imu < 2:
-        raise StageError(f"imu table has {n_imu} rows", path=imu_path)
     gps = read_table(log_dir / "gps.parquet", "gps")
     head = read_table(log_dir / "heading.parquet", "heading")
     wheels = read_table(log_dir / "wheels.parquet", "wheels", columns=["t_ns", "speed"])
@@ -145,12 +164,7 @@ def _sensor_data(
     lat, lon, alt = _col(gps, "latitude"), _col(gps, "longitude"), _col(gps, "altitude")
     valid = (status >= config.pose.gps_min_status) & np.isfinite(lat) & np.isfinite(lon)
     valid &= np.isfinite(alt)
-    if not valid.any():
-        raise StageError(
-            f"no valid GPS fix in {gps.num_rows} GPS rows (status >= "
-            f"{config.pose.gps_min_status}): cannot place the log in the world",
-            path=log_dir / "gps.parquet",
-        )
+    _require_roles(log_dir, n_imu, int(valid.sum()), gps.num_rows, wheels.num_rows, config)
     first = int(np.flatnonzero(valid)[0])
     origin = GeodeticOrigin(float(lat[first]), float(lon[first]), float(alt[first]))
     first_batch = next(_batches(imu_path, "imu", ["t_ns"]))
@@ -165,6 +179,8 @@ def _sensor_data(
     def rel(table: pa.Table) -> FloatArray:
         return rel_ns(table.column("t_ns").to_numpy())
 
+    base_from_imu = imu_mount.rotation if imu_mount.is_rotated else None
+
     def imu_windows() -> Iterator[ImuWindow]:
         for b in _batches(imu_path, "imu", IMU_COLUMNS):
             t = rel_ns(b.column(0).to_numpy())
@@ -172,7 +188,10 @@ def _sensor_data(
                 np.asarray(b.column(i).to_numpy(zero_copy_only=False), np.float64)
                 for i in range(1, 7)
             ]
-            yield t, np.stack(cols[:3], axis=1), np.stack(cols[3:], axis=1)
+            accel, gyro = np.stack(cols[:3], axis=1), np.stack(cols[3:], axis=1)
+            if base_from_imu is not None:  # rows are vectors: (R v)^T = v^T R^T
+                accel, gyro = accel @ base_from_imu.T, gyro @ base_from_imu.T
+            yield t, accel, gyro
 
     gps_t = rel(gps)[valid]
     enu = geodetic_to_enu(lat[valid], lon[valid], alt[valid], origin)
@@ -381,20 +400,29 @@ def run_pose(
     if not overwrite and check_up_to_date(
         record, inputs=inputs, config_hash=cfg_hash, outputs=[out_path]
     ):
-        assert record is not None
-        acc = manifest.read().get("pose_accuracy")
+        header = manifest.read()
+        detail = header.get("pose") or {}
         return PoseResult(
             log_id,
             "up_to_date",
-            int(record.row_counts.get("pose", 0)),
-            acc,
+            int(record.row_counts.get("pose", 0)) if record is not None else 0,
+            header.get("pose_accuracy"),
             time.perf_counter() - start,
+            heading_source=str(detail.get("heading_source", "")),
+            accepted=dict(detail.get("accepted", {})),
+            gated=dict(detail.get("gated", {})),
         )
     timings: dict[str, float] = dict.fromkeys(("read", "filter", "write", "accuracy"), 0.0)
     t = time.perf_counter()
-    data, origin, warnings, imu_windows, t_end, period = _sensor_data(log_dir, config)
-    lever_gps, lever_axle, lw = _lever_arms(log_dir)
-    warnings += lw
+    mounts = sensor_mounts(tf_path, config.vehicle)
+    warnings = list(mounts.warnings)
+    data, origin, data_warnings, imu_windows, t_end, period = _sensor_data(
+        log_dir, config, mounts.imu
+    )
+    warnings += data_warnings
+    # Lever arms from the IMU, in base_link axes: to the antenna, and to base_link's origin.
+    lever_gps = mounts.gps.translation_m - mounts.imu.translation_m
+    lever_axle = -mounts.imu.translation_m
     sha = json.loads(json.dumps(manifest.read().get("source", {}))).get("sha256", "")
     origin_json = json.dumps(
         {
@@ -477,7 +505,19 @@ def run_pose(
             warnings=tuple(warnings),
         ),
     )
-    return PoseResult(log_id, "estimated", rows, accuracy, time.perf_counter() - start)
+    for warning in warnings:  # said on the terminal, not only in the manifest
+        _log.warning("%s: %s", log_id, warning)
+    return PoseResult(
+        log_id,
+        "estimated",
+        rows,
+        accuracy,
+        time.perf_counter() - start,
+        heading_source=est.heading_source,
+        accepted=dict(sorted(est.accepted.items())),
+        gated=dict(sorted(est.gated.items())),
+        warnings=tuple(warnings),
+    )
 
 
 __all__ = [

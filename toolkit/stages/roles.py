@@ -267,7 +267,13 @@ def euler_rates_zyx(
 
 
 def imu_from_imu(cols: Columns, log_time_ns: IntArray, ctx: ConvertContext) -> RoleRows:
-    """sensor_msgs/Imu -> t_ns, accel_* (m/s^2, IMU frame), gyro_* (rad/s)."""
+    """sensor_msgs/Imu -> t_ns, accel_* (m/s^2, IMU frame), gyro_* (rad/s), and the
+    orientation the IMU reports, if it reports one.
+
+    REP 145: ``orientation_covariance[0] == -1`` means the IMU gives no orientation (its
+    quaternion is then null here, and so is a non-finite or zero-length one); an all-zero
+    covariance means "unknown" (null covariance, orientation kept).
+    """
     t_ns, missing = stamp_times(cols, log_time_ns, ctx)
     data = {
         "accel_x": _f64(cols, "linear_acceleration.x"),
@@ -277,7 +283,24 @@ def imu_from_imu(cols: Columns, log_time_ns: IntArray, ctx: ConvertContext) -> R
         "gyro_y": _f64(cols, "angular_velocity.y"),
         "gyro_z": _f64(cols, "angular_velocity.z"),
     }
-    table = pa.table({"t_ns": t_ns, **data})
+    quat = np.stack([_f64(cols, f"orientation.{a}") for a in "xyzw"], axis=1)
+    cov = np.asarray(cols["orientation_covariance"], dtype=np.float64).reshape(-1, 9)
+    norm = np.linalg.norm(quat, axis=1)
+    no_orientation = (cov[:, 0] == -1.0) | ~np.isfinite(norm) | (norm < 1e-6)
+    quat = quat / np.where(no_orientation, 1.0, norm)[:, None]
+    diag = cov[:, [0, 4, 8]]
+    unknown_cov = no_orientation | ~np.isfinite(diag).all(axis=1) | (diag == 0.0).all(axis=1)
+    orientation = {
+        f"orientation_{a}": _nullable(quat[:, k], no_orientation) for k, a in enumerate("xyzw")
+    }
+    table = pa.table(
+        {
+            "t_ns": t_ns,
+            **data,
+            **orientation,
+            "orientation_covariance": _list_array(diag, pa.float64(), null=unknown_cov),
+        }
+    )
     return RoleRows(table, _finite(*data.values()), missing)
 
 
