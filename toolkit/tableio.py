@@ -513,6 +513,12 @@ class TableWriter:
             with contextlib.suppress(FileNotFoundError):
                 scratch.unlink()
 
+    @property
+    def finished_path(self) -> Path:
+        """The hidden file of a finished, not yet published table (to read it back)."""
+        self._require("finished")
+        return self._tmp
+
     def publish(self) -> Path:
         """Rename the finished file over the destination; returns the destination."""
         self._require("finished")

@@ -24,11 +24,13 @@ from scipy.spatial.transform import Rotation
 
 from toolkit.config import PipelineConfig, default_config, load_config, parse_config
 from toolkit.errors import ConfigError, StageError, ToolkitError
+from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.mcapio.cdr_encode import encode_batch
 from toolkit.mcapio.info import scan_log
 from toolkit.mcapio.writer import Batch, LogWriter, Record, merge_by_time
 from toolkit.stages.ingest import IngestResult, ingest_log
 from toolkit.stages.roles import ROLE_SPECS
+from toolkit.stages.truth import sim_origin
 from toolkit.tableio import read_table, read_table_metadata
 from toolkit.workspace import Workspace, file_sha256
 
@@ -316,7 +318,8 @@ def test_sample_log_truth_pose_agrees_with_wheels(
     )
     # The wheel encoders carry a few percent of scale error and noise.
     np.testing.assert_allclose(wheels.column("speed").to_numpy(), speed, rtol=0.1, atol=0.3)
-    assert read_table_metadata(ws.log_table(result.log_id, "truth_pose"))["frame_id"] == "enu"
+    meta = read_table_metadata(ws.log_table(result.log_id, "truth_pose"))
+    assert meta["frame_id"] == "enu_agreeing_fix"  # the pose's frame (see test_pose_mounts)
 
 
 # --------------------------------------------------------------------------------------
@@ -878,9 +881,22 @@ def test_sample_tables_equal_the_reference_decoder(
             np.asarray(m.ranges, dtype=np.float32),
         )
 
+    # The truth moves from the simulator's frame into the pose's (stages/truth.py): the
+    # decoded positions, moved through geodetic coordinates, to a micrometre.
     truth, msgs = table("truth_pose"), by_time(ref["/truth/odom"])
-    assert truth["x"] == [m.pose.pose.position.x for m in msgs]
-    assert truth["z"] == [m.pose.pose.position.z for m in msgs]
+    sim = sim_origin(json.loads((log_dir(ws, result) / "mcap_metadata.json").read_text()))
+    o = json.loads(read_table_metadata(ws.log_table(result.log_id, "truth_pose"))["enu_origin"])
+    assert sim is not None
+    xyz_sim = np.array([[getattr(m.pose.pose.position, a) for a in "xyz"] for m in msgs])
+    moved = geodetic_to_enu(
+        *enu_to_geodetic(xyz_sim, sim),
+        GeodeticOrigin(o["latitude_deg"], o["longitude_deg"], o["altitude_m"]),
+    )
+    np.testing.assert_allclose(truth["x"], moved[:, 0], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(truth["z"], moved[:, 2], rtol=0, atol=1e-6)
+    q = [m.pose.pose.orientation for m in msgs]
+    yaw = Rotation.from_quat([[o.x, o.y, o.z, o.w] for o in q]).as_euler("ZYX")[:, 0]
+    np.testing.assert_allclose(truth["yaw"], yaw, rtol=0, atol=1e-9)  # attitude kept
 
 
 def test_sample_log_mcap_metadata_is_kept(sample_ingest: tuple[Workspace, IngestResult]) -> None:

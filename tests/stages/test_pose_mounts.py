@@ -142,3 +142,26 @@ def test_a_wrongly_declared_mount_changes_the_pose(
         return
     pos, _ = _max_difference(read_table(copy.log_table(log_id, "pose"), "pose"), reference)
     assert pos > 1.0
+
+
+def test_truth_is_written_in_the_pose_frame(posed: tuple[Workspace, str, pa.Table]) -> None:
+    """truth_pose and pose share the frame (metadata and values): read side by side, their
+    differences are the filter's errors, which the manifest's accuracy reports."""
+    ws, log_id, pose = posed
+    truth_path = ws.log_table(log_id, "truth_pose")
+    truth_meta = read_table_metadata(truth_path)
+    pose_meta = read_table_metadata(ws.log_table(log_id, "pose"))
+    assert truth_meta["frame_id"] == pose_meta["frame_id"] == "enu_agreeing_fix"
+    assert json.loads(truth_meta["enu_origin"]) == json.loads(pose_meta["enu_origin"])
+    truth = read_table(truth_path, "truth_pose")
+    t = pose.column("t_ns").to_numpy()
+    tt = truth.column("t_ns").to_numpy()
+    inside = (t >= tt[0]) & (t <= tt[-1])
+    ex, ey = (
+        pose.column(c).to_numpy()[inside] - np.interp(t[inside], tt, truth.column(c).to_numpy())
+        for c in "xy"
+    )
+    rmse = float(np.sqrt(np.mean(ex**2 + ey**2)))
+    accuracy = ws.manifest(log_id).read()["pose_accuracy"]
+    assert rmse < 0.3
+    assert rmse == pytest.approx(accuracy["horizontal_rmse_m"], abs=1e-4)  # stored to 0.1 mm

@@ -68,6 +68,7 @@ from toolkit.progress import progress
 from toolkit.stages.dedup import DuplicateFilter
 from toolkit.stages.reorder import DEFAULT_REORDER_BUFFER_BYTES, ReorderBuffer
 from toolkit.stages.roles import ROLE_SPECS, ConvertContext, Converter, RoleRows
+from toolkit.stages.truth import sim_origin, truth_to_pose_frame
 from toolkit.tableio import TableWriter
 from toolkit.workspace import (
     StageRecord,
@@ -439,9 +440,14 @@ class _Run:
         buffers: dict[str, ReorderBuffer],
         config: PipelineConfig,
         log_path: Path,
+        *,
+        source_sha256: str,
+        cfg_hash: str,
     ) -> None:
         self.plans = plans
         self.buffers = buffers
+        self.source_sha256 = source_sha256
+        self.config_hash = cfg_hash
         self.writers = {name: b.writer for name, b in buffers.items()}
         self.config = config
         self.log_path = log_path
@@ -500,7 +506,37 @@ class _Run:
         for buffer in self.buffers.values():
             buffer.flush()
         self.outputs = [name for name, w in self.writers.items() if w.finish()]
+        if "truth_pose" in self.outputs:
+            self._truth_to_pose_frame()
         self.timings["finish"] = time.perf_counter() - t0
+
+    def _truth_to_pose_frame(self) -> None:
+        """Rewrite the finished truth table in the pose's frame (see stages/truth.py)."""
+        sim = sim_origin(self.mcap_metadata)
+        if sim is None:
+            self.warnings.append("truth_pose left in the simulator's frame: no terrain_sim origin")
+            return
+        old = self.writers["truth_pose"]
+        moved = TableWriter(
+            old.path,
+            "truth_pose",
+            source_sha256=self.source_sha256,
+            config_hash=self.config_hash,
+        )
+        try:
+            warning = truth_to_pose_frame(
+                old.finished_path, self.writers["gps"].finished_path, moved, sim
+            )
+            if warning is not None:
+                moved.abort()
+                self.warnings.append(warning)
+                return
+            moved.finish()
+        except BaseException:
+            moved.abort()
+            raise
+        old.abort()
+        self.writers["truth_pose"] = moved
 
     def commit(self, log_dir: Path) -> list[str]:
         """Publish the finished tables, then write the JSON outputs; the file names."""
@@ -611,16 +647,16 @@ def ingest_log(
                 config_hash=cfg_hash,
                 buffer_bytes=reorder_buffer_bytes,
             )
-            run = _Run(plans, buffers, config, log_path)
+            run = _Run(plans, buffers, config, log_path, source_sha256=sha256, cfg_hash=cfg_hash)
             t_read = time.perf_counter()
             for batch in progress(reader.batches(), desc=f"ingest {log_path.name}", unit="batch"):
                 run.consume(batch)
             spent = run.timings["decode_convert"] + run.timings["write"]
             run.timings["read"] = time.perf_counter() - t_read - spent
             report = reader.report
+        run.mcap_metadata = report.metadata
         run.finish(report)
         warnings += run.warnings
-        run.mcap_metadata = report.metadata
         damage_warning = report.summary_line()  # the same line `terrain info` prints
         if damage_warning:
             warnings.append(damage_warning)

@@ -33,6 +33,7 @@ import pyarrow.parquet as pq
 
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
+from toolkit.frames import ENU_FRAME_ID, choose_enu_origin
 from toolkit.fusion.estimator import (
     EstimateResult,
     FilterSettings,
@@ -45,7 +46,7 @@ from toolkit.fusion.rotations import FloatArray, wrap_angle
 from toolkit.fusion.ukf import NoiseModel
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.mounts import Mount, sensor_mounts
-from toolkit.tableio import TableWriter, iter_table_batches, read_table
+from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
 from toolkit.workspace import (
     StageRecord,
     Workspace,
@@ -165,8 +166,10 @@ def _sensor_data(
     valid = (status >= config.pose.gps_min_status) & np.isfinite(lat) & np.isfinite(lon)
     valid &= np.isfinite(alt)
     _require_roles(log_dir, n_imu, int(valid.sum()), gps.num_rows, wheels.num_rows, config)
-    first = int(np.flatnonzero(valid)[0])
-    origin = GeodeticOrigin(float(lat[first]), float(lon[first]), float(alt[first]))
+    chosen = choose_enu_origin(gps)
+    if chosen is None:  # pragma: no cover - _require_roles refused a log without a fix
+        raise StageError("no GPS fix to place the log in the world", path=log_dir)
+    origin = chosen[0]
     first_batch = next(_batches(imu_path, "imu", ["t_ns"]))
     t_first = np.asarray(first_batch.column(0).to_numpy(), dtype=np.int64)
     t0_ns = int(t_first[0])
@@ -262,7 +265,10 @@ class TruthAccuracy:
     """
 
     def __init__(self, truth_path: Path, sim: dict[str, Any], origin: GeodeticOrigin) -> None:
-        o = json.loads(sim["origin"])
+        # The truth's frame: ingest writes it in the pose's frame (its metadata says so);
+        # a table without that metadata is still in the simulator's own frame.
+        meta = read_table_metadata(truth_path)
+        o = json.loads(meta.get("enu_origin") or sim["origin"])
         self.sim_origin = GeodeticOrigin(o["latitude_deg"], o["longitude_deg"], o["altitude_m"])
         self.origin = origin
         read_table(truth_path, "truth_pose", columns=[])  # checks the contract
@@ -308,9 +314,10 @@ class TruthAccuracy:
         tt = np.asarray(truth.column("t_ns").to_numpy(), dtype=np.int64)
         tr = (tt - self.tt0).astype(np.float64)
         tq = tq[inside]
-        xyz_sim = np.stack([_col(truth, c) for c in "xyz"], axis=1)
-        lat, lon, alt = enu_to_geodetic(xyz_sim, self.sim_origin)
-        xyz = geodetic_to_enu(lat, lon, alt, self.origin)
+        xyz = np.stack([_col(truth, c) for c in "xyz"], axis=1)
+        if self.sim_origin != self.origin:
+            lat, lon, alt = enu_to_geodetic(xyz, self.sim_origin)
+            xyz = geodetic_to_enu(lat, lon, alt, self.origin)
 
         def at(v: FloatArray) -> FloatArray:
             return np.asarray(np.interp(tq, tr, v), dtype=np.float64)
@@ -450,7 +457,7 @@ def run_pose(
         "pose",
         source_sha256=sha,
         config_hash=cfg_hash,
-        extra_metadata={"enu_origin": origin_json, "frame_id": "enu_first_fix"},
+        extra_metadata={"enu_origin": origin_json, "frame_id": ENU_FRAME_ID},
     ) as writer:
         while True:
             t = time.perf_counter()
