@@ -358,3 +358,35 @@ def test_progress_draws_on_a_terminal(monkeypatch: pytest.MonkeyPatch) -> None:
 def test_quiet_flag_disables_progress(runner: CliRunner, tmp_path: Path) -> None:
     runner.invoke(main, ["-q", "info", str(tmp_path / "absent.mcap")])
     assert progress_mod._quiet is True
+
+
+# -- global flags after the verb, and multi-log verbs -----------------------------------------
+
+SAMPLE_LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "sample.mcap"
+
+
+def test_global_flags_work_after_the_verb(runner: CliRunner, tmp_path: Path) -> None:
+    result = runner.invoke(main, ["info", str(tmp_path / "absent.mcap"), "-q"])
+    assert result.exit_code == 1
+    assert progress_mod._quiet is True
+    result = runner.invoke(main, ["info", "--debug", str(tmp_path / "absent.mcap")])
+    assert result.exit_code == 1
+    assert "Traceback" in result.stderr and "LogReadError" in result.stderr
+    result = runner.invoke(main, ["info", str(tmp_path / "absent.mcap")])
+    assert "Traceback" not in result.stderr  # without the flag: one line
+    assert_one_error_line(result.stderr)
+
+
+def test_pose_carries_on_past_a_failing_log_and_exits_1(runner: CliRunner, tmp_path: Path) -> None:
+    ws = tmp_path / "ws"
+    copy = tmp_path / "other.mcap"
+    copy.write_bytes(SAMPLE_LOG.read_bytes()[:-1] + b"\x00")  # another log (another hash)
+    assert runner.invoke(main, ["ingest", str(SAMPLE_LOG), str(copy), "-w", str(ws)]).exit_code == 0
+    logs = sorted(p for p in (ws / "logs").iterdir())
+    assert len(logs) == 2
+    (logs[0] / "imu.parquet").unlink()  # the first log (in the order pose takes) fails
+    result = runner.invoke(main, ["pose", "-w", str(ws)])
+    assert result.exit_code == 1
+    assert f"{logs[0].name}: " in result.stderr and "imu.parquet" in result.stderr
+    assert (logs[1] / "pose.parquet").is_file()  # the other log was still posed
+    assert "pose: 2 logs: 1 estimated, 1 failed" in result.stdout

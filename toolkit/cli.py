@@ -11,6 +11,7 @@ heavy dependencies load only when it runs.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import sys
@@ -45,8 +46,50 @@ def _error_line(message: str) -> None:
     click.echo(f"{PROG}: error: {one_line}", err=True)
 
 
+def _late_global_flag(ctx: click.Context, param: click.Parameter, value: Any) -> None:
+    """-v/-q/--debug given after the verb (``terrain ingest -q ...``): same as before it."""
+    if not value:
+        return
+    root = ctx.find_root()
+    opts = root.obj if isinstance(root.obj, CliOptions) else CliOptions()
+    if param.name == "late_verbose":
+        opts = dataclasses.replace(opts, verbose=opts.verbose + int(value))
+    elif param.name == "late_quiet":
+        opts = dataclasses.replace(opts, quiet=True)
+    elif param.name == "late_debug":
+        opts = dataclasses.replace(opts, debug=True)
+    root.obj = opts
+    configure_logging(opts.verbose, opts.quiet, opts.debug)
+    set_quiet(opts.quiet)
+
+
+def _global_flags() -> list[click.Option]:
+    """The global flags, as options every verb also accepts (where users type them)."""
+
+    def flag(decls: list[str], **kind: Any) -> click.Option:
+        return click.Option(
+            decls,
+            expose_value=False,
+            is_eager=True,
+            callback=_late_global_flag,
+            help="As before the verb.",
+            **kind,
+        )
+
+    return [
+        flag(["-v", "--verbose", "late_verbose"], count=True),
+        flag(["-q", "--quiet", "late_quiet"], is_flag=True),
+        flag(["--debug", "late_debug"], is_flag=True),
+    ]
+
+
 class TerrainGroup(click.Group):
-    """A click group that maps the toolkit's errors to exit codes for all its commands."""
+    """A click group that maps the toolkit's errors to exit codes for all its commands, and
+    lets every command take the global flags after its name too."""
+
+    def add_command(self, cmd: click.Command, name: str | None = None) -> None:
+        cmd.params.extend(_global_flags())
+        super().add_command(cmd, name)
 
     def invoke(self, ctx: click.Context) -> Any:
         try:
@@ -322,6 +365,20 @@ def pose(workspace: Path, log_id: str | None, overwrite: bool) -> None:
     if not ids:
         click.echo(f"nothing to pose: no ingested log in {ws.root} (run `terrain ingest` first)")
         return
+    failed: list[str] = []
+    done: dict[str, int] = {}
     with ws.lock():
-        for one in ids:
-            click.echo(run_pose(ws, one, cfg, overwrite=overwrite).summary())
+        for one in ids:  # one log's failure never stops the others
+            try:
+                result = run_pose(ws, one, cfg, overwrite=overwrite)
+            except ToolkitError as exc:
+                _error_line(f"{one}: {exc}")
+                failed.append(one)
+                continue
+            click.echo(result.summary())
+            done[result.status] = done.get(result.status, 0) + 1
+    if len(ids) > 1 or failed:
+        parts = [f"{n} {status.replace('_', ' ')}" for status, n in sorted(done.items())]
+        click.echo(f"pose: {len(ids)} logs: {', '.join(parts + [f'{len(failed)} failed'])}")
+    if failed:
+        raise click.exceptions.Exit(1)

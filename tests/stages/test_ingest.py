@@ -574,6 +574,9 @@ def test_screening_nan_skew_no_fix_and_zero_speed(tmp_path: Path, ws: Workspace)
         "bad_payload": 0, "clock_skew": 1, "duplicate": 0, "non_finite": 4,
     }  # fmt: skip
     assert result.row_counts["imu"] == 195
+    # 5 of 200 (2.5 %) rejected: above 1 %, so said on the terminal with the reasons.
+    assert "topic /imu: 5 of 200 messages rejected (clock_skew 1, non_finite 4)" in result.warnings
+    assert not any("topic /gps:" in w for w in result.warnings)  # no fix is kept, not rejected
     assert info["/laser/a"]["counts"]["laser_no_return"] == 7
     assert sum(info["/laser/a"]["rejects"].values()) == 0
     laser_table = read(ws, result, "laser")

@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
+from toolkit.config import default_config
 from toolkit.sim.world import Route, TerrainWindow
 
 FloatArray = NDArray[np.floating[Any]]
@@ -34,6 +35,19 @@ class Mount:
         r, p, y = self.rpy_rad
         matrix: FloatArray = Rotation.from_euler("ZYX", [y, p, r]).as_matrix()
         return matrix
+
+
+def _vehicle_mount(which: str) -> Mount:
+    """The IMU's or GPS antenna's mount as the default configuration's ``[vehicle]`` gives it,
+    so the simulator writes into ``/tf_static`` exactly what the pose stage falls back to
+    when a log has none (one source for both)."""
+    v = default_config().vehicle
+    if which == "imu":
+        x, y, z = v.imu_position_m
+        roll, pitch, yaw = v.imu_orientation_rad
+        return Mount(v.imu_frame, (x, y, z), (roll, pitch, yaw))
+    x, y, z = v.gps_antenna_position_m
+    return Mount(v.gps_frame, (x, y, z))
 
 
 def laser_mounts(
@@ -77,7 +91,7 @@ class ImuParams:
     """A tactical-grade IMU at 100 Hz. Noise per sample; bias random walks per sqrt(s)."""
 
     rate_hz: float = 100.0
-    mount: Mount = Mount("imu_link", (0.0, 0.0, 0.9))
+    mount: Mount = field(default_factory=lambda: _vehicle_mount("imu"))
     accel_noise_mps2: float = 0.05
     gyro_noise_radps: float = 0.002
     accel_bias_initial_mps2: float = 0.05
@@ -96,7 +110,7 @@ class GpsParams:
     """
 
     rate_hz: float = 10.0
-    mount: Mount = Mount("gps_antenna", (0.6, 0.0, 2.1))
+    mount: Mount = field(default_factory=lambda: _vehicle_mount("gps"))
     horizontal_noise_m: float = 0.10
     vertical_noise_m: float = 0.20
     drift_std_m: float = 0.15

@@ -109,6 +109,9 @@ TF_STATIC_OUTPUT = "tf_static.json"
 #: Output name of the log's MCAP metadata records (record name -> key -> value).
 MCAP_METADATA_OUTPUT = "mcap_metadata.json"
 
+#: A topic rejecting more than this fraction of its messages is a warning on the terminal.
+REJECT_WARN_FRACTION = 0.01
+
 #: Reject reasons, in the order they are checked.
 REJECT_REASONS: tuple[str, ...] = ("duplicate", "bad_payload", "clock_skew", "non_finite")
 
@@ -502,6 +505,7 @@ class _Run:
             if topic in self.accounts:
                 self.accounts[topic].lost = {k: int(v) for k, v in by_reason.items() if v}
         self.warnings = _usable_roles(self.accounts, self.log_path)
+        self.warnings += _reject_warnings(self.accounts)
         t0 = time.perf_counter()
         for buffer in self.buffers.values():
             buffer.flush()
@@ -773,6 +777,18 @@ def _usable_roles(accounts: Mapping[str, TopicAccount], log_path: Path) -> list[
     if empty:
         warnings.append(f"no usable message, tables empty: {'; '.join(empty)}")
     return warnings
+
+
+def _reject_warnings(accounts: Mapping[str, TopicAccount]) -> list[str]:
+    """One warning per topic that rejected more than :data:`REJECT_WARN_FRACTION` of what it
+    read (with the count by reason): many rejects usually mean a wrong clock or config."""
+    lines = []
+    for topic, acc in sorted(accounts.items()):
+        rejected = sum(acc.rejects.values())
+        if acc.read and rejected > REJECT_WARN_FRACTION * acc.read:
+            reasons = ", ".join(f"{k} {v}" for k, v in sorted(acc.rejects.items()) if v)
+            lines.append(f"topic {topic}: {rejected} of {acc.read} messages rejected ({reasons})")
+    return lines
 
 
 def _count_totals(accounts: Mapping[str, TopicAccount]) -> dict[str, int]:
