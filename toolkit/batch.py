@@ -511,9 +511,10 @@ def run_ingest_batch(
 
     workspace = Workspace(workspace_root).create()
     config = _config_in_force(workspace, config_path)
-    # ingest_log's own rule (record the config, refuse another unless overwrite), applied
-    # once here so a mismatch fails the command once, not once per log.
-    workspace.use_config(config, overwrite=overwrite)
+    # ingest_log's own rule (refuse another config unless overwrite), checked once here so
+    # a mismatch fails the command once, not once per log; each ingest_log records the
+    # config only when it succeeds with it.
+    adopt_config = workspace.check_config(config, overwrite=overwrite)
     config_toml = dump_toml(config)
     task = functools.partial(
         ingest_task,
@@ -527,6 +528,8 @@ def run_ingest_batch(
     else:
         with make_executor(executor_kind, workers=workers, scheduler=scheduler) as opened:
             summary = run_batch(task, mine, opened, desc="ingest", unit="log")
+    if adopt_config and (summary.done or summary.up_to_date):
+        workspace.write_config(config)  # a config becomes the workspace's once it has worked
     if num_shards > 1:
         note = f"shard {shard_index} of {num_shards}: {len(mine)} of {len(unique)} logs"
         summary = dataclasses.replace(summary, notes=(note,))

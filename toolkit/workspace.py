@@ -532,21 +532,22 @@ class Workspace:
         self.create()
         atomic_write_text(self.config_path, dump_toml(cfg))
 
-    def use_config(self, cfg: PipelineConfig, *, overwrite: bool) -> None:
-        """Make ``cfg`` the configuration in force, or refuse one that differs from it.
+    def check_config(self, cfg: PipelineConfig, *, overwrite: bool) -> bool:
+        """Whether ``cfg`` must be recorded as the configuration in force once a stage has
+        succeeded with it (True: the workspace has none, or ``overwrite`` replaces another).
 
         A workspace holds the results of one configuration: a different one is a ConfigError
-        (naming both) unless ``overwrite``, which replaces it.
+        (naming both) unless ``overwrite``. Nothing is written here, so a configuration a
+        stage then fails with never becomes the workspace's.
         """
         if not self.config_path.is_file():
-            self.write_config(cfg)
-            return
+            return True
         with contextlib.suppress(OSError, UnicodeDecodeError):
             if self.config_path.read_text(encoding="utf-8") == dump_toml(cfg):
-                return  # the file this configuration writes: equal without parsing it
+                return False  # the file this configuration writes: equal without parsing it
         current = self.read_config()
         if current == cfg:
-            return
+            return False
         if not overwrite:
             raise ConfigError(
                 f"the workspace was set up with another configuration ({current.name}, "
@@ -554,7 +555,13 @@ class Workspace:
                 f"{config_hash(cfg)[:12]}); use a new workspace or --overwrite to replace it",
                 path=self.config_path,
             )
-        self.write_config(cfg)
+        return True
+
+    def use_config(self, cfg: PipelineConfig, *, overwrite: bool) -> None:
+        """:meth:`check_config`, then record ``cfg`` at once (for callers that have already
+        succeeded with it)."""
+        if self.check_config(cfg, overwrite=overwrite):
+            self.write_config(cfg)
 
     def is_up_to_date(
         self,

@@ -32,6 +32,7 @@ DAMAGE_REASONS = {
     "unsupported_compression",
     "bad_record",
     "unknown_channel",
+    "chunk_size",
 }
 
 
@@ -70,6 +71,12 @@ DAMAGES: dict[str, tuple[Damager, str]] = {
         "unsupported_compression",
     ),
     "chunk_length": (lambda d, c: _flip(d, c[2].chunk_start_offset + 8, 0x40), "bad_record"),
+    # The header's uncompressed_size (u64 after the message times) off by 64 bytes: the data
+    # decompresses and passes its CRC, so the chunk is read whole.
+    "chunk_size_field": (
+        lambda d, c: _flip(d, c[2].chunk_start_offset + 9 + 16, 0x40),
+        "chunk_size",
+    ),
 }
 
 
@@ -111,3 +118,45 @@ def test_reader_info_and_ingest_report_the_same_damage(tmp_path: Path, kind: str
     else:
         assert report.summary_line() in result.warnings
         assert info.damage_summary in result.warnings
+
+
+def test_misstated_chunk_size_loses_nothing(tmp_path: Path) -> None:
+    intact = write_log(tmp_path / "intact.mcap", basic_topics(), chunk_size=4 * 1024)
+    chunks = _chunks(intact)
+    damaged, _ = DAMAGES["chunk_size_field"]
+    path = tmp_path / "size.mcap"
+    path.write_bytes(damaged(intact.read_bytes(), chunks))
+    report = _read(path)
+    assert report.reasons() == {"chunk_size"} and report.lost == {}
+    assert report.messages_read == _read(intact).messages_read
+    assert "chunk_size" in scan_log(path, full=True).problem_kinds()
+
+
+def test_decompression_bomb_costs_bounded_memory(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A chunk whose zstd frame inflates past the chunk limit is refused, not inflated: here
+    a 64 MiB run of zeros against a limit lowered to 1 MiB, with no size in the frame."""
+    import zstandard
+
+    from toolkit.mcapio import reader
+
+    monkeypatch.setattr(reader, "MAX_CHUNK_BYTES", 1024 * 1024)
+    intact = write_log(tmp_path / "intact.mcap", basic_topics(), chunk_size=4 * 1024)
+    ci = _chunks(intact)[2]
+    bomb = zstandard.ZstdCompressor(write_content_size=False).compress(bytes(64 * 1024 * 1024))
+    data = intact.read_bytes()
+    start = _compressed_start(ci)
+    end = ci.chunk_start_offset + ci.chunk_length
+    # Keep the chunk's length consistent: the bomb replaces the compressed records.
+    head = bytearray(data[ci.chunk_start_offset : start])
+    head[1:9] = struct.pack("<Q", ci.chunk_length - 9 - (end - start) + len(bomb))
+    head[start - ci.chunk_start_offset - 8 : start - ci.chunk_start_offset] = struct.pack(
+        "<Q", len(bomb)
+    )
+    path = tmp_path / "bomb.mcap"
+    path.write_bytes(data[: ci.chunk_start_offset] + bytes(head) + bomb + data[end:])
+    report = _read(path)
+    bad = [d for d in report.damage if d.reason == "chunk_decompress"]
+    assert len(bad) == 1 and "chunk limit" in bad[0].detail
+    assert sum(report.messages_read.values()) > 0  # the other chunks were read

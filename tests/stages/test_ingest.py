@@ -911,3 +911,15 @@ def test_sample_log_mcap_metadata_is_kept(sample_ingest: tuple[Workspace, Ingest
     origin = json.loads(sim["origin"])
     assert set(origin) >= {"latitude_deg", "longitude_deg", "altitude_m"}
     assert json.loads(sim["gps_dropouts_ns"])  # the sample's scheduled 5 s dropout
+
+
+def test_config_becomes_the_workspace_s_only_after_success(tmp_path: Path, ws: Workspace) -> None:
+    """A first ingest that fails leaves no config, so a corrected one is not refused."""
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    wrong = make_config(lasers=["/scan"], imu="/x", gps="/y", heading="", wheels="")
+    with pytest.raises(StageError, match="none of the configured topics"):
+        ingest_log(log, ws, wrong)
+    assert not ws.config_path.exists()
+    right = make_config()
+    assert ingest_log(log, ws, right).status == "ingested"
+    assert ws.read_config() == right

@@ -53,6 +53,9 @@ Damage reasons (``Damage.reason``, and keys of ``ReadReport.lost`` / ``unknown_l
     than its fixed fields, reserved opcode 0, malformed Schema/Channel).
 ``unknown_channel``
     Message records on a channel id that no Channel record defines.
+``chunk_size``
+    a chunk's header misstates its uncompressed size, but its data decompresses (within
+    :data:`MAX_CHUNK_BYTES`) and passes the chunk's CRC: it is read whole. Loses nothing.
 
 Lost messages whose channel is never defined are counted under the topic key
 ``"<channel N>"`` (N the channel id), whether or not a topic filter is in force.
@@ -90,11 +93,14 @@ CHUNK_DECOMPRESS = "chunk_decompress"
 UNSUPPORTED_COMPRESSION = "unsupported_compression"
 BAD_RECORD = "bad_record"
 UNKNOWN_CHANNEL = "unknown_channel"
+CHUNK_SIZE = "chunk_size"
 
 #: Messages outside chunks are delivered in segments of about this many payload bytes.
 SEGMENT_BYTES = 4 * 1024 * 1024
-#: Largest uncompressed chunk believed (a corrupt size field must not allocate the machine).
-MAX_CHUNK_BYTES = 4 * 1024**3
+#: Largest decompressed chunk accepted. Writers cut chunks at a few MiB; a header or a
+#: compression frame claiming more is damage or a decompression bomb, and decompression stops
+#: here, so memory stays bounded whatever the file claims.
+MAX_CHUNK_BYTES = 256 * 1024**2
 
 _HEAD = struct.Struct("<BQ")  # every record: opcode u8, content length u64
 _FOOTER_BYTES = 9 + 20  # Footer: summary_start u64, summary_offset_start u64, summary_crc u32
@@ -535,44 +541,48 @@ def _chunk_fields(record: bytes, length: int) -> tuple[str, int, int, bytes]:
     rlen = struct.unpack_from("<Q", record, at)[0]
     if at + 8 + rlen > length:
         raise _MalformedError(BAD_RECORD, f"Chunk records ({rlen} bytes) overrun the record")
-    if usize > MAX_CHUNK_BYTES:
-        raise _MalformedError(BAD_RECORD, f"implausible Chunk uncompressed_size {usize}")
     return compression, usize, crc, record[at + 8 : at + 8 + rlen]
 
 
-def _decompress(
-    compression: str, data: bytes, usize: int, zstd: zstandard.ZstdDecompressor
-) -> bytes:
-    """The chunk's records, exactly ``usize`` bytes; raises _MalformedError."""
-    out: Any
+def _too_big(what: str, n: int | str) -> _MalformedError:
+    return _MalformedError(
+        CHUNK_DECOMPRESS, f"{what} {n} bytes, more than the {MAX_CHUNK_BYTES} byte chunk limit"
+    )
+
+
+def _decompress(compression: str, data: bytes, zstd: zstandard.ZstdDecompressor) -> bytes:
+    """The chunk's records, at most :data:`MAX_CHUNK_BYTES` of them whatever the frame or the
+    header claims; raises _MalformedError. The caller compares the length with the header."""
     if compression == "":
-        out = data
-    elif compression == "zstd":
+        return data
+    if compression == "zstd":
         try:
             declared = zstandard.frame_content_size(data)
-            if declared not in (-1, usize):
-                raise _MalformedError(
-                    CHUNK_DECOMPRESS, f"zstd frame declares {declared} bytes, the chunk {usize}"
-                )
-            out = zstd.decompress(data, max_output_size=max(usize, 1))
+            if declared > MAX_CHUNK_BYTES:
+                raise _too_big("zstd frame declares", declared)
+            if declared >= 0:  # a known size within the limit: one allocation
+                return bytes(zstd.decompress(data, max_output_size=max(declared, 1)))
+            # No size in the frame: stream at most one byte past the limit, so a bomb costs
+            # the limit and is named as one.
+            with zstd.stream_reader(io.BytesIO(data)) as stream:
+                out = stream.read(MAX_CHUNK_BYTES + 1)
         except zstandard.ZstdError as exc:
             raise _MalformedError(CHUNK_DECOMPRESS, f"zstd: {exc}") from exc
-    elif compression == "lz4":
+        if len(out) > MAX_CHUNK_BYTES:
+            raise _too_big("zstd frame holds over", MAX_CHUNK_BYTES)
+        return bytes(out)
+    if compression == "lz4":
         try:
-            declared = lz4.frame.get_frame_info(data).get("content_size") or usize
-            if declared != usize:
-                raise _MalformedError(
-                    CHUNK_DECOMPRESS, f"lz4 frame declares {declared} bytes, the chunk {usize}"
-                )
-            out = lz4.frame.decompress(data)
+            lz4d = lz4.frame.LZ4FrameDecompressor()
+            out = lz4d.decompress(data, max_length=MAX_CHUNK_BYTES)
+            if not lz4d.eof:
+                if len(out) >= MAX_CHUNK_BYTES:
+                    raise _too_big("lz4 frame holds over", MAX_CHUNK_BYTES)
+                raise _MalformedError(CHUNK_DECOMPRESS, "lz4: the frame ends early")
         except (RuntimeError, ValueError, TypeError) as exc:
             raise _MalformedError(CHUNK_DECOMPRESS, f"lz4: {exc}") from exc
-    else:
-        raise _MalformedError(UNSUPPORTED_COMPRESSION, f"unsupported compression {compression!r}")
-    if not isinstance(out, bytes) or len(out) != usize:
-        got = len(out) if isinstance(out, bytes) else "no"
-        raise _MalformedError(CHUNK_DECOMPRESS, f"decompressed to {got} bytes, not {usize}")
-    return out
+        return bytes(out)
+    raise _MalformedError(UNSUPPORTED_COMPRESSION, f"unsupported compression {compression!r}")
 
 
 def _decompress_prefix(compression: str, data: bytes, zstd: zstandard.ZstdDecompressor) -> bytes:
@@ -848,8 +858,20 @@ class _Walk:
         try:
             compression, usize, crc, data = _chunk_fields(window, 9 + length)
             self.report.compression.add(compression or "none")
-            records = _decompress(compression, data, usize, self.zstd)
-            if crc and zlib.crc32(records) != crc:
+            records = _decompress(compression, data, self.zstd)
+            intact = crc != 0 and zlib.crc32(records) == crc
+            if len(records) != usize:
+                if not intact:  # nothing vouches for data whose size the header contradicts
+                    raise _MalformedError(
+                        CHUNK_DECOMPRESS, f"decompressed to {len(records)} bytes, not {usize}"
+                    )
+                self.damage(
+                    CHUNK_SIZE,
+                    pos,
+                    f"chunk at offset {pos}: its header says {usize} bytes uncompressed, its "
+                    f"data holds {len(records)} and passes the chunk's CRC: read whole",
+                )
+            elif crc and not intact:
                 raise _MalformedError(CHUNK_CRC, f"records fail the chunk's CRC {crc:#010x}")
         except _MalformedError as exc:
             self.damage(exc.reason, pos, f"chunk at offset {pos} skipped: {exc.detail}")
@@ -1217,6 +1239,7 @@ __all__ = [
     "BAD_RECORD",
     "CHUNK_CRC",
     "CHUNK_DECOMPRESS",
+    "CHUNK_SIZE",
     "NO_SUMMARY",
     "SEGMENT_BYTES",
     "TRUNCATED",

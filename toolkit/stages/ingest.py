@@ -605,8 +605,9 @@ def ingest_log(
 
     Idempotent: when the manifest records an ingest of the same log content (sha256) under
     the same configuration and its outputs exist, nothing is rewritten and the status is
-    ``"up_to_date"``; ``overwrite=True`` redoes it. Writes ``WS/config.toml`` if absent and
-    refuses (ConfigError) a configuration other than the workspace's unless ``overwrite``.
+    ``"up_to_date"``; ``overwrite=True`` redoes it. Refuses (ConfigError) a configuration other
+    than the workspace's unless ``overwrite``, and records it as ``WS/config.toml`` only once
+    it has succeeded (a failed first ingest leaves no configuration behind).
     Raises StageError when none of the configured topics is in the log or nothing usable is,
     LogReadError when the file cannot be read at all. ``reorder_buffer_bytes`` bounds the
     rows each table holds back for sorting.
@@ -618,7 +619,7 @@ def ingest_log(
     sha256 = file_sha256(log_path)
     log_id = make_log_id(log_path.stem, sha256)
     workspace.create()
-    workspace.use_config(config, overwrite=overwrite)
+    adopt_config = workspace.check_config(config, overwrite=overwrite)
     cfg_hash = stage_config_hash(config)
     log_dir = workspace.log_dir(log_id)
     manifest = workspace.manifest(log_id)
@@ -628,6 +629,8 @@ def ingest_log(
         outputs = [log_dir / o for o in record.outputs]
         if check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=outputs):
             _log.info("%s: up to date (%s)", log_path, log_id)
+            if adopt_config:
+                workspace.write_config(config)
             return _result_from_record(
                 log_path,
                 log_id,
@@ -698,6 +701,8 @@ def ingest_log(
             warnings=tuple(warnings),
         ),
     )
+    if adopt_config:  # only now, having succeeded with it, is it the workspace's
+        workspace.write_config(config)
     result = IngestResult(
         log_path=log_path,
         log_id=log_id,
