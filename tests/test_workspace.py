@@ -24,6 +24,7 @@ from toolkit.workspace import (
     atomic_write_json,
     atomic_write_text,
     check_up_to_date,
+    digest_files,
     file_sha256,
     log_id_for,
     make_log_id,
@@ -200,6 +201,9 @@ def test_check_up_to_date(tmp_path: Path) -> None:
     missing = check_up_to_date(rec, inputs=inputs, config_hash="cc" * 32, outputs=[out])
     assert not missing and "missing" in missing.reason
     out.write_bytes(b"x")
+    unverified = check_up_to_date(rec, inputs=inputs, config_hash="cc" * 32, outputs=[out])
+    assert not unverified and "no record of what was written" in unverified.reason
+    rec = _record(output_files=digest_files(tmp_path, ["imu.parquet"]))
     assert check_up_to_date(rec, inputs=inputs, config_hash="cc" * 32, outputs=[out])
     changed = check_up_to_date(rec, inputs={"log": "bb" * 32}, config_hash="cc" * 32, outputs=[out])
     assert not changed and "log" in changed.reason
@@ -207,6 +211,19 @@ def test_check_up_to_date(tmp_path: Path) -> None:
     assert not check_up_to_date(rec, inputs=extra, config_hash="cc" * 32, outputs=[out])
     cfg = check_up_to_date(rec, inputs=inputs, config_hash="ee" * 32, outputs=[out])
     assert not cfg and "configuration" in cfg.reason
+    out.write_bytes(b"y")  # same size, other bytes: not what the stage wrote
+    changed_output = check_up_to_date(rec, inputs=inputs, config_hash="cc" * 32, outputs=[out])
+    assert not changed_output and "output changed" in changed_output.reason
+    out.write_bytes(b"")  # truncated
+    assert not check_up_to_date(rec, inputs=inputs, config_hash="cc" * 32, outputs=[out])
+
+
+def test_stage_record_keeps_output_digests_through_json(tmp_path: Path) -> None:
+    (tmp_path / "imu.parquet").write_bytes(b"abc")
+    rec = _record(output_files=digest_files(tmp_path, ["imu.parquet"]))
+    back = StageRecord.from_json(rec.to_json())
+    assert back.output_files == rec.output_files
+    assert back.output_files["imu.parquet"].size_bytes == 3
 
 
 def test_workspace_is_up_to_date_uses_log_manifest(tmp_path: Path) -> None:
@@ -214,8 +231,10 @@ def test_workspace_is_up_to_date_uses_log_manifest(tmp_path: Path) -> None:
     out = ws.log_table("L1", "imu")
     kwargs = {"inputs": {"log": "aa" * 32}, "config_hash": "cc" * 32, "outputs": [out]}
     assert not ws.is_up_to_date("ingest", log_id="L1", **kwargs)  # type: ignore[arg-type]
-    ws.manifest("L1").record_stage("ingest", _record())
     atomic_write_bytes(out, b"parquet")
+    ws.manifest("L1").record_stage(
+        "ingest", _record(output_files=digest_files(out.parent, ["imu.parquet"]))
+    )
     assert ws.is_up_to_date("ingest", log_id="L1", **kwargs)  # type: ignore[arg-type]
     assert not ws.is_up_to_date("ingest", log_id=None, **kwargs)  # type: ignore[arg-type]
 

@@ -164,13 +164,42 @@ def _now_utc() -> str:
 
 
 @dataclass(frozen=True)
+class FileDigest:
+    """A file's size and sha256, as a stage wrote it."""
+
+    size_bytes: int
+    sha256: str
+
+    @classmethod
+    def of(cls, path: Path) -> FileDigest:
+        """The digest of the file at ``path`` now."""
+        return cls(path.stat().st_size, file_sha256(path))
+
+    def to_json(self) -> dict[str, Any]:
+        """A JSON-ready dict."""
+        return {"bytes": self.size_bytes, "sha256": self.sha256}
+
+    @classmethod
+    def from_json(cls, obj: Mapping[str, Any]) -> FileDigest:
+        """Inverse of :meth:`to_json`."""
+        return cls(int(obj["bytes"]), str(obj["sha256"]))
+
+
+def digest_files(directory: Path, names: Iterable[str]) -> dict[str, FileDigest]:
+    """name -> digest of each named file in ``directory`` (a stage's outputs, once written)."""
+    return {name: FileDigest.of(directory / name) for name in names}
+
+
+@dataclass(frozen=True)
 class StageRecord:
     """What one stage run used and produced, as kept in a manifest.
 
     ``inputs`` maps an input's name (a table name, or ``"log"``) to its sha256;
     ``outputs`` lists output paths relative to the manifest's directory (or the workspace
     root for workspace-level stages); ``row_counts`` is rows per output table;
-    ``rejects`` counts dropped records by reason; ``timings_s`` seconds per step.
+    ``rejects`` counts dropped records by reason; ``timings_s`` seconds per step;
+    ``output_files`` the size and sha256 of every output as written, so "up to date" can
+    mean "the outputs are still what this run wrote" (:func:`check_up_to_date`).
     """
 
     inputs: Mapping[str, str]
@@ -182,6 +211,7 @@ class StageRecord:
     warnings: tuple[str, ...] = ()
     toolkit_version: str = ""
     finished_utc: str = ""
+    output_files: Mapping[str, FileDigest] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready dict."""
@@ -195,6 +225,7 @@ class StageRecord:
             "warnings": list(self.warnings),
             "toolkit_version": self.toolkit_version,
             "finished_utc": self.finished_utc,
+            "output_files": {k: v.to_json() for k, v in self.output_files.items()},
         }
 
     @classmethod
@@ -210,6 +241,9 @@ class StageRecord:
             warnings=tuple(str(w) for w in obj.get("warnings", ())),
             toolkit_version=str(obj.get("toolkit_version", "")),
             finished_utc=str(obj.get("finished_utc", "")),
+            output_files={
+                str(k): FileDigest.from_json(v) for k, v in obj.get("output_files", {}).items()
+            },
         )
 
 
@@ -328,11 +362,13 @@ def check_up_to_date(
     config_hash: str,
     outputs: Iterable[str | Path],
 ) -> Freshness:
-    """A stage is current when every output exists and its record has the same inputs
-    (names and hashes) and the same config hash."""
+    """A stage is current when its record has the same inputs (names and hashes) and the
+    same config hash, and every output exists and is still, in size and sha256, the file that
+    run wrote: a truncated, overwritten or half-copied output makes the stage run again."""
     if record is None:
         return Freshness(False, "never ran")
-    missing = [str(p) for p in outputs if not Path(p).exists()]
+    paths = [Path(p) for p in outputs]
+    missing = [str(p) for p in paths if not p.exists()]
     if missing:
         return Freshness(False, f"output missing: {missing[0]}")
     old, new = dict(record.inputs), dict(inputs)
@@ -341,6 +377,12 @@ def check_up_to_date(
         return Freshness(False, f"inputs changed: {', '.join(changed)}")
     if record.config_hash != config_hash:
         return Freshness(False, "configuration changed")
+    for path in paths:
+        written = record.output_files.get(path.name)
+        if written is None:
+            return Freshness(False, f"no record of what was written to {path.name}")
+        if path.stat().st_size != written.size_bytes or file_sha256(path) != written.sha256:
+            return Freshness(False, f"output changed since it was written: {path.name}")
     return Freshness(True, "up to date")
 
 

@@ -669,6 +669,24 @@ def test_pose_tuning_leaves_ingest_up_to_date(tmp_path: Path, ws: Workspace) -> 
     assert first.status == "ingested"
 
 
+@pytest.mark.parametrize("damage", ["truncate", "same_size_other_bytes"])
+def test_a_changed_output_makes_the_log_not_up_to_date(
+    tmp_path: Path, ws: Workspace, damage: str
+) -> None:
+    """ "Up to date" means the outputs are what the last ingest wrote, not that they exist."""
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    first = ingest_log(log, ws, make_config())
+    imu = ws.log_table(first.log_id, "imu")
+    data = imu.read_bytes()
+    if damage == "truncate":
+        imu.write_bytes(data[:1000])
+    else:
+        imu.write_bytes(data[:-9] + bytes(b ^ 0xFF for b in data[-9:-8]) + data[-8:])
+    again = ingest_log(log, ws, make_config())
+    assert again.status == "ingested"
+    assert imu.read_bytes() == data
+
+
 def test_missing_output_makes_the_log_not_up_to_date(tmp_path: Path, ws: Workspace) -> None:
     log = write_log(tmp_path / "log.mcap", basic_topics())
     first = ingest_log(log, ws, make_config())

@@ -75,6 +75,7 @@ from toolkit.workspace import (
     Workspace,
     atomic_write_json,
     check_up_to_date,
+    digest_files,
     file_sha256,
     make_log_id,
 )
@@ -699,6 +700,7 @@ def ingest_log(
             rejects=dict(sorted(rejects_total.items())),
             timings_s={k: round(v, 6) for k, v in sorted(run.timings.items())},
             warnings=tuple(warnings),
+            output_files=digest_files(log_dir, out_files),
         ),
     )
     if adopt_config:  # only now, having succeeded with it, is it the workspace's

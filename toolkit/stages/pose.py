@@ -51,6 +51,7 @@ from toolkit.workspace import (
     StageRecord,
     Workspace,
     check_up_to_date,
+    digest_files,
     file_sha256,
 )
 
@@ -510,6 +511,7 @@ def run_pose(
             rejects={f"gated_{k}": v for k, v in sorted(est.gated.items())},
             timings_s={k: round(v, 6) for k, v in sorted(timings.items())},
             warnings=tuple(warnings),
+            output_files=digest_files(log_dir, (OUTPUT,)),
         ),
     )
     for warning in warnings:  # said on the terminal, not only in the manifest
