@@ -23,11 +23,12 @@ from mcap.reader import make_reader
 from scipy.spatial.transform import Rotation
 
 from toolkit.config import PipelineConfig, default_config, load_config, parse_config
-from toolkit.errors import ConfigError, StageError, ToolkitError
+from toolkit.errors import ConfigError, LogReadError, StageError, ToolkitError
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.mcapio.cdr_encode import encode_batch
 from toolkit.mcapio.info import scan_log
 from toolkit.mcapio.writer import Batch, LogWriter, Record, merge_by_time
+from toolkit.stages import ingest as ingest_mod
 from toolkit.stages.ingest import IngestResult, ingest_log
 from toolkit.stages.roles import ROLE_SPECS
 from toolkit.stages.truth import sim_origin
@@ -571,7 +572,7 @@ def test_screening_nan_skew_no_fix_and_zero_speed(tmp_path: Path, ws: Workspace)
     result = ingest_log(log, ws, make_config())
     info = detail(ws, result)["topics"]
     assert info["/imu"]["rejects"] == {
-        "bad_payload": 0, "clock_skew": 1, "duplicate": 0, "non_finite": 4,
+        "bad_payload": 0, "bad_time": 0, "clock_skew": 1, "duplicate": 0, "non_finite": 4,
     }  # fmt: skip
     assert result.row_counts["imu"] == 195
     # 5 of 200 (2.5 %) rejected: above 1 %, so said on the terminal with the reasons.
@@ -941,3 +942,37 @@ def test_config_becomes_the_workspace_s_only_after_success(tmp_path: Path, ws: W
     right = make_config()
     assert ingest_log(log, ws, right).status == "ingested"
     assert ws.read_config() == right
+
+
+def test_a_log_time_beyond_int64_never_becomes_a_row(tmp_path: Path, ws: Workspace) -> None:
+    """A message logged at 2^64-1 ns with a zero header stamp would be t_ns = -1."""
+    topics = basic_topics()
+    stray = msgs("/imu", "sensor_msgs/msg/Imu", np.zeros(1, dtype=np.int64), {})
+    records = list(merge_by_time(Batch(m.topic, m.log_t, m.payloads) for m in topics))
+    records.append(Record("/imu", 2**64 - 1, stray.payloads[0], 2**64 - 1))
+    log = write_log(tmp_path / "stray.mcap", topics, records=records)
+    result = ingest_log(log, ws, make_config())
+    assert result.rejects["/imu"] == {"bad_time": 1}
+    imu_t = read(ws, result, "imu").column("t_ns").to_numpy()
+    assert imu_t.min() >= 0 and len(imu_t) == 200
+    assert_accounting(ws, result)
+
+
+def test_a_log_rewritten_while_read_is_refused(
+    tmp_path: Path, ws: Workspace, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The recorded sha256 must describe the bytes read: a log appended to mid-read is
+    refused (and leaves nothing) rather than recorded under its old hash."""
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    real = ingest_mod.LogReader.batches
+
+    def batches_then_append(self: Any) -> Any:
+        yield from real(self)
+        with log.open("ab") as f:
+            f.write(b"more")
+
+    monkeypatch.setattr(ingest_mod.LogReader, "batches", batches_then_append)
+    with pytest.raises(LogReadError, match="changed while it was read"):
+        ingest_log(log, ws, make_config())
+    assert not list(ws.logs_dir.rglob("*.parquet"))
+    assert not partial_files(ws.root)

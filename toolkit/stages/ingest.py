@@ -14,6 +14,8 @@ this order:
 - ``duplicate``: same topic, same log time and the same payload bytes as a message already seen
   (within :data:`DUPLICATE_WINDOW_NS` of log time, which covers a repeated chunk or record);
 - ``bad_payload``: the payload does not decode as the channel's message type;
+- ``bad_time``: the message's time (stamp, or log time when the stamp is zero) is negative
+  as int64 nanoseconds: a time beyond 2^63 ns or a corrupt one;
 - ``clock_skew``: the corrected header stamp is more than ``time.max_header_skew_ns`` from the
   log time;
 - ``non_finite``: NaN/inf where a value must be finite (imu, wheels, heading, laser angles, a GPS
@@ -114,7 +116,13 @@ MCAP_METADATA_OUTPUT = "mcap_metadata.json"
 REJECT_WARN_FRACTION = 0.01
 
 #: Reject reasons, in the order they are checked.
-REJECT_REASONS: tuple[str, ...] = ("duplicate", "bad_payload", "clock_skew", "non_finite")
+REJECT_REASONS: tuple[str, ...] = (
+    "duplicate",
+    "bad_payload",
+    "bad_time",
+    "clock_skew",
+    "non_finite",
+)
 
 
 # --------------------------------------------------------------------------------------
@@ -365,11 +373,14 @@ def convert_batch(
     rows: RoleRows = plan.convert(cols, log_t, plan.context)
     keep = rows.finite.copy()
     if rows.message_of_row is None:
-        skew = np.abs(rows.t_ns - log_t) > max_skew_ns
-        skew &= ~rows.stamp_missing
+        # A time before 1970 comes only from a log time or stamp beyond int64 (2^63 ns) or a
+        # corrupt one: no row may carry it (it would sort first and stretch the log).
+        bad_time = rows.t_ns < 0
+        account.rejects["bad_time"] += int(bad_time.sum())
+        skew = (np.abs(rows.t_ns - log_t) > max_skew_ns) & ~rows.stamp_missing & ~bad_time
         account.rejects["clock_skew"] += int(skew.sum())
-        keep &= ~skew
-        account.rejects["non_finite"] += int((~rows.finite & ~skew).sum())
+        keep &= ~skew & ~bad_time
+        account.rejects["non_finite"] += int((~rows.finite & ~skew & ~bad_time).sum())
     else:
         account.rejects["non_finite"] += int((~rows.finite).sum())
     account.counts["stamp_missing"] += int((rows.stamp_missing & keep).sum())
@@ -617,6 +628,7 @@ def ingest_log(
     log_path = Path(log_path)
     if not log_path.is_file():
         raise LogReadError("no such log file", path=log_path)
+    before = _identity(log_path)
     sha256 = file_sha256(log_path)
     log_id = make_log_id(log_path.stem, sha256)
     workspace.create()
@@ -662,6 +674,12 @@ def ingest_log(
             spent = run.timings["decode_convert"] + run.timings["write"]
             run.timings["read"] = time.perf_counter() - t_read - spent
             report = reader.report
+        if _identity(log_path) != before:  # the hash must describe the bytes read
+            raise LogReadError(
+                "the log changed while it was read (size or modification time); ingest it "
+                "again once it is complete",
+                path=log_path,
+            )
         run.mcap_metadata = report.metadata
         run.finish(report)
         warnings += run.warnings
@@ -717,6 +735,12 @@ def ingest_log(
     )
     _log.info("%s", result.summary())
     return result
+
+
+def _identity(path: Path) -> tuple[int, int, int, int]:
+    """(device, inode, size, mtime ns): what changes when a file is rewritten or appended."""
+    st = path.stat()
+    return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
 
 
 def _configured_topics(config: PipelineConfig) -> list[str]:
