@@ -976,3 +976,36 @@ def test_a_log_rewritten_while_read_is_refused(
         ingest_log(log, ws, make_config())
     assert not list(ws.logs_dir.rglob("*.parquet"))
     assert not partial_files(ws.root)
+
+
+@pytest.mark.parametrize("offset_s", [300, 3 * 365 * 86400])
+def test_one_message_stamped_far_away_is_a_time_outlier(
+    tmp_path: Path, ws: Workspace, offset_s: int
+) -> None:
+    """One IMU message stamped 5 minutes or 3 years after the log's end (log time alike) is
+    rejected as time_outlier, not written as a row past the data."""
+    topics = basic_topics()
+    imu_msgs = next(m for m in topics if m.topic == "/imu")
+    late = int(imu_msgs.log_t[-1]) + offset_s * NS
+    stray = msgs("/imu", "sensor_msgs/msg/Imu", np.array([late]), {})
+    records = list(merge_by_time(Batch(m.topic, m.log_t, m.payloads) for m in topics))
+    records.append(Record("/imu", late, stray.payloads[0], late))
+    log = write_log(tmp_path / "late.mcap", topics, records=records)
+    result = ingest_log(log, ws, make_config())
+    assert result.rejects["/imu"] == {"time_outlier": 1}
+    imu_t = read(ws, result, "imu").column("t_ns").to_numpy()
+    assert len(imu_t) == 200 and imu_t.max() < late
+    assert_accounting(ws, result)
+
+
+def test_time_outliers_rule() -> None:
+    from toolkit.stages.ingest import time_outliers
+
+    t = np.arange(10_000, dtype=np.int64) * 10_000_000  # 100 s at 100 Hz
+    assert not time_outliers(t).any()
+    far = np.concatenate([[t[0] - 120 * NS], t, [t[-1] + 120 * NS] * 3])
+    drop = time_outliers(far)
+    assert drop[0] and drop[-3:].all() and drop.sum() == 4  # limit is max(2, 10) rows
+    # A long gap with plenty of data on both sides is a gap, not an outlier.
+    halves = np.concatenate([t, t + 200 * NS])
+    assert not time_outliers(halves).any()

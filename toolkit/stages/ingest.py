@@ -14,6 +14,9 @@ this order:
 - ``duplicate``: same topic, same log time and the same payload bytes as a message already seen
   (within :data:`DUPLICATE_WINDOW_NS` of log time, which covers a repeated chunk or record);
 - ``bad_payload``: the payload does not decode as the channel's message type;
+- ``time_outlier``: the row sits at one end of its (time-sorted) table, cut off from the rest
+  by more than a minute, in a group of at most 0.1 % of the rows: a stray stamp minutes to
+  years away (:func:`time_outliers`);
 - ``bad_time``: the message's time (stamp, or log time when the stamp is zero) is negative
   as int64 nanoseconds: a time beyond 2^63 ns or a corrupt one;
 - ``clock_skew``: the corrected header stamp is more than ``time.max_header_skew_ns`` from the
@@ -60,6 +63,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import CdrError, LogReadError, SchemaError, StageError
@@ -71,7 +75,7 @@ from toolkit.stages.dedup import DuplicateFilter
 from toolkit.stages.reorder import DEFAULT_REORDER_BUFFER_BYTES, ReorderBuffer
 from toolkit.stages.roles import ROLE_SPECS, ConvertContext, Converter, RoleRows
 from toolkit.stages.truth import sim_origin, truth_to_pose_frame
-from toolkit.tableio import TableWriter
+from toolkit.tableio import RESERVED_METADATA_KEYS, ROW_GROUP_ROWS, TableWriter
 from toolkit.workspace import (
     StageRecord,
     Workspace,
@@ -112,6 +116,35 @@ TF_STATIC_OUTPUT = "tf_static.json"
 #: Output name of the log's MCAP metadata records (record name -> key -> value).
 MCAP_METADATA_OUTPUT = "mcap_metadata.json"
 
+#: Time outliers: rows at a table's ends cut off from the rest by more than this gap...
+OUTLIER_GAP_NS = 60_000_000_000
+#: ...and no more than this fraction of its rows (or OUTLIER_MIN_ROWS, if more).
+OUTLIER_MAX_FRACTION = 0.001
+OUTLIER_MIN_ROWS = 2
+
+
+def time_outliers(t_ns: np.ndarray) -> np.ndarray:
+    """Mask (n,) of the rows of a time-sorted column that are strays at either end: a group
+    of at most ``max(OUTLIER_MIN_ROWS, OUTLIER_MAX_FRACTION * n)`` rows separated from the
+    rest by a gap longer than :data:`OUTLIER_GAP_NS`."""
+    n = len(t_ns)
+    drop = np.zeros(n, dtype=bool)
+    if n < 3:
+        return drop
+    limit = max(OUTLIER_MIN_ROWS, int(OUTLIER_MAX_FRACTION * n))
+    gaps = np.diff(np.asarray(t_ns, dtype=np.int64))
+    big = np.flatnonzero(gaps > OUTLIER_GAP_NS)
+    if big.size == 0:
+        return drop
+    head = int(big[0]) + 1  # rows before the first big gap
+    if head <= limit:
+        drop[:head] = True
+    tail = n - (int(big[-1]) + 1)  # rows after the last big gap
+    if tail <= limit:
+        drop[n - tail :] = True
+    return drop
+
+
 #: A topic rejecting more than this fraction of its messages is a warning on the terminal.
 REJECT_WARN_FRACTION = 0.01
 
@@ -122,6 +155,7 @@ REJECT_REASONS: tuple[str, ...] = (
     "bad_time",
     "clock_skew",
     "non_finite",
+    "time_outlier",
 )
 
 
@@ -522,9 +556,67 @@ class _Run:
         for buffer in self.buffers.values():
             buffer.flush()
         self.outputs = [name for name, w in self.writers.items() if w.finish()]
+        for name in SENSOR_TABLES.values():
+            if name in self.outputs and self.writers[name].rows:
+                self._drop_time_outliers(name)
         if "truth_pose" in self.outputs:
             self._truth_to_pose_frame()
         self.timings["finish"] = time.perf_counter() - t0
+
+    def _drop_time_outliers(self, name: str) -> None:
+        """Rewrite a finished table without rows stamped far outside the log's own span.
+
+        The table is sorted by t_ns, so strays sit at its ends: a group of at most
+        :data:`OUTLIER_MAX_FRACTION` of the rows (at least :data:`OUTLIER_MIN_ROWS`) cut off
+        from the rest by a gap longer than :data:`OUTLIER_GAP_NS`. They are rejected as
+        ``time_outlier`` (one message stamped minutes or years away would otherwise stretch
+        the log and make later stages allocate or extrapolate across the void).
+        """
+        old = self.writers[name]
+        t = pq.read_table(old.finished_path, columns=["t_ns"]).column("t_ns").to_numpy()
+        drop = time_outliers(t)
+        if not drop.any():
+            return
+        topics = (
+            pq.read_table(old.finished_path, columns=["laser"]).column("laser").to_pylist()
+            if name == "laser"
+            else None
+        )
+        sources = [topic for topic, plan in self.plans.items() if plan.table == name]
+        for i in np.flatnonzero(drop).tolist():
+            topic = topics[i] if topics is not None else sources[0]
+            account = self.accounts[topic]
+            account.rejects["time_outlier"] += 1
+            account.written -= 1
+            account.rows -= 1
+        moved = TableWriter(
+            old.path,
+            name,
+            source_sha256=self.source_sha256,
+            config_hash=self.config_hash,
+        )
+        try:
+            meta = pq.read_metadata(old.finished_path).metadata or {}
+            moved.add_metadata(
+                {
+                    k.decode(): v.decode()
+                    for k, v in meta.items()
+                    if k != b"ARROW:schema" and k.decode() not in RESERVED_METADATA_KEYS
+                }
+            )
+            keep = pa.array(~drop)
+            at = 0
+            with pq.ParquetFile(old.finished_path) as f:
+                for batch in f.iter_batches(batch_size=ROW_GROUP_ROWS):
+                    n = batch.num_rows
+                    moved.write(pa.Table.from_batches([batch]).filter(keep.slice(at, n)))
+                    at += n
+            moved.finish()
+        except BaseException:
+            moved.abort()
+            raise
+        old.abort()
+        self.writers[name] = moved
 
     def _truth_to_pose_frame(self) -> None:
         """Rewrite the finished truth table in the pose's frame (see stages/truth.py)."""
