@@ -497,7 +497,9 @@ class TableWriter:
             )
             schema = pq.read_schema(self._tmp)
             with pq.ParquetWriter(final, schema, **PARQUET_OPTIONS) as writer:
-                for batch in pq.ParquetFile(scratch).iter_batches(batch_size=ROW_GROUP_ROWS):
+                for batch in pq.ParquetFile(scratch, pre_buffer=False).iter_batches(
+                    batch_size=ROW_GROUP_ROWS
+                ):
                     writer.write_table(pa.Table.from_batches([batch]).cast(schema))
                 late = {k: v for k, v in self._metadata().items() if k not in self._stamped}
                 if late:
@@ -661,7 +663,7 @@ def iter_table_batches(
     schema = load_table_schema(schema_name)
     _check_contract(path, schema)
     try:
-        with pq.ParquetFile(path, page_checksum_verification=True) as f:
+        with pq.ParquetFile(path, page_checksum_verification=True, pre_buffer=False) as f:
             yield from f.iter_batches(batch_size=batch_rows, columns=list(columns))
     except (OSError, pa.ArrowException) as exc:
         raise SchemaError(f"cannot read table {schema.name!r}: {exc}", path=path) from exc

@@ -123,26 +123,46 @@ OUTLIER_MAX_FRACTION = 0.001
 OUTLIER_MIN_ROWS = 2
 
 
+def _outlier_mask(n: int, gap_rows: Sequence[int]) -> np.ndarray:
+    """The rule of :func:`time_outliers` from the row count and the rows that follow a long
+    gap (ascending): the head before the first gap and the tail after the last, if small."""
+    drop = np.zeros(n, dtype=bool)
+    if not gap_rows or n < 3:
+        return drop
+    limit = max(OUTLIER_MIN_ROWS, int(OUTLIER_MAX_FRACTION * n))
+    if gap_rows[0] <= limit:
+        drop[: gap_rows[0]] = True
+    if n - gap_rows[-1] <= limit:
+        drop[gap_rows[-1] :] = True
+    return drop
+
+
 def time_outliers(t_ns: np.ndarray) -> np.ndarray:
     """Mask (n,) of the rows of a time-sorted column that are strays at either end: a group
     of at most ``max(OUTLIER_MIN_ROWS, OUTLIER_MAX_FRACTION * n)`` rows separated from the
     rest by a gap longer than :data:`OUTLIER_GAP_NS`."""
-    n = len(t_ns)
-    drop = np.zeros(n, dtype=bool)
-    if n < 3:
-        return drop
-    limit = max(OUTLIER_MIN_ROWS, int(OUTLIER_MAX_FRACTION * n))
     gaps = np.diff(np.asarray(t_ns, dtype=np.int64))
-    big = np.flatnonzero(gaps > OUTLIER_GAP_NS)
-    if big.size == 0:
-        return drop
-    head = int(big[0]) + 1  # rows before the first big gap
-    if head <= limit:
-        drop[:head] = True
-    tail = n - (int(big[-1]) + 1)  # rows after the last big gap
-    if tail <= limit:
-        drop[n - tail :] = True
-    return drop
+    return _outlier_mask(len(t_ns), (np.flatnonzero(gaps > OUTLIER_GAP_NS) + 1).tolist())
+
+
+def _stream_time_outliers(path: Path) -> np.ndarray | None:
+    """:func:`time_outliers` of a table's t_ns column, read a row group at a time so memory
+    does not grow with the table; None when there are none."""
+    n = 0
+    last: int | None = None
+    gap_rows: list[int] = []
+    with pq.ParquetFile(path, pre_buffer=False) as f:
+        for batch in f.iter_batches(batch_size=ROW_GROUP_ROWS, columns=["t_ns"]):
+            t = batch.column(0).to_numpy()
+            if not len(t):
+                continue
+            if last is not None and int(t[0]) - last > OUTLIER_GAP_NS:
+                gap_rows.append(n)
+            gap_rows.extend((n + np.flatnonzero(np.diff(t) > OUTLIER_GAP_NS) + 1).tolist())
+            n += len(t)
+            last = int(t[-1])
+    drop = _outlier_mask(n, gap_rows)
+    return drop if drop.any() else None
 
 
 #: A topic rejecting more than this fraction of its messages is a warning on the terminal.
@@ -573,9 +593,8 @@ class _Run:
         the log and make later stages allocate or extrapolate across the void).
         """
         old = self.writers[name]
-        t = pq.read_table(old.finished_path, columns=["t_ns"]).column("t_ns").to_numpy()
-        drop = time_outliers(t)
-        if not drop.any():
+        drop = _stream_time_outliers(old.finished_path)
+        if drop is None:
             return
         topics = (
             pq.read_table(old.finished_path, columns=["laser"]).column("laser").to_pylist()
@@ -606,7 +625,7 @@ class _Run:
             )
             keep = pa.array(~drop)
             at = 0
-            with pq.ParquetFile(old.finished_path) as f:
+            with pq.ParquetFile(old.finished_path, pre_buffer=False) as f:
                 for batch in f.iter_batches(batch_size=ROW_GROUP_ROWS):
                     n = batch.num_rows
                     moved.write(pa.Table.from_batches([batch]).filter(keep.slice(at, n)))

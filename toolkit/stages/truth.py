@@ -73,7 +73,7 @@ def truth_to_pose_frame(
         return "truth_pose left in the simulator's frame: the log has no GPS fix"
     origin = chosen[0]
     out.add_metadata({"enu_origin": origin_json(origin), "frame_id": ENU_FRAME_ID})
-    with pq.ParquetFile(truth_file) as f:
+    with pq.ParquetFile(truth_file, pre_buffer=False) as f:
         for batch in f.iter_batches(batch_size=ROW_GROUP_ROWS):
             table = pa.Table.from_batches([batch])
             xyz_sim = np.stack(
