@@ -417,3 +417,21 @@ def test_read_missing_or_garbage(tmp_path: Path) -> None:
     junk.write_bytes(b"not parquet at all")
     with pytest.raises(SchemaError, match="not a readable Parquet"):
         read_table_metadata(junk)
+
+
+def test_rewrite_streams_a_finished_table_into_a_new_one(tmp_path: Path) -> None:
+    path = tmp_path / "heading.parquet"
+    writer = TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG)
+    writer.add_metadata({"frame_id": "old", "kept": "yes"})
+    writer.write(_heading([1, 2, 3, 4]))
+    assert writer.finish()
+    moved = writer.rewrite(
+        lambda piece, first: piece.filter(pa.array([first + i != 1 for i in range(len(piece))])),
+        {"frame_id": "new"},
+    )
+    assert not any(p.name == ".heading.parquet" for p in tmp_path.iterdir())
+    moved.publish()
+    assert read_table(path, "heading").column("t_ns").to_pylist() == [1, 3, 4]
+    meta = read_table_metadata(path)
+    assert meta["frame_id"] == "new" and meta["kept"] == "yes"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["heading.parquet"]

@@ -21,7 +21,7 @@ import functools
 import importlib.resources
 import json
 import os
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from importlib.resources.abc import Traversable
 from pathlib import Path
@@ -514,6 +514,39 @@ class TableWriter:
         finally:
             with contextlib.suppress(FileNotFoundError):
                 scratch.unlink()
+
+    def rewrite(
+        self,
+        transform: Callable[[pa.Table, int], pa.Table],
+        metadata: Mapping[str, str] | None = None,
+    ) -> TableWriter:
+        """This finished table rewritten, a row group at a time, as
+        ``transform(piece, first_row)`` into a new writer for the same destination (returned
+        finished, not published); this writer is aborted. The key-value metadata is kept,
+        ``metadata`` overriding it. Memory: one row group.
+        """
+        self._require("finished")
+        new = TableWriter(
+            self.path,
+            self.schema.name if self.schema is not None else None,
+            table_name=self.table_name,
+            source_sha256=self._source_sha256,
+            config_hash=self._config_hash,
+            extra_metadata={**self._extra, **(metadata or {})},
+        )
+        try:
+            first = 0
+            with pq.ParquetFile(self._tmp, pre_buffer=False) as f:
+                for batch in f.iter_batches(batch_size=ROW_GROUP_ROWS):
+                    piece = pa.Table.from_batches([batch])
+                    new.write(transform(piece, first))
+                    first += piece.num_rows
+            new.finish()
+        except BaseException:
+            new.abort()
+            raise
+        self.abort()
+        return new
 
     @property
     def finished_path(self) -> Path:

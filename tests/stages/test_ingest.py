@@ -997,16 +997,3 @@ def test_one_message_stamped_far_away_is_a_time_outlier(
     imu_t = read(ws, result, "imu").column("t_ns").to_numpy()
     assert len(imu_t) == 200 and imu_t.max() < late
     assert_accounting(ws, result)
-
-
-def test_time_outliers_rule() -> None:
-    from toolkit.stages.ingest import time_outliers
-
-    t = np.arange(10_000, dtype=np.int64) * 10_000_000  # 100 s at 100 Hz
-    assert not time_outliers(t).any()
-    far = np.concatenate([[t[0] - 120 * NS], t, [t[-1] + 120 * NS] * 3])
-    drop = time_outliers(far)
-    assert drop[0] and drop[-3:].all() and drop.sum() == 4  # limit is max(2, 10) rows
-    # A long gap with plenty of data on both sides is a gap, not an outlier.
-    halves = np.concatenate([t, t + 200 * NS])
-    assert not time_outliers(halves).any()

@@ -16,7 +16,7 @@ this order:
 - ``bad_payload``: the payload does not decode as the channel's message type;
 - ``time_outlier``: the row sits at one end of its (time-sorted) table, cut off from the rest
   by more than a minute, in a group of at most 0.1 % of the rows: a stray stamp minutes to
-  years away (:func:`time_outliers`);
+  years away (:mod:`toolkit.stages.timecheck`);
 - ``bad_time``: the message's time (stamp, or log time when the stamp is zero) is negative
   as int64 nanoseconds: a time beyond 2^63 ns or a corrupt one;
 - ``clock_skew``: the corrected header stamp is more than ``time.max_header_skew_ns`` from the
@@ -74,8 +74,9 @@ from toolkit.progress import progress
 from toolkit.stages.dedup import DuplicateFilter
 from toolkit.stages.reorder import DEFAULT_REORDER_BUFFER_BYTES, ReorderBuffer
 from toolkit.stages.roles import ROLE_SPECS, ConvertContext, Converter, RoleRows
+from toolkit.stages.timecheck import stream_time_outliers
 from toolkit.stages.truth import sim_origin, truth_to_pose_frame
-from toolkit.tableio import RESERVED_METADATA_KEYS, ROW_GROUP_ROWS, TableWriter
+from toolkit.tableio import TableWriter
 from toolkit.workspace import (
     StageRecord,
     Workspace,
@@ -115,55 +116,6 @@ TF_STATIC_OUTPUT = "tf_static.json"
 
 #: Output name of the log's MCAP metadata records (record name -> key -> value).
 MCAP_METADATA_OUTPUT = "mcap_metadata.json"
-
-#: Time outliers: rows at a table's ends cut off from the rest by more than this gap...
-OUTLIER_GAP_NS = 60_000_000_000
-#: ...and no more than this fraction of its rows (or OUTLIER_MIN_ROWS, if more).
-OUTLIER_MAX_FRACTION = 0.001
-OUTLIER_MIN_ROWS = 2
-
-
-def _outlier_mask(n: int, gap_rows: Sequence[int]) -> np.ndarray:
-    """The rule of :func:`time_outliers` from the row count and the rows that follow a long
-    gap (ascending): the head before the first gap and the tail after the last, if small."""
-    drop = np.zeros(n, dtype=bool)
-    if not gap_rows or n < 3:
-        return drop
-    limit = max(OUTLIER_MIN_ROWS, int(OUTLIER_MAX_FRACTION * n))
-    if gap_rows[0] <= limit:
-        drop[: gap_rows[0]] = True
-    if n - gap_rows[-1] <= limit:
-        drop[gap_rows[-1] :] = True
-    return drop
-
-
-def time_outliers(t_ns: np.ndarray) -> np.ndarray:
-    """Mask (n,) of the rows of a time-sorted column that are strays at either end: a group
-    of at most ``max(OUTLIER_MIN_ROWS, OUTLIER_MAX_FRACTION * n)`` rows separated from the
-    rest by a gap longer than :data:`OUTLIER_GAP_NS`."""
-    gaps = np.diff(np.asarray(t_ns, dtype=np.int64))
-    return _outlier_mask(len(t_ns), (np.flatnonzero(gaps > OUTLIER_GAP_NS) + 1).tolist())
-
-
-def _stream_time_outliers(path: Path) -> np.ndarray | None:
-    """:func:`time_outliers` of a table's t_ns column, read a row group at a time so memory
-    does not grow with the table; None when there are none."""
-    n = 0
-    last: int | None = None
-    gap_rows: list[int] = []
-    with pq.ParquetFile(path, pre_buffer=False) as f:
-        for batch in f.iter_batches(batch_size=ROW_GROUP_ROWS, columns=["t_ns"]):
-            t = batch.column(0).to_numpy()
-            if not len(t):
-                continue
-            if last is not None and int(t[0]) - last > OUTLIER_GAP_NS:
-                gap_rows.append(n)
-            gap_rows.extend((n + np.flatnonzero(np.diff(t) > OUTLIER_GAP_NS) + 1).tolist())
-            n += len(t)
-            last = int(t[-1])
-    drop = _outlier_mask(n, gap_rows)
-    return drop if drop.any() else None
-
 
 #: A topic rejecting more than this fraction of its messages is a warning on the terminal.
 REJECT_WARN_FRACTION = 0.01
@@ -584,16 +536,10 @@ class _Run:
         self.timings["finish"] = time.perf_counter() - t0
 
     def _drop_time_outliers(self, name: str) -> None:
-        """Rewrite a finished table without rows stamped far outside the log's own span.
-
-        The table is sorted by t_ns, so strays sit at its ends: a group of at most
-        :data:`OUTLIER_MAX_FRACTION` of the rows (at least :data:`OUTLIER_MIN_ROWS`) cut off
-        from the rest by a gap longer than :data:`OUTLIER_GAP_NS`. They are rejected as
-        ``time_outlier`` (one message stamped minutes or years away would otherwise stretch
-        the log and make later stages allocate or extrapolate across the void).
-        """
+        """Rewrite a finished table without the rows :mod:`toolkit.stages.timecheck` finds
+        stamped far outside the log's span, counting them per topic as ``time_outlier``."""
         old = self.writers[name]
-        drop = _stream_time_outliers(old.finished_path)
+        drop = stream_time_outliers(old.finished_path)
         if drop is None:
             return
         topics = (
@@ -603,39 +549,14 @@ class _Run:
         )
         sources = [topic for topic, plan in self.plans.items() if plan.table == name]
         for i in np.flatnonzero(drop).tolist():
-            topic = topics[i] if topics is not None else sources[0]
-            account = self.accounts[topic]
+            account = self.accounts[topics[i] if topics is not None else sources[0]]
             account.rejects["time_outlier"] += 1
             account.written -= 1
             account.rows -= 1
-        moved = TableWriter(
-            old.path,
-            name,
-            source_sha256=self.source_sha256,
-            config_hash=self.config_hash,
+        keep = pa.array(~drop)
+        self.writers[name] = old.rewrite(
+            lambda piece, first: piece.filter(keep.slice(first, piece.num_rows))
         )
-        try:
-            meta = pq.read_metadata(old.finished_path).metadata or {}
-            moved.add_metadata(
-                {
-                    k.decode(): v.decode()
-                    for k, v in meta.items()
-                    if k != b"ARROW:schema" and k.decode() not in RESERVED_METADATA_KEYS
-                }
-            )
-            keep = pa.array(~drop)
-            at = 0
-            with pq.ParquetFile(old.finished_path, pre_buffer=False) as f:
-                for batch in f.iter_batches(batch_size=ROW_GROUP_ROWS):
-                    n = batch.num_rows
-                    moved.write(pa.Table.from_batches([batch]).filter(keep.slice(at, n)))
-                    at += n
-            moved.finish()
-        except BaseException:
-            moved.abort()
-            raise
-        old.abort()
-        self.writers[name] = moved
 
     def _truth_to_pose_frame(self) -> None:
         """Rewrite the finished truth table in the pose's frame (see stages/truth.py)."""
@@ -643,27 +564,13 @@ class _Run:
         if sim is None:
             self.warnings.append("truth_pose left in the simulator's frame: no terrain_sim origin")
             return
-        old = self.writers["truth_pose"]
-        moved = TableWriter(
-            old.path,
-            "truth_pose",
-            source_sha256=self.source_sha256,
-            config_hash=self.config_hash,
+        moved = truth_to_pose_frame(
+            self.writers["truth_pose"], self.writers["gps"].finished_path, sim
         )
-        try:
-            warning = truth_to_pose_frame(
-                old.finished_path, self.writers["gps"].finished_path, moved, sim
-            )
-            if warning is not None:
-                moved.abort()
-                self.warnings.append(warning)
-                return
-            moved.finish()
-        except BaseException:
-            moved.abort()
-            raise
-        old.abort()
-        self.writers["truth_pose"] = moved
+        if isinstance(moved, str):
+            self.warnings.append(moved)
+        else:
+            self.writers["truth_pose"] = moved
 
     def commit(self, log_dir: Path) -> list[str]:
         """Publish the finished tables, then write the JSON outputs; the file names."""

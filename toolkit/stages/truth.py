@@ -24,7 +24,7 @@ import pyarrow.parquet as pq
 
 from toolkit.frames import ENU_FRAME_ID, choose_enu_origin
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
-from toolkit.tableio import ROW_GROUP_ROWS, TableWriter
+from toolkit.tableio import TableWriter
 
 #: The metadata record and key holding the simulator's world-frame origin.
 SIM_RECORD = "terrain_sim"
@@ -58,35 +58,27 @@ def origin_json(origin: GeodeticOrigin) -> str:
 
 
 def truth_to_pose_frame(
-    truth_file: Path,
-    gps_file: Path,
-    out: TableWriter,
-    sim: GeodeticOrigin,
-) -> str | None:
-    """Stream the truth (sim frame) from ``truth_file`` into ``out`` in the pose's frame.
-
-    ``gps_file`` is the log's GPS table; returns a warning (and writes nothing) when the log
-    has no GPS fix to define the frame. Memory: one row group at a time.
-    """
+    truth: TableWriter, gps_file: Path, sim: GeodeticOrigin
+) -> TableWriter | str:
+    """The finished truth table (sim frame) rewritten in the pose's frame, a row group at a
+    time; or a warning (``truth`` left as it is) when the log has no GPS fix to define the
+    frame. ``gps_file`` is the log's GPS table."""
     chosen = choose_enu_origin(pq.read_table(gps_file))
     if chosen is None:
         return "truth_pose left in the simulator's frame: the log has no GPS fix"
     origin = chosen[0]
-    out.add_metadata({"enu_origin": origin_json(origin), "frame_id": ENU_FRAME_ID})
-    with pq.ParquetFile(truth_file, pre_buffer=False) as f:
-        for batch in f.iter_batches(batch_size=ROW_GROUP_ROWS):
-            table = pa.Table.from_batches([batch])
-            xyz_sim = np.stack(
-                [table.column(c).to_numpy(zero_copy_only=False) for c in "xyz"], axis=1
+
+    def move(piece: pa.Table, first_row: int) -> pa.Table:
+        xyz_sim = np.stack([piece.column(c).to_numpy(zero_copy_only=False) for c in "xyz"], 1)
+        lat, lon, alt = enu_to_geodetic(xyz_sim, sim)
+        xyz = np.asarray(geodetic_to_enu(lat, lon, alt, origin))
+        for k, c in enumerate("xyz"):
+            piece = piece.set_column(
+                piece.schema.get_field_index(c), c, pa.array(xyz[:, k], pa.float64())
             )
-            lat, lon, alt = enu_to_geodetic(xyz_sim, sim)
-            xyz = np.asarray(geodetic_to_enu(lat, lon, alt, origin))
-            for k, c in enumerate("xyz"):
-                table = table.set_column(
-                    table.schema.get_field_index(c), c, pa.array(xyz[:, k], pa.float64())
-                )
-            out.write(table)
-    return None
+        return piece
+
+    return truth.rewrite(move, {"enu_origin": origin_json(origin), "frame_id": ENU_FRAME_ID})
 
 
 __all__ = ["SIM_RECORD", "origin_json", "sim_origin", "truth_to_pose_frame"]
