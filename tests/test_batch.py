@@ -11,6 +11,7 @@ import logging
 import os
 import random
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -461,3 +462,42 @@ def test_cli_ingest_two_logs_end_to_end(two_logs: tuple[Path, Path], tmp_path: P
     lines = result.stderr.splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"terrain: error: {broken}: "), result.stderr
     assert "1 ingested, 1 failed" in result.stdout
+
+
+def _alive(pid: int) -> bool:
+    """Whether a process runs (a zombie waiting for its reaper has exited)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return False
+    return "\nState:\tZ" not in status
+
+
+def test_pool_workers_exit_when_their_parent_is_killed(tmp_path: Path) -> None:
+    """kill -9 of the ingest parent must not leave its pool workers running."""
+    import signal
+    import subprocess
+
+    script = (
+        "import multiprocessing, time\n"
+        "from toolkit.batch import make_executor\n"
+        "with make_executor('local', workers=1) as pool:\n"
+        "    future = pool.submit(time.sleep, 120)\n"
+        "    time.sleep(2)\n"
+        "    print(*[p.pid for p in multiprocessing.active_children()], flush=True)\n"
+        "    future.result()\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE)
+    try:
+        assert parent.stdout is not None
+        children = [int(pid) for pid in parent.stdout.readline().split()]
+        assert children and all(_alive(pid) for pid in children)
+        parent.send_signal(signal.SIGKILL)
+        parent.wait(timeout=30)
+        deadline = time.monotonic() + 15
+        while any(_alive(pid) for pid in children) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not any(_alive(pid) for pid in children)
+    finally:
+        if parent.poll() is None:
+            parent.kill()

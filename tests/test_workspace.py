@@ -315,3 +315,34 @@ def test_lock_held_by_another_process(tmp_path: Path) -> None:
         proc.wait(30)
     with ws.lock():
         pass
+
+
+def test_temp_files_of_dead_runs_are_removed_not_those_of_live_ones(tmp_path: Path) -> None:
+    import subprocess
+
+    from toolkit.workspace import remove_dead_temp_files, temp_path_beside
+
+    target = tmp_path / "imu.parquet"
+    mine = temp_path_beside(target, "partial")  # this (live) process's
+    mine.write_bytes(b"live")
+    child = subprocess.run(  # a process that has exited since: its file is an orphan
+        [
+            sys.executable,
+            "-c",
+            "import sys; from pathlib import Path; from toolkit.workspace import "
+            "temp_path_beside; p = temp_path_beside(Path(sys.argv[1]), 'partial'); "
+            "p.write_bytes(b'dead'); print(p.name)",
+            str(target),
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    dead = tmp_path / child.stdout.strip()
+    other_host = tmp_path / ".imu.parquet.otherhost-1-0123456789ab.partial"
+    other_host.write_bytes(b"?")
+    (tmp_path / "imu.parquet").write_bytes(b"real")
+    assert dead.exists()
+    assert remove_dead_temp_files(tmp_path) == [dead.name]
+    assert mine.exists() and other_host.exists() and not dead.exists()
+    assert (tmp_path / "imu.parquet").read_bytes() == b"real"

@@ -27,6 +27,7 @@ import logging
 import logging.handlers
 import multiprocessing
 import os
+import threading
 import time
 import traceback
 from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
@@ -95,11 +96,30 @@ class _Relay(logging.Handler):
         logging.getLogger(record.name).handle(record)
 
 
-def _init_pool_worker(log_queue: Any, level: int) -> None:
-    """Set up a pool process: no progress bars (the parent shows one over the batch) and
-    log records sent to the parent, which prints them with its own handlers and format."""
+#: How often a pool worker checks that its parent is still alive (s).
+PARENT_CHECK_S = 1.0
+
+
+def _exit_when_orphaned(parent_pid: int) -> None:
+    """Watch the parent from a daemon thread; if it dies (kill -9 included, which no handler
+    of the parent sees) the worker is re-parented, and exits at once rather than live on."""
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_CHECK_S)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="terrain-parent-watch", daemon=True).start()
+
+
+def _init_pool_worker(log_queue: Any, level: int, parent_pid: int) -> None:
+    """Set up a pool process: exit if the parent dies, no progress bars (the parent shows one
+    over the batch), and log records sent to the parent, which prints them with its own
+    handlers and format."""
     from toolkit.progress import set_quiet
 
+    _exit_when_orphaned(parent_pid)
     set_quiet(True)
     root = logging.getLogger()
     root.handlers[:] = [logging.handlers.QueueHandler(log_queue)]
@@ -123,7 +143,7 @@ def _local_pool(workers: int) -> Iterator[Executor]:
         max_workers=workers,
         mp_context=ctx,
         initializer=_init_pool_worker,
-        initargs=(log_queue, logging.getLogger().getEffectiveLevel()),
+        initargs=(log_queue, logging.getLogger().getEffectiveLevel(), os.getpid()),
     )
     try:
         yield pool

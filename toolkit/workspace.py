@@ -26,6 +26,7 @@ import hashlib
 import json
 import os
 import re
+import socket
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -82,9 +83,47 @@ def log_id_for(path: str | Path) -> str:
 # --------------------------------------------------------------------------------------
 
 
+#: Hidden files written aside: ``.<name>.<host>-<pid>-<random>.<suffix>``.
+_TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<host>[^.]+)-(?P<pid>\d+)-[0-9a-f]{12}\.[a-z]+$")
+
+
+def _host() -> str:
+    return re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
+
+
 def temp_path_beside(path: Path, suffix: str = "tmp") -> Path:
-    """A fresh hidden name beside ``path`` for writing aside: ``.<name>.<random>.<suffix>``."""
-    return path.with_name(f".{path.name}.{uuid.uuid4().hex[:12]}.{suffix}")
+    """A fresh hidden name beside ``path`` for writing aside, naming the host and process
+    that writes it (``.<name>.<host>-<pid>-<random>.<suffix>``), so a later run can tell
+    the files of a dead run from those of a live one (:func:`remove_dead_temp_files`)."""
+    return path.with_name(f".{path.name}.{_host()}-{os.getpid()}-{uuid.uuid4().hex[:12]}.{suffix}")
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True  # someone else's live process
+    return True
+
+
+def remove_dead_temp_files(directory: Path) -> list[str]:
+    """Remove the hidden files that runs on this host left behind when they were killed
+    (their process no longer exists); files of live runs, and of other hosts sharing the
+    workspace, are left alone. Returns the names removed."""
+    removed: list[str] = []
+    if not directory.is_dir():
+        return removed
+    host = _host()
+    for entry in directory.iterdir():
+        m = _TEMP_NAME.match(entry.name)
+        if m is None or m["host"] != host or _pid_alive(int(m["pid"])):
+            continue
+        with contextlib.suppress(FileNotFoundError):
+            entry.unlink()
+            removed.append(entry.name)
+    return removed
 
 
 def fsync_file(path: Path) -> None:

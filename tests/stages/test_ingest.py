@@ -997,3 +997,27 @@ def test_one_message_stamped_far_away_is_a_time_outlier(
     imu_t = read(ws, result, "imu").column("t_ns").to_numpy()
     assert len(imu_t) == 200 and imu_t.max() < late
     assert_accounting(ws, result)
+
+
+def test_ingest_removes_what_killed_runs_left(
+    tmp_path: Path, ws: Workspace, caplog: pytest.LogCaptureFixture
+) -> None:
+    import subprocess
+    import sys
+
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    first = ingest_log(log, ws, make_config())
+    target = ws.log_table(first.log_id, "imu")
+    code = (
+        "import sys; from pathlib import Path; from toolkit.workspace import temp_path_beside; "
+        "p = temp_path_beside(Path(sys.argv[1]), 'partial'); p.write_bytes(b'x'); print(p)"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code, str(target)], capture_output=True, text=True, check=True
+    )
+    orphan = Path(out.stdout.strip())
+    assert orphan.exists()
+    with caplog.at_level(logging.WARNING, logger="toolkit"):
+        ingest_log(log, ws, make_config())
+    assert not orphan.exists()
+    assert any("left by killed runs" in r.getMessage() for r in caplog.records)

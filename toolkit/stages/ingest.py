@@ -85,6 +85,7 @@ from toolkit.workspace import (
     digest_files,
     file_sha256,
     make_log_id,
+    remove_dead_temp_files,
 )
 
 _log = logging.getLogger(__name__)
@@ -653,6 +654,7 @@ def ingest_log(
     adopt_config = workspace.check_config(config, overwrite=overwrite)
     cfg_hash = stage_config_hash(config)
     log_dir = workspace.log_dir(log_id)
+    _clean_up_after_dead_runs(log_dir)
     manifest = workspace.manifest(log_id)
     inputs = {"log": sha256}
     record = manifest.stage(STAGE)
@@ -753,6 +755,19 @@ def ingest_log(
     )
     _log.info("%s", result.summary())
     return result
+
+
+def _clean_up_after_dead_runs(log_dir: Path) -> None:
+    """Remove the hidden files a killed run of this host left in ``log_dir`` (said, so a user
+    who wonders where disk space went hears it)."""
+    removed = remove_dead_temp_files(log_dir)
+    if removed:
+        _log.warning(
+            "%s: removed %d file(s) left by killed runs (%s)",
+            log_dir,
+            len(removed),
+            ", ".join(sorted(removed)[:3]) + (", ..." if len(removed) > 3 else ""),
+        )
 
 
 def _identity(path: Path) -> tuple[int, int, int, int]:

@@ -53,6 +53,7 @@ from toolkit.workspace import (
     check_up_to_date,
     digest_files,
     file_sha256,
+    remove_dead_temp_files,
 )
 
 _log = logging.getLogger(__name__)
@@ -393,6 +394,8 @@ def run_pose(
     """Estimate the pose of one ingested log (see the module docstring)."""
     start = time.perf_counter()
     log_dir = workspace.log_dir(log_id)
+    for name in remove_dead_temp_files(log_dir):
+        _log.warning("%s: removed %s, left by a killed run", log_id, name)
     manifest = workspace.manifest(log_id)
     in_files = [log_dir / f"{n}.parquet" for n in INPUT_TABLES]
     tf_path = log_dir / "tf_static.json"
