@@ -346,3 +346,25 @@ def test_temp_files_of_dead_runs_are_removed_not_those_of_live_ones(tmp_path: Pa
     assert remove_dead_temp_files(tmp_path) == [dead.name]
     assert mine.exists() and other_host.exists() and not dead.exists()
     assert (tmp_path / "imu.parquet").read_bytes() == b"real"
+
+
+def test_shared_locks_coexist_and_exclude_an_exclusive_one(tmp_path: Path) -> None:
+    ws = Workspace(tmp_path / "ws")
+    with (
+        ws.lock(shared=True),  # two ingests side by side...
+        ws.lock(shared=True),
+        pytest.raises(WorkspaceError, match="in use by another terrain process"),
+    ):
+        ws.lock().acquire()  # ...and a pose is refused while they run
+    with ws.lock(), pytest.raises(WorkspaceError, match=rf"pid {os.getpid()}"):
+        ws.lock(shared=True).acquire()  # an ingest is refused while a pose runs
+
+
+def test_ingest_honours_the_lock_a_pose_holds(tmp_path: Path) -> None:
+    from toolkit.batch import run_ingest_batch
+
+    ws = Workspace(tmp_path / "ws")
+    sample = Path(__file__).resolve().parents[1] / "sample_logs" / "sample.mcap"
+    with ws.lock(), pytest.raises(WorkspaceError, match="in use"):
+        run_ingest_batch([sample], ws.root, None, overwrite=False, workers=1)
+    assert not ws.log_ids()

@@ -520,8 +520,8 @@ def run_ingest_batch(
     be ingested is listed as failed with its reason; the others complete. Re-running
     finishes only what is missing: ingest_log reports unchanged logs as up to date.
 
-    The workspace's exclusive lock is not taken: the jobs of an array share one workspace,
-    and each log's files and manifest are its own.
+    The workspace lock is taken shared: the jobs of an array share one workspace (each log's
+    files and manifest are its own), while a stage holding it exclusively refuses them.
     """
     unique: dict[str, Path] = {}
     for log in logs:  # "a.mcap" and "./a.mcap" are one log: never ingest it twice at once
@@ -543,11 +543,14 @@ def run_ingest_batch(
         overwrite=overwrite,
         cwd=os.getcwd(),
     )
-    if executor is not None:
-        summary = run_batch(task, mine, executor, desc="ingest", unit="log")
-    else:
-        with make_executor(executor_kind, workers=workers, scheduler=scheduler) as opened:
-            summary = run_batch(task, mine, opened, desc="ingest", unit="log")
+    # Shared: ingests (a job array's shards) run side by side, but not while a stage holds the
+    # workspace exclusively (pose), and such a stage waits for no ingest: it is refused.
+    with workspace.lock(shared=True):
+        if executor is not None:
+            summary = run_batch(task, mine, executor, desc="ingest", unit="log")
+        else:
+            with make_executor(executor_kind, workers=workers, scheduler=scheduler) as opened:
+                summary = run_batch(task, mine, opened, desc="ingest", unit="log")
     if adopt_config and (summary.done or summary.up_to_date):
         workspace.write_config(config)  # a config becomes the workspace's once it has worked
     if num_shards > 1:

@@ -431,15 +431,18 @@ def check_up_to_date(
 
 
 class WorkspaceLock:
-    """An exclusive, non-blocking flock on ``WS/.lock``; a second holder gets WorkspaceError.
+    """A non-blocking flock on ``WS/.lock``: exclusive (a stage over the whole workspace, such
+    as pose) or shared (ingests, which may run side by side, each writing its own logs). A
+    request that conflicts with a holder is refused with a WorkspaceError saying so.
 
     The lock belongs to the open file: it is released on :meth:`release`, on exit from the
     ``with`` block, or when the process dies. The file itself stays (deleting lock files
     races with other processes opening them).
     """
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, shared: bool = False) -> None:
         self.path = path
+        self.shared = shared
         self._fd: int | None = None
 
     def acquire(self) -> None:
@@ -448,27 +451,31 @@ class WorkspaceLock:
             raise WorkspaceError("workspace lock already held by this object", path=self.path)
         fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, (fcntl.LOCK_SH if self.shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip() or "unknown"
+            holder = os.pread(fd, 64, 0).decode("ascii", "replace").strip()
             os.close(fd)
+            who = f"pid {holder}" if holder else "ingest"
             raise WorkspaceError(
-                f"workspace is in use by another terrain process (pid {holder})",
+                f"workspace is in use by another terrain process ({who}); try again when "
+                "it has finished",
                 path=self.path.parent,
             ) from None
         except BaseException:
             os.close(fd)
             raise
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
+        if not self.shared:  # an exclusive holder names itself for the refusal above
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, f"{os.getpid()}\n".encode("ascii"), 0)
         self._fd = fd
 
     def release(self) -> None:
         """Release the lock (idempotent)."""
         if self._fd is not None:
             fd, self._fd = self._fd, None
-            with contextlib.suppress(OSError):
-                os.ftruncate(fd, 0)
+            if not self.shared:
+                with contextlib.suppress(OSError):
+                    os.ftruncate(fd, 0)
             os.close(fd)
 
     def __enter__(self) -> WorkspaceLock:
@@ -592,10 +599,10 @@ class Workspace:
             return []
         return sorted(p.name for p in self.logs_dir.iterdir() if p.is_dir())
 
-    def lock(self) -> WorkspaceLock:
-        """The workspace's exclusive lock; use as ``with ws.lock(): ...``."""
+    def lock(self, *, shared: bool = False) -> WorkspaceLock:
+        """The workspace's lock, exclusive or shared; use as ``with ws.lock(): ...``."""
         self.create()
-        return WorkspaceLock(self.lock_path)
+        return WorkspaceLock(self.lock_path, shared=shared)
 
     def manifest(self, log_id: str | None = None) -> Manifest:
         """A log's manifest, or with no id the workspace-level one."""
