@@ -1021,3 +1021,15 @@ def test_ingest_removes_what_killed_runs_left(
         ingest_log(log, ws, make_config())
     assert not orphan.exists()
     assert any("left by killed runs" in r.getMessage() for r in caplog.records)
+
+
+def test_a_directory_or_fifo_is_not_a_missing_file(tmp_path: Path, ws: Workspace) -> None:
+    import os
+
+    fifo = tmp_path / "pipe.mcap"
+    os.mkfifo(fifo)
+    for path in (tmp_path, fifo):
+        with pytest.raises(LogReadError, match="not a regular file"):
+            ingest_log(path, ws, make_config())
+    with pytest.raises(LogReadError, match="no such log file"):
+        ingest_log(tmp_path / "absent.mcap", ws, make_config())

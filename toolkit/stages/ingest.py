@@ -645,8 +645,10 @@ def ingest_log(
     """
     start = time.perf_counter()
     log_path = Path(log_path)
-    if not log_path.is_file():
+    if not log_path.exists():
         raise LogReadError("no such log file", path=log_path)
+    if not log_path.is_file():  # a directory, a FIFO, a device: never opened, never hashed
+        raise LogReadError("not a regular file (a log is an MCAP file)", path=log_path)
     before = _identity(log_path)
     sha256 = file_sha256(log_path)
     log_id = make_log_id(log_path.stem, sha256)
