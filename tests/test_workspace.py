@@ -368,3 +368,18 @@ def test_ingest_honours_the_lock_a_pose_holds(tmp_path: Path) -> None:
     with ws.lock(), pytest.raises(WorkspaceError, match="in use"):
         run_ingest_batch([sample], ws.root, None, overwrite=False, workers=1)
     assert not ws.log_ids()
+
+
+def test_require_finished_refuses_what_the_producer_did_not_write(tmp_path: Path) -> None:
+    from toolkit.workspace import file_sha256, require_finished
+
+    (tmp_path / "imu.parquet").write_bytes(b"written")
+    rec = _record(output_files=digest_files(tmp_path, ["imu.parquet"]))
+    now = {"imu.parquet": file_sha256(tmp_path / "imu.parquet")}
+    require_finished(rec, "ingest", now, tmp_path)  # the file it wrote: accepted
+    with pytest.raises(WorkspaceError, match="no finished ingest"):
+        require_finished(None, "ingest", now, tmp_path)
+    (tmp_path / "imu.parquet").write_bytes(b"edited")
+    changed = {"imu.parquet": file_sha256(tmp_path / "imu.parquet")}
+    with pytest.raises(WorkspaceError, match="imu.parquet: not the file the last finished"):
+        require_finished(rec, "ingest", changed, tmp_path)

@@ -425,6 +425,27 @@ def check_up_to_date(
     return Freshness(True, "up to date")
 
 
+def require_finished(
+    record: StageRecord | None, stage: str, files: Mapping[str, str], directory: Path
+) -> None:
+    """Refuse inputs a finished ``stage`` did not write: ``files`` maps each input's name
+    (as in the producer's outputs) to its sha256 now. WorkspaceError, naming the file, when
+    the producer never finished, or the file is not the one it recorded (changed since,
+    partial, or left by an interrupted run)."""
+    if record is None:
+        raise WorkspaceError(
+            f"no finished {stage} recorded here; run `terrain {stage}` first", path=directory
+        )
+    for name, sha in files.items():
+        written = record.output_files.get(name)
+        if written is None or written.sha256 != sha:
+            raise WorkspaceError(
+                f"not the file the last finished {stage} wrote (changed, partial or left by "
+                f"an interrupted run); run `terrain {stage}` again",
+                path=directory / name,
+            )
+
+
 # --------------------------------------------------------------------------------------
 # The workspace
 # --------------------------------------------------------------------------------------
