@@ -283,3 +283,24 @@ def test_every_role_may_be_absent(tmp_path: Path) -> None:
     assert cfg.topics.lasers == () and cfg.topics.imu is None and cfg.topics.gps is None
     assert set(cfg.topics.absent_roles()) == {"lasers", "imu", "gps", "heading"}
     assert set(cfg.topics.by_role()) == {"wheels", "tf_static", "truth_pose", "truth_features"}
+
+
+@pytest.mark.parametrize(
+    ("text", "fragment"),
+    [
+        ("[time.latency_ns]\nimu = 18446744073709551616\n", "must fit a signed 64-bit integer"),
+        ("[time]\nmax_header_skew_ns = 9223372036854775808\n", "must fit a signed 64-bit"),
+        ("[time.clock_offset_ns]\ngps = -90000000000000\n", "must be at least"),
+        ("[pose]\nsigma_alpha = 1e-300\n", "must be at least 0.001"),
+        ("[pose]\ngps_noise_m = nan\n", "finite"),
+        ("[pose]\naccel_noise_mps2 = inf\n", "finite"),
+    ],
+)
+def test_ranges_are_validated_before_anything_runs(
+    tmp_path: Path, text: str, fragment: str
+) -> None:
+    """Values that passed validation and then crashed a stage (issue: config accepted, then
+    crash) are refused up front, naming file and key."""
+    with pytest.raises(ConfigError, match=fragment) as info:
+        load_config(write(tmp_path, text))
+    assert str(tmp_path) in str(info.value)

@@ -31,6 +31,11 @@ from typing import Annotated, Any, TypeVar
 
 from toolkit.errors import ConfigError
 
+#: The range of every integer setting (they end up in int64 arrays).
+INT64_MIN, INT64_MAX = -(2**63), 2**63 - 1
+#: Largest declared latency or clock offset of a sensor (ns): one day.
+MAX_SENSOR_TIME_NS = 86_400 * 10**9
+
 #: Bumped when the meaning of existing keys changes; part of every config hash.
 CONFIG_FORMAT = 1
 
@@ -137,13 +142,15 @@ class VehicleConfig:
 
 @dataclass(frozen=True)
 class RoleTimesNs:
-    """One signed nanosecond value per timed sensor role."""
+    """One signed nanosecond value per timed sensor role, at most a day either way (a
+    sensor clock a day off is a wrong date, not an offset; the bound also keeps every
+    corrected stamp inside int64)."""
 
-    lasers: int
-    imu: int
-    gps: int
-    heading: int
-    wheels: int
+    lasers: Annotated[int, Rule(ge=-MAX_SENSOR_TIME_NS, le=MAX_SENSOR_TIME_NS)]
+    imu: Annotated[int, Rule(ge=-MAX_SENSOR_TIME_NS, le=MAX_SENSOR_TIME_NS)]
+    gps: Annotated[int, Rule(ge=-MAX_SENSOR_TIME_NS, le=MAX_SENSOR_TIME_NS)]
+    heading: Annotated[int, Rule(ge=-MAX_SENSOR_TIME_NS, le=MAX_SENSOR_TIME_NS)]
+    wheels: Annotated[int, Rule(ge=-MAX_SENSOR_TIME_NS, le=MAX_SENSOR_TIME_NS)]
 
     def for_role(self, role: str) -> int:
         """The value for a role (0 for roles without timing, e.g. tf_static)."""
@@ -180,12 +187,20 @@ class PoseConfig:
     gate_chi2_gps: Annotated[float, Rule(gt=0.0)]
     gate_chi2_heading: Annotated[float, Rule(gt=0.0)]
     gate_chi2_wheels: Annotated[float, Rule(gt=0.0)]
-    sigma_alpha: Annotated[float, Rule(gt=0.0, le=1.0)]
+    # Van der Merwe's spread: below 1e-3 the central weight (1 - n/(alpha^2 (n + kappa)))
+    # reaches -1e7 and the sigma-point covariance loses all precision.
+    sigma_alpha: Annotated[float, Rule(ge=1e-3, le=1.0)]
     sigma_beta: Annotated[float, Rule(ge=0.0)]
     sigma_kappa: float
     initial_position_std_m: Annotated[float, Rule(gt=0.0)]
     initial_velocity_std_mps: Annotated[float, Rule(gt=0.0)]
     initial_attitude_std_rad: Annotated[float, Rule(gt=0.0)]
+    initial_wheel_scale_std: Annotated[float, Rule(gt=0.0)]
+    wheel_scale_walk_per_sqrt_s: Annotated[float, Rule(ge=0.0)]
+    reinit_after_gated_fixes: Annotated[int, Rule(ge=0)]
+    orientation_noise_rad: Annotated[float, Rule(gt=0.0)]
+    gate_chi2_attitude: Annotated[float, Rule(gt=0.0)]
+    track_min_distance_m: Annotated[float, Rule(gt=0.0)]
 
 
 @dataclass(frozen=True)
@@ -436,6 +451,8 @@ def _scalar(tp: Any, value: Any, key: str, rule: Rule, source: str | Path) -> An
     if tp is int:
         if isinstance(value, bool) or not isinstance(value, int):
             raise fail("expected an integer")
+        if not INT64_MIN <= value <= INT64_MAX:  # every integer ends up in int64 arrays
+            raise fail("must fit a signed 64-bit integer")
         number = value
     elif tp is float:
         if isinstance(value, bool) or not isinstance(value, int | float):

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from toolkit.fusion.rotations import SO3_SERIES_BELOW_RAD, FloatArray, so3_exp
+from toolkit.fusion.rotations import SO3_SERIES_BELOW_RAD, FloatArray, so3_exp, so3_exp_one
 
 AXIS = np.array([0.48, -0.6, 0.64])  # unit length, no zero component
 
@@ -78,3 +78,10 @@ def test_so3_exp_of_zero_is_identity_and_it_vectorises() -> None:
         R @ np.swapaxes(R, -1, -2), np.broadcast_to(np.eye(3), R.shape), atol=1e-15
     )
     np.testing.assert_allclose(R[1, 2], Rotation.from_rotvec(phi[1, 2]).as_matrix(), atol=1e-15)
+
+
+@pytest.mark.parametrize("scale", [0.0, 1e-9, 1e-5, 1e-3, 0.1, 2.0])
+def test_so3_exp_one_equals_so3_exp(scale: float) -> None:
+    rng = np.random.default_rng(7)
+    for phi in rng.normal(size=(20, 3)) * scale:
+        np.testing.assert_allclose(so3_exp_one(phi), so3_exp(phi), rtol=0, atol=1e-15)

@@ -16,9 +16,11 @@ from toolkit.fusion.ukf import (
     GRAVITY,
     MOTION,
     POS,
+    SCALE,
     VEL,
     YAW,
     ImuIncrement,
+    Measurement,
     NoiseModel,
     PoseUKF,
     angle_mean,
@@ -28,20 +30,21 @@ from toolkit.fusion.ukf import (
     state_mean,
     state_residual,
     unscented_transform,
+    wheel_model,
     yaw_model,
 )
 
 #: Process noise densities of the test filter: accel, gyro, accel bias walk, gyro bias walk.
 NOISE = NoiseModel(accel=0.5, gyro=0.01, accel_bias_walk=0.001, gyro_bias_walk=0.0001)
 #: Initial standard deviations of the test filter, per state block.
-STD0 = {"pos": 1.0, "vel": 0.5, "att": 0.1, "ba": 0.01, "bg": 0.001}
+STD0 = {"pos": 1.0, "vel": 0.5, "att": 0.1, "ba": 0.01, "bg": 0.001, "scale": 0.01}
 
 
 def initial_covariance() -> np.ndarray:
-    """Diagonal P0 (15, 15) from :data:`STD0`."""
+    """Diagonal P0 (16, 16) from :data:`STD0`."""
     std = np.empty(DIM_X)
     std[POS], std[VEL], std[ATT] = STD0["pos"], STD0["vel"], STD0["att"]
-    std[BA], std[BG] = STD0["ba"], STD0["bg"]
+    std[BA], std[BG], std[SCALE] = STD0["ba"], STD0["bg"], STD0["scale"]
     return np.diag(std**2)
 
 
@@ -53,7 +56,7 @@ def make_filter(yaw: float = 0.0, P0: np.ndarray | None = None) -> PoseUKF:
 
 
 def correlated_covariance(seed: int) -> np.ndarray:
-    """An SPD P (15, 15) with the scales of :func:`initial_covariance` and strong correlations."""
+    """An SPD P (16, 16) with the scales of :func:`initial_covariance` and strong correlations."""
     rng = np.random.default_rng(seed)
     std = np.sqrt(np.diag(initial_covariance()))
     A = rng.normal(size=(DIM_X, DIM_X))
@@ -198,6 +201,7 @@ def test_predict_equals_the_kalman_predict_for_zero_motion() -> None:
     q[ATT] = NOISE.gyro**2 * T
     q[BA] = NOISE.accel_bias_walk**2 * T + 1e-14
     q[BG] = NOISE.gyro_bias_walk**2 * T + 1e-16
+    q[SCALE] = NOISE.wheel_scale_walk**2 * T + 1e-14
     P_expected = F @ P @ F.T + np.diag(q)
     np.testing.assert_allclose(ukf.x, np.zeros(DIM_X), rtol=0, atol=1e-12)
     np.testing.assert_allclose(ukf.P, P_expected, rtol=0, atol=1e-13)
@@ -276,3 +280,109 @@ def test_process_model_turns_with_gyro_and_predict_follows() -> None:
 def test_euler_round_trip() -> None:
     rpy = np.array([[0.1, -0.2, 3.0], [-0.3, 0.4, -2.0]])
     np.testing.assert_allclose(rot_to_euler(euler_to_rot(rpy)), rpy, atol=1e-12)
+
+
+def test_joint_update_equals_the_kalman_update_for_linear_measurements() -> None:
+    """GPS (no lever arm) and yaw at once, both linear: one stacked Kalman update, H = [[I3
+    at POS], [e_yaw]], R = blockdiag(R_gps, r_yaw); the per-block d2 are the marginal ones."""
+    P = correlated_covariance(seed=5)
+    ukf = make_filter(P0=P)
+    x = ukf.x.copy()
+    z = np.array([0.8, -0.5, 0.3, 0.05])
+    R = np.diag([0.09, 0.16, 0.25, 1e-3])
+    H = np.zeros((4, DIM_X))
+    H[:3, POS] = np.eye(3)
+    H[3, YAW] = 1.0
+    S = H @ P @ H.T + R
+    K = P @ H.T @ np.linalg.inv(S)
+    y = z - H @ x
+    flags = ukf.update_joint(
+        [
+            Measurement("gps", z[:3], R[:3, :3], gps_model(np.zeros(3)), 1e9),
+            Measurement("heading", z[3:], R[3:, 3:], yaw_model, 1e9, angle_mean, angle_residual),
+        ]
+    )
+    assert flags == [True, True]
+    np.testing.assert_allclose(ukf.x, x + K @ y, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(ukf.P, P - K @ S @ K.T, rtol=0, atol=1e-11 * np.abs(P).max())
+    assert ukf.last_d2 == pytest.approx(float(y[3] ** 2 / S[3, 3]), rel=1e-9)
+    assert ukf.accepted["gps"] == ukf.accepted["heading"] == 1
+
+
+def test_joint_update_gates_each_sensor_on_its_own() -> None:
+    """A wild fix is rejected; the yaw measured with it still updates, alone."""
+    ukf = make_filter()
+    alone = make_filter()
+    z_yaw, r_yaw = np.array([0.05]), np.array([[1e-3]])
+    flags = ukf.update_joint(
+        [
+            Measurement(
+                "gps", np.array([500.0, 0.0, 0.0]), np.eye(3), gps_model(np.zeros(3)), 21.0
+            ),
+            Measurement("heading", z_yaw, r_yaw, yaw_model, 15.0, angle_mean, angle_residual),
+        ]
+    )
+    assert flags == [False, True]
+    assert ukf.gated["gps"] == 1 and ukf.accepted["heading"] == 1
+    alone.update(
+        "heading", z_yaw, r_yaw, yaw_model, 15.0, mean_fn=angle_mean, residual_fn=angle_residual
+    )
+    np.testing.assert_allclose(ukf.x, alone.x, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ukf.P, alone.P, rtol=0, atol=1e-15)
+
+
+def test_wheel_model_reads_the_scale_error() -> None:
+    """Level, 10 m/s forward, no rotation: the odometer reads (1 + ks) 10 m/s."""
+    x = np.zeros((2, DIM_X))
+    x[:, VEL.start] = 10.0
+    x[1, SCALE] = 0.004
+    z = wheel_model(np.zeros(3), np.zeros(3))(x)
+    np.testing.assert_allclose(z[:, 0], [10.0, 10.04], rtol=0, atol=1e-12)
+
+
+def test_wheel_updates_learn_the_scale_error() -> None:
+    """A filter told its velocity (GPS-like, 10 m/s east) and an odometer reading 0.5 % high
+    ends with ks near 0.005; without the state it could only bias the velocity. (Moving from
+    the start: at rest the reading says nothing about the scale.)"""
+    x0 = np.zeros(DIM_X)
+    x0[VEL.start] = 10.0
+    # Attitude known to 1 mrad: a 0.1 rad uncertainty would itself lower the expected
+    # forward speed by (sigma_pitch^2 + sigma_yaw^2) / 2 = 1 %, which the UKF rightly sees.
+    P0 = initial_covariance()
+    P0[ATT, ATT] = np.eye(3) * 1e-6
+    ukf = PoseUKF(x0, P0, NoiseModel(0.5, 1e-4, 0.001, 0.0001), alpha=1e-3, beta=2.0, kappa=0.0)
+    H_vel = np.zeros((3, DIM_X))
+    H_vel[:, VEL] = np.eye(3)
+    v_true = np.array([10.0, 0.0, 0.0])
+    for _ in range(200):
+        ukf.predict(stationary_increment(0.1, steps=10))
+        ukf.update_joint(
+            [
+                Measurement("vel", v_true, np.eye(3) * 0.01, lambda s: s[:, VEL], 1e9),
+                Measurement(
+                    "wheels",
+                    np.array([10.05]),
+                    np.array([[0.05**2]]),
+                    wheel_model(np.zeros(3), np.zeros(3)),
+                    1e9,
+                ),
+            ]
+        )
+    assert ukf.x[SCALE] == pytest.approx(0.005, abs=5e-4)
+    assert ukf.x[VEL.start] == pytest.approx(10.0, abs=0.01)
+
+
+def test_reset_motion_replaces_position_and_velocity_only() -> None:
+    P = correlated_covariance(seed=6)
+    ukf = make_filter(P0=P)
+    x_before = ukf.x.copy()
+    P0 = initial_covariance()
+    target = np.array([100.0, -50.0, 2.0, 1.0, 0.5, 0.0])
+    ukf.reset_motion(target, P0)
+    np.testing.assert_array_equal(ukf.x[POS.start : VEL.stop], target)
+    np.testing.assert_array_equal(ukf.x[ATT.start :], x_before[ATT.start :])
+    pv = slice(POS.start, VEL.stop)
+    np.testing.assert_array_equal(ukf.P[pv, pv], P0[pv, pv])
+    np.testing.assert_array_equal(ukf.P[pv, ATT.start :], 0.0)
+    np.testing.assert_array_equal(ukf.P[ATT.start :, ATT.start :], P[ATT.start :, ATT.start :])
+    assert np.linalg.eigvalsh(ukf.P).min() > 0

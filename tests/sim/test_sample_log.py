@@ -1,12 +1,12 @@
 """The bundled sample log is what its README's command writes.
 
-Bit for bit on the machine that wrote it. Elsewhere the last bits of a few floating-point
-values may differ: numpy's transcendental functions (the GPS fix's geodetic conversion uses
-``arctan2``, ``sin``, ``cos``) are not correctly rounded and change between numpy builds. So
-when the bytes differ, the logs must still hold the same records in the same order with the
-same times and sizes, every integer, string and boolean field equal, and every float within a
-few units in the last place of what it is computed from. ``tests/sim/test_determinism.py``
-checks bit-for-bit determinism on one machine."""
+Bit for bit on the project machine. Elsewhere the last bits of a few floating-point values
+may differ: numpy's transcendental functions (the GPS fix's geodetic conversion uses
+``arctan2``, ``sin``, ``cos``) are not correctly rounded and change between numpy builds and
+CPUs. So when the bytes differ, the logs must still hold the same records in the same order
+with the same times and sizes, every integer, string and boolean field equal, and every
+float within a few units in the last place of what it is computed from.
+``tests/sim/test_determinism.py`` checks bit-for-bit determinism on one machine."""
 
 from __future__ import annotations
 

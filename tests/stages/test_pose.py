@@ -14,8 +14,10 @@ from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.pose import PoseResult, run_pose
-from toolkit.tableio import read_table, read_table_metadata, write_table
+from toolkit.tableio import read_table, read_table_metadata
 from toolkit.workspace import Workspace
+
+from .crafted import write_table
 
 SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
 
@@ -99,7 +101,7 @@ def test_pose_rerun_is_up_to_date(sample_pose: tuple[Workspace, str, PoseResult]
     assert path.stat().st_mtime_ns == before
 
 
-def test_no_gps_fix_is_a_stage_error(
+def test_no_gps_fix_dead_reckons_and_without_wheels_is_a_stage_error(
     sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path
 ) -> None:
     ws0, log_id, _ = sample_pose
@@ -117,6 +119,26 @@ def test_no_gps_fix_is_a_stage_error(
     meta = read_table_metadata(gps_path)
     write_table(
         gps_path, bad, "gps", source_sha256=meta["source_sha256"], config_hash=meta["config_hash"]
+    )
+    # Without a fix but with wheel speeds the pose dead-reckons in a local frame.
+    local = run_pose(ws, log_id, default_config())
+    meta_pose = read_table_metadata(ws.log_table(log_id, "pose"))
+    assert meta_pose["frame_id"] == "local_first_pose" and "enu_origin" not in meta_pose
+    assert json.loads(meta_pose["local_origin"])["t_ns"] > 0
+    assert local.heading_source == "local"
+    assert any("dead-reckoning" in w for w in local.warnings)
+    # ...and the drift against the truth (moved into that frame) is reported.
+    assert local.accuracy is not None
+    assert 0.0 < local.accuracy["horizontal_error_at_end_m"] < 0.05 * 540.0
+    assert local.accuracy["roll_rmse_deg"] <= 0.5
+    wheels = read_table(ws.log_table(log_id, "wheels"), "wheels")
+    wmeta = read_table_metadata(ws.log_table(log_id, "wheels"))
+    write_table(
+        ws.log_table(log_id, "wheels"),
+        wheels.slice(0, 0),
+        "wheels",
+        source_sha256=wmeta["source_sha256"],
+        config_hash=wmeta["config_hash"],
     )
     with pytest.raises(StageError, match="pose needs roles the log lacks: gps .* no fix"):
         run_pose(ws, log_id, default_config())
@@ -309,3 +331,128 @@ def test_sample_pose_roll_and_pitch_rates_follow_the_truth(
         budget = float(np.hypot(sigma_g, 0.5 * period_s * rms_rate_change))
         assert rms_error <= 1.25 * budget, f"{name}: RMS error {rms_error:.5f} rad/s"
         assert abs(float(np.mean(error))) <= 0.25 * float(imu["gyro_bias_initial_radps"])
+
+
+# -- Issue "Pose that holds on every log" ------------------------------------------------
+
+
+@pytest.fixture(scope="module", params=[201, 202])
+def unseen_race_pose(
+    request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory
+) -> PoseResult:
+    """2 km race logs of seeds nobody tuned on (each with its per-wheel scale errors, the
+    race profile's 10 s dropout at 60 s and random ones)."""
+    from toolkit.sim.simulate import simulate
+
+    seed = int(request.param)
+    root = tmp_path_factory.mktemp(f"race_{seed}")
+    log = root / "race.mcap"
+    simulate(log, profile="race", distance_m=2000.0, seed=seed)
+    ws = Workspace(root / "ws")
+    return run_pose(ws, ingest_log(log, ws, default_config()).log_id, default_config())
+
+
+def test_unseen_race_seeds_meet_the_targets(unseen_race_pose: PoseResult) -> None:
+    acc = unseen_race_pose.accuracy
+    assert acc is not None
+    assert acc["horizontal_rmse_m"] <= 0.3
+    assert acc["roll_rmse_deg"] <= 0.3
+    assert acc["pitch_rmse_deg"] <= 0.3
+    assert acc["yaw_rmse_deg"] <= 0.5
+    drops = [d for d in acc["gps_dropouts"] if d["duration_s"] <= 10.05]
+    assert drops, "the race profile schedules a 10 s dropout at 60 s"
+    assert all(d["horizontal_error_at_end_m"] <= 2.0 for d in drops)
+
+
+def _shift_fixes(gps: pa.Table, rows: np.ndarray, east_m: float) -> pa.Table:
+    """The fixes ``rows`` moved ``east_m`` metres east (longitude only)."""
+    lat = gps.column("latitude").to_numpy(zero_copy_only=False).copy()
+    lon = gps.column("longitude").to_numpy(zero_copy_only=False).copy()
+    lon[rows] += np.degrees(east_m / (6_378_137.0 * np.cos(np.radians(lat[rows]))))
+    return gps.set_column(gps.schema.get_field_index("longitude"), "longitude", pa.array(lon))
+
+
+def test_a_filter_locked_out_by_its_gate_reinitialises(
+    sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """From 40 s on every fix is 300 m east of where the filter is: it gates them, and after
+    ``reinit_after_gated_fixes`` in a row takes its position from the GPS again."""
+    _, log_id, _ = sample_pose
+    ws = _copy_workspace(sample_pose, tmp_path)
+    gps = read_table(ws.log_table(log_id, "gps"), "gps")
+    t = gps.column("t_ns").to_numpy()
+    late = np.flatnonzero(t >= t[0] + 40_000_000_000)
+    _rewrite(ws, log_id, "gps", _shift_fixes(gps, late, 300.0))
+    config = default_config()
+    with caplog.at_level("WARNING"):
+        result = run_pose(ws, log_id, config)
+    detail = ws.manifest(log_id).read()["pose"]
+    assert detail["reinitialised"] == 1
+    assert any("re-initialised from the GPS" in r.getMessage() for r in caplog.records)
+    assert result.gated.get("gps", 0) <= config.pose.reinit_after_gated_fixes + 2
+    # The pose follows the moved fixes to the end (truth does not: it was not moved).
+    pose = read_table(ws.log_table(log_id, "pose"), "pose")
+    origin = json.loads(read_table_metadata(ws.log_table(log_id, "pose"))["enu_origin"])
+    from toolkit.geodesy import GeodeticOrigin, geodetic_to_enu
+
+    o = GeodeticOrigin(origin["latitude_deg"], origin["longitude_deg"], origin["altitude_m"])
+    moved = read_table(ws.log_table(log_id, "gps"), "gps")
+    ok = moved.column("status").to_numpy() >= 0
+    enu = np.asarray(
+        geodetic_to_enu(
+            moved.column("latitude").to_numpy(zero_copy_only=False)[ok],
+            moved.column("longitude").to_numpy(zero_copy_only=False)[ok],
+            moved.column("altitude").to_numpy(zero_copy_only=False)[ok],
+            o,
+        )
+    )
+    t_fix = moved.column("t_ns").to_numpy()[ok]
+    tp = pose.column("t_ns").to_numpy()
+    end = t_fix >= tp[-1] - 5_000_000_000
+    x = np.interp(t_fix[end], tp, pose.column("x").to_numpy())
+    assert np.abs(x - enu[end, 0]).max() < 3.0
+
+
+def test_reinitialisation_off_leaves_the_filter_locked_out(
+    sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path
+) -> None:
+    """The same jump with ``reinit_after_gated_fixes = 0``: every later fix is gated (what
+    the re-initialisation is for)."""
+    import dataclasses
+
+    _, log_id, _ = sample_pose
+    ws = _copy_workspace(sample_pose, tmp_path)
+    gps = read_table(ws.log_table(log_id, "gps"), "gps")
+    t = gps.column("t_ns").to_numpy()
+    late = np.flatnonzero(t >= t[0] + 40_000_000_000)
+    _rewrite(ws, log_id, "gps", _shift_fixes(gps, late, 300.0))
+    config = default_config()
+    config = dataclasses.replace(
+        config, pose=dataclasses.replace(config.pose, reinit_after_gated_fixes=0)
+    )
+    result = run_pose(ws, log_id, config)
+    assert ws.manifest(log_id).read()["pose"]["reinitialised"] == 0
+    assert result.gated.get("gps", 0) > 100
+
+
+def test_a_wild_first_fix_does_not_move_the_map(
+    sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path
+) -> None:
+    """The first valid fix 2 km off: the origin is the next fix (the first the later ones
+    agree with), the wild one is ignored, and the pose meets its targets."""
+    _, log_id, _ = sample_pose
+    ws = _copy_workspace(sample_pose, tmp_path)
+    gps = read_table(ws.log_table(log_id, "gps"), "gps")
+    valid = np.flatnonzero(gps.column("status").to_numpy() >= 0)
+    _rewrite(ws, log_id, "gps", _shift_fixes(gps, valid[:1], 2000.0))
+    result = run_pose(ws, log_id, default_config())
+    origin = json.loads(read_table_metadata(ws.log_table(log_id, "pose"))["enu_origin"])
+    second = gps.slice(int(valid[1]), 1).to_pylist()[0]
+    assert origin["latitude_deg"] == second["latitude"]
+    assert origin["longitude_deg"] == second["longitude"]
+    assert ws.manifest(log_id).read()["pose"]["reinitialised"] == 0
+    assert any("ignored" in w for w in result.warnings)
+    acc = result.accuracy
+    assert acc is not None
+    assert acc["horizontal_rmse_m"] <= 0.3
+    assert acc["yaw_rmse_deg"] <= 0.5

@@ -22,8 +22,10 @@ from toolkit.config import PipelineConfig, default_config
 from toolkit.errors import StageError
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.pose import run_pose
-from toolkit.tableio import read_table, read_table_metadata, write_table
+from toolkit.tableio import read_table, read_table_metadata
 from toolkit.workspace import Workspace
+
+from .crafted import adopt_edits, write_table
 
 SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
 
@@ -75,6 +77,7 @@ def _set_imu_mount(ws: Workspace, log_id: str, rpy: tuple[float, float, float]) 
         if t["child_frame"] == "imu_link":
             t["rotation_xyzw"] = quat
     path.write_text(json.dumps(tf))
+    adopt_edits(path.parent)
 
 
 def _max_difference(a: pa.Table, b: pa.Table) -> tuple[float, float]:
@@ -108,6 +111,7 @@ def test_turned_imu_without_tf_static_uses_the_config_and_warns(
     tf = json.loads((copy.log_dir(log_id) / "tf_static.json").read_text())
     mounts = {t["child_frame"]: t["translation_m"] for t in tf["transforms"]}
     (copy.log_dir(log_id) / "tf_static.json").unlink()
+    adopt_edits(copy.log_dir(log_id))
     base_from_imu = Rotation.from_euler("ZYX", TURNED_RPY[::-1]).as_matrix()
     _turn_imu(copy, log_id, base_from_imu)
     default = default_config()
@@ -165,3 +169,26 @@ def test_truth_is_written_in_the_pose_frame(posed: tuple[Workspace, str, pa.Tabl
     accuracy = ws.manifest(log_id).read()["pose_accuracy"]
     assert rmse < 0.3
     assert rmse == pytest.approx(accuracy["horizontal_rmse_m"], abs=1e-4)  # stored to 0.1 mm
+
+
+def test_pose_refuses_inputs_no_finished_ingest_wrote(
+    posed: tuple[Workspace, str, pa.Table], tmp_path: Path
+) -> None:
+    """A table edited (or left by an interrupted ingest) is not what the finished ingest
+    recorded: pose refuses it, naming the file, rather than pose a log nobody ingested."""
+    from toolkit import tableio
+    from toolkit.errors import WorkspaceError
+
+    ws, log_id, _ = posed
+    copy = _copy(ws, log_id, tmp_path / "ws")
+    path = copy.log_table(log_id, "wheels")
+    meta = read_table_metadata(path)
+    tableio.write_table(
+        path,
+        read_table(path, "wheels").slice(0, 100),
+        "wheels",
+        source_sha256=meta["source_sha256"],
+        config_hash=meta["config_hash"],
+    )
+    with pytest.raises(WorkspaceError, match="wheels.parquet: not the file the last finished"):
+        run_pose(copy, log_id, default_config())

@@ -5,8 +5,28 @@ epochs so that no step is longer than :data:`MAX_STEP_S` (GPS dropouts coast on 
 and the non-holonomic constraint). Between epochs the IMU is pre-integrated sample by sample
 (the one Python loop per IMU sample); the same increments carry the posterior mean of the
 last epoch forward to every IMU sample, which gives the output between filter steps without
-using anything measured later. At each epoch: predict, then GPS, yaw, wheel-speed and
-non-holonomic updates, each gated.
+using anything measured later. At each epoch: predict, then one joint update with whatever
+was measured then (GPS, compass yaw, the IMU's own roll and pitch, wheel speed, and the
+non-holonomic constraint), each sensor gated on its own innovation
+(:meth:`~toolkit.fusion.ukf.PoseUKF.update_joint`).
+
+Heading: from the compass when there is one; else from the GPS track once a run of fixes
+lies on a straight line long enough for its direction (:func:`_start`), whatever the speed,
+and afterwards the direction of the latest straight stretch of the track is a yaw
+measurement at every fix (``gps_track``, :func:`_track_headings`, variance
+``2 sigma_h^2 / L^2 +`` :data:`TRACK_YAW_FLOOR_RAD` ``^2``, gated like the compass).
+An IMU that reports its orientation contributes its roll and pitch (gravity-referenced) as
+measurements; its yaw is not used as a heading: on the one real log here (a Clearpath Husky)
+its magnetic yaw differs from the GPS track by -90 to -147 deg depending on the direction of
+travel (an uncalibrated magnetometer), which no fixed offset absorbs.
+
+No GPS fix at all: the filter dead-reckons on IMU, wheel speeds and the non-holonomic
+constraint in a local frame whose origin and zero yaw are the first pose (heading source
+``local``), starting with the wheel speeds.
+
+Recovery: after ``reinit_after_gated_fixes`` GPS fixes in a row are gated, position and
+velocity are taken from the GPS again (:func:`_reinitialise`), counted and warned about, so a
+filter that has drifted away is never locked out by its own gate.
 
 IMU gaps: a sample interval longer than 1.5 nominal periods is a gap. Gaps up to
 :data:`MAX_BRIDGE_S` are bridged (the next sample's reading is held across the gap); longer
@@ -32,15 +52,18 @@ from toolkit.fusion.ukf import (
     NHC_GATE_CHI2,
     NHC_STD_MPS,
     POS,
+    SCALE,
     VEL,
     YAW,
     ImuIncrement,
+    Measurement,
     NoiseModel,
     PoseUKF,
     angle_mean,
     angle_residual,
     gps_model,
     nhc_model,
+    roll_pitch_model,
     wheel_model,
     yaw_model,
 )
@@ -49,8 +72,13 @@ from toolkit.fusion.ukf import (
 MAX_STEP_S = 0.1
 #: Longest IMU gap bridged; a longer one restarts the filter, s.
 MAX_BRIDGE_S = 0.5
-#: Speed above which the GPS track gives a heading (no compass), m/s.
-TRACK_MIN_SPEED_MPS = 3.0
+#: Longest time a run of fixes may span to give the GPS-track heading, s.
+TRACK_MAX_SPAN_S = 30.0
+#: Largest RMS distance of a run of fixes from their line, in fix sigmas, for a track heading.
+TRACK_STRAIGHT_SIGMAS = 1.5
+#: 1 sigma added to a GPS-track yaw: the direction of travel is not exactly the heading (the
+#: slight crabbing of a skid-steer robot, what is left of a turn in a "straight" run), rad.
+TRACK_YAW_FLOOR_RAD = 0.05
 
 
 @dataclass(frozen=True)
@@ -69,6 +97,11 @@ class SensorData:
     head_var: FloatArray
     wheel_t: FloatArray
     wheel_speed: FloatArray
+    #: Base_link attitude the IMU reports (none: empty): times (K,), roll-pitch-yaw (K, 3)
+    #: rad, variances (K, 3) rad^2.
+    att_t: FloatArray = field(default_factory=lambda: np.zeros(0))
+    att_rpy: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
+    att_var: FloatArray = field(default_factory=lambda: np.zeros((0, 3)))
 
 
 @dataclass(frozen=True)
@@ -89,6 +122,15 @@ class FilterSettings:
     lever_gps: FloatArray
     lever_axle: FloatArray
     output_rate_hz: float
+    #: 1 sigma of the wheel-speed scale error at the start (dimensionless).
+    init_wheel_scale_std: float = 0.01
+    #: Consecutive gated GPS fixes after which position and velocity are re-initialised
+    #: from the GPS (0: never).
+    reinit_after_gated_fixes: int = 0
+    #: chi-square gate of the IMU-reported roll and pitch (2 dof).
+    gate_attitude: float = 18.42
+    #: Shortest straight GPS track that gives the heading without a compass, m.
+    track_min_distance_m: float = 5.0
 
 
 @dataclass
@@ -105,6 +147,7 @@ class EstimateResult:
     imu_samples: int
     heading_source: str
     warnings: list[str] = field(default_factory=list)
+    reinitialised: int = 0
 
 
 def _initial_attitude(d: SensorData, t_start: float, yaw: float) -> FloatArray:
@@ -127,25 +170,97 @@ def _initial_attitude(d: SensorData, t_start: float, yaw: float) -> FloatArray:
     return np.array([roll, pitch, yaw])
 
 
-def _start(d: SensorData) -> tuple[float, float, str]:
-    """Start time, initial yaw and where the heading comes from."""
+def _track_end(d: SensorData, i: int, track_min_distance_m: float) -> int | None:
+    """The first fix ``j > i`` at least ``D = max(track_min_distance_m, 10 sigma_h)`` from
+    fix ``i`` and at most :data:`TRACK_MAX_SPAN_S` later, or None. (Only that window is
+    searched, so a vehicle parked for an hour costs time linear in the fixes.)"""
+    sigma_h = float(np.sqrt(0.5 * (d.gps_var[i, 0] + d.gps_var[i, 1])))
+    reach = max(track_min_distance_m, 10.0 * sigma_h)
+    hi = int(np.searchsorted(d.gps_t, d.gps_t[i] + TRACK_MAX_SPAN_S, side="right"))
+    dist = np.hypot(*(d.gps_enu[i + 1 : hi, :2] - d.gps_enu[i, :2]).T)
+    far = np.flatnonzero(dist >= reach)
+    return i + 1 + int(far[0]) if far.size else None
+
+
+def _track_line(d: SensorData, i: int, j: int) -> tuple[float | None, float]:
+    """Direction (rad, ENU yaw) of fixes ``i..j`` if they lie on a straight line, and its
+    variance ``2 sigma_h^2 / L^2`` (``L`` their span); (None, inf) if they do not.
+
+    The line is the principal axis of the fixes' scatter, pointed from ``p_i`` to ``p_j``;
+    they lie on it when the RMS of their distances to it is at most
+    :data:`TRACK_STRAIGHT_SIGMAS` ``sigma_h`` (a turn bends them off it, and a chord across a
+    turn gives the heading of no point of it).
+    """
+    pts = d.gps_enu[i : j + 1, :2]
+    sigma_h = float(np.sqrt(0.5 * (d.gps_var[i : j + 1, 0] + d.gps_var[i : j + 1, 1])).mean())
+    centred = pts - pts.mean(axis=0)
+    _, _, vt = np.linalg.svd(centred, full_matrices=False)
+    chord = pts[-1] - pts[0]
+    axis = vt[0] if vt[0] @ chord > 0 else -vt[0]
+    normal = np.array([-axis[1], axis[0]])
+    if float(np.sqrt(np.mean((centred @ normal) ** 2))) > TRACK_STRAIGHT_SIGMAS * sigma_h:
+        return None, np.inf
+    span = float(np.hypot(chord[0], chord[1]))
+    return float(np.arctan2(axis[1], axis[0])), 2.0 * sigma_h**2 / span**2
+
+
+def _track_headings(d: SensorData, track_min_distance_m: float) -> tuple[FloatArray, FloatArray]:
+    """Per fix ``k``, the GPS track's direction over the latest straight run of fixes ending
+    at ``k`` (:func:`_track_line` of ``i..k``, ``i`` the last fix at least ``D`` back) and its
+    variance; NaN where there is none. Causal: only fixes up to ``k``."""
+    n = d.gps_t.size
+    yaw = np.full(n, np.nan)
+    var = np.full(n, np.nan)
+    xy = d.gps_enu[:, :2]
+    for k in range(1, n):
+        sigma_h = float(np.sqrt(0.5 * (d.gps_var[k, 0] + d.gps_var[k, 1])))
+        reach = max(track_min_distance_m, 10.0 * sigma_h)
+        lo = int(np.searchsorted(d.gps_t, d.gps_t[k] - TRACK_MAX_SPAN_S))
+        back = np.flatnonzero(np.hypot(*(xy[lo:k] - xy[k]).T) >= reach)
+        if back.size == 0:
+            continue
+        i = lo + int(back[-1])
+        y, v = _track_line(d, i, k)
+        if y is not None:
+            yaw[k], var[k] = y, v
+    return yaw, var
+
+
+def _start(d: SensorData, track_min_distance_m: float) -> tuple[float, float, str]:
+    """Start time, initial yaw and where the heading comes from.
+
+    With a compass: its first reading at or after the first fix. Without: the GPS track,
+    from the first run of fixes ``i..j`` that spans a straight line long enough for its
+    direction to be good to a few degrees at any speed (a robot at 1 m/s included):
+
+    - ``|p_j - p_i| >= D = max(track_min_distance_m, 10 sigma_h)`` (``sigma_h`` the fixes'
+      horizontal 1 sigma), within :data:`TRACK_MAX_SPAN_S`;
+    - the fixes fit a line: the RMS of their distances to the least-squares line through
+      them (principal axis of their scatter) is at most :data:`TRACK_STRAIGHT_SIGMAS`
+      ``sigma_h`` (a turn bends them off it; a chord across a turn would give the heading
+      of no point of it).
+
+    The heading is the line's direction, pointing from ``p_i`` to ``p_j``; the filter starts
+    at ``t_j``. Its error, about ``sqrt(2) sigma_h / D`` rad, is within the initial yaw
+    uncertainty (0.3 rad) and the GPS refines it as the vehicle moves.
+    """
+    if d.gps_t.size == 0:
+        # No GPS: a local frame whose origin and yaw 0 are the first pose, once the wheels
+        # (the only speed reference left) have started.
+        t0 = float(d.wheel_t[0]) if d.wheel_t.size else 0.0
+        return t0, 0.0, "local"
     t_fix = float(d.gps_t[0])
     if d.head_t.size:
         i = int(np.searchsorted(d.head_t, t_fix))
         if i < d.head_t.size:
             return max(t_fix, float(d.head_t[i])), float(d.head_yaw[i]), "compass"
-    # GPS track: the first pair of fixes ~1 s apart moving faster than the threshold.
-    j = np.searchsorted(d.gps_t, d.gps_t + 1.0)
-    ok = j < d.gps_t.size
-    i_idx = np.flatnonzero(ok)
-    if i_idx.size:
-        jj = j[i_idx]
-        disp = d.gps_enu[jj, :2] - d.gps_enu[i_idx, :2]
-        dt = d.gps_t[jj] - d.gps_t[i_idx]
-        fast = np.hypot(disp[:, 0], disp[:, 1]) / np.maximum(dt, 1e-3) > TRACK_MIN_SPEED_MPS
-        if fast.any():
-            k = int(np.flatnonzero(fast)[0])
-            return float(d.gps_t[jj[k]]), float(np.arctan2(disp[k, 1], disp[k, 0])), "gps_track"
+    for i in range(d.gps_t.size):
+        j = _track_end(d, i, track_min_distance_m)
+        if j is None:
+            continue
+        yaw, _ = _track_line(d, i, j)
+        if yaw is not None:
+            return float(d.gps_t[j]), yaw, "gps_track"
     return t_fix, 0.0, "none"
 
 
@@ -162,6 +277,30 @@ def _epochs(d: SensorData, t_start: float, t_end: float) -> FloatArray:
         ]
         t = np.union1d(t, np.concatenate(fills))
     return np.asarray(t[1:], dtype=np.float64)
+
+
+def _reinitialise(
+    ukf: PoseUKF, d: SensorData, gi: int, t: float, streak: int, s: FilterSettings, P0: FloatArray
+) -> None:
+    """Put a filter that every fix is gated against back on the GPS.
+
+    Position (IMU) from the fix ``gi``: ``p = z - R(rpy) l_gps``. Velocity: the wheel
+    speed along the current attitude, ``v = R(rpy) (u / (1 + ks), 0, 0)``, where the log
+    has wheel speeds at ``t``; else the mean velocity of the gated fixes, ``(z_gi -
+    z_first) / (t_gi - t_first)``. Their covariance goes back to ``P0``'s
+    (:meth:`PoseUKF.reset_motion`); attitude, biases and wheel scale are kept.
+    """
+    x = ukf.x
+    rot = euler_to_rot(x[ATT])
+    pos = d.gps_enu[gi] - rot @ s.lever_gps
+    if d.wheel_t.size and d.wheel_t[0] <= t <= d.wheel_t[-1]:
+        speed = float(np.interp(t, d.wheel_t, d.wheel_speed)) / (1.0 + float(x[SCALE]))
+        vel = rot @ np.array([speed, 0.0, 0.0])
+    else:
+        first = max(gi - streak + 1, 0)
+        dt = float(d.gps_t[gi] - d.gps_t[first])
+        vel = (d.gps_enu[gi] - d.gps_enu[first]) / dt if dt > 0.0 else np.zeros(3)
+    ukf.reset_motion(np.concatenate([pos, vel]), P0)
 
 
 ImuWindow = tuple[FloatArray, FloatArray, FloatArray]
@@ -188,11 +327,20 @@ def estimate_stream(
     nominal IMU period. Output rows are yielded per window, so memory does not grow with the
     log; the accounting is written into ``result`` when the generator is exhausted.
     """
-    t_start, yaw0, heading_source = _start(d)
+    t_start, yaw0, heading_source = _start(d, s.track_min_distance_m)
     warnings: list[str] = []
-    if heading_source == "none":
-        warnings.append("no compass and the vehicle never moves fast enough for a GPS heading")
+    if heading_source == "local":
+        warnings.append(
+            "no GPS fix: dead-reckoning on the IMU and wheel speeds in a local frame whose "
+            "origin is the first pose"
+        )
+    elif heading_source == "none":
+        warnings.append("no compass and the GPS track never runs straight far enough for a heading")
     epochs = _epochs(d, t_start, t_end)
+    if heading_source == "compass":
+        track_yaw = track_var = np.full(d.gps_t.size, np.nan)
+    else:
+        track_yaw, track_var = _track_headings(d, s.track_min_distance_m)
 
     # Initial attitude from the first second of IMU after the start.
     first_t: list[FloatArray] = []
@@ -222,10 +370,13 @@ def estimate_stream(
     att0 = _initial_attitude(head, t_start, yaw0)
     del head, first_t, first_a, first_g
 
-    i_fix = min(int(np.searchsorted(d.gps_t, t_start)), d.gps_t.size - 1)
     rot0 = euler_to_rot(att0)
     x0 = np.zeros(DIM_X)
-    x0[POS] = d.gps_enu[i_fix] - rot0 @ s.lever_gps
+    if d.gps_t.size:
+        i_fix = min(int(np.searchsorted(d.gps_t, t_start)), d.gps_t.size - 1)
+        x0[POS] = d.gps_enu[i_fix] - rot0 @ s.lever_gps
+    else:  # base_link at the local origin; the IMU is -l_axle from it
+        x0[POS] = -(rot0 @ s.lever_axle)
     speed0 = float(np.interp(t_start, d.wheel_t, d.wheel_speed)) if d.wheel_t.size else 0.0
     x0[VEL] = rot0 @ np.array([speed0, 0.0, 0.0])
     x0[ATT] = att0
@@ -233,10 +384,11 @@ def estimate_stream(
     p0[POS] = s.init_pos_std**2
     p0[VEL] = s.init_vel_std**2
     p0[ATT] = s.init_att_std**2
-    if heading_source != "compass":
+    if heading_source in ("gps_track", "none"):
         p0[YAW] = 0.3**2
     p0[BA] = 0.1**2
     p0[BG] = 0.005**2
+    p0[SCALE] = s.init_wheel_scale_std**2
     P0 = np.diag(p0)
     ukf = PoseUKF(x0, P0, s.noise, alpha=s.alpha, beta=s.beta, kappa=s.kappa)
 
@@ -257,7 +409,9 @@ def estimate_stream(
     prev_bound = t_start  # the last segment end handled
     prev_row: dict[str, float] | None = None  # last segment's values, for interpolation
     first_seg_t: float | None = None
-    n_bridged = n_restart = n_imu = 0
+    n_bridged = n_restart = n_imu = n_reinit = 0
+    gps_streak = 0  # consecutive gated fixes
+    last_att = -1  # index of the last IMU attitude used
     m_next = 1  # next output index (t_out = t_start + step * m)
 
     for wt, accel, gyro in imu_windows():
@@ -314,30 +468,81 @@ def estimate_stream(
                 ukf.restart(P0)
                 restart_pending = False
             w_now = seg_w[j]
+            # Everything measured at this epoch updates from one sigma-point draw, each
+            # sensor gated on its own innovation (PoseUKF.update_joint).
+            blocks: list[Measurement] = []
             gi = gps_idx.get(t)
             if gi is not None:
-                ukf.update("gps", d.gps_enu[gi], np.diag(d.gps_var[gi]), hx_gps, s.gate_gps)
+                blocks.append(
+                    Measurement("gps", d.gps_enu[gi], np.diag(d.gps_var[gi]), hx_gps, s.gate_gps)
+                )
             hi = R_heading_idx.get(t)
             if hi is not None:
-                ukf.update(
-                    "heading",
-                    d.head_yaw[hi : hi + 1],
-                    d.head_var[hi : hi + 1, None],
-                    hx_yaw,
-                    s.gate_heading,
-                    mean_fn=angle_mean,
-                    residual_fn=angle_residual,
+                blocks.append(
+                    Measurement(
+                        "heading",
+                        d.head_yaw[hi : hi + 1],
+                        d.head_var[hi : hi + 1, None],
+                        hx_yaw,
+                        s.gate_heading,
+                        angle_mean,
+                        angle_residual,
+                    )
+                )
+            if gi is not None and np.isfinite(track_yaw[gi]):
+                # No compass: the direction of the latest straight GPS track, as a yaw.
+                blocks.append(
+                    Measurement(
+                        "gps_track",
+                        track_yaw[gi : gi + 1],
+                        np.array([[track_var[gi] + TRACK_YAW_FLOOR_RAD**2]]),
+                        hx_yaw,
+                        s.gate_heading,
+                        angle_mean,
+                        angle_residual,
+                    )
+                )
+            ai = int(np.searchsorted(d.att_t, t, side="right")) - 1
+            if ai > last_att and t - d.att_t[ai] <= MAX_STEP_S:
+                # The latest orientation the IMU reported, once: its roll and pitch (gravity-
+                # referenced); its yaw is not used as a heading (see the module docstring).
+                last_att = ai
+                blocks.append(
+                    Measurement(
+                        "imu_attitude",
+                        d.att_rpy[ai, :2],
+                        np.diag(d.att_var[ai, :2]),
+                        roll_pitch_model,
+                        s.gate_attitude,
+                        angle_mean,
+                        angle_residual,
+                    )
                 )
             if d.wheel_t.size and d.wheel_t[0] <= t <= d.wheel_t[-1]:
                 speed = float(np.interp(t, d.wheel_t, d.wheel_speed))
-                ukf.update(
-                    "wheels",
-                    np.array([speed]),
-                    wheel_var,
-                    wheel_model(w_now, s.lever_axle),
-                    s.gate_wheels,
+                blocks.append(
+                    Measurement(
+                        "wheels",
+                        np.array([speed]),
+                        wheel_var,
+                        wheel_model(w_now, s.lever_axle),
+                        s.gate_wheels,
+                    )
                 )
-            ukf.update("nhc", zero2, nhc_cov, nhc_model(w_now, s.lever_axle), NHC_GATE_CHI2)
+            blocks.append(
+                Measurement("nhc", zero2, nhc_cov, nhc_model(w_now, s.lever_axle), NHC_GATE_CHI2)
+            )
+            flags = ukf.update_joint(blocks)
+            if gi is not None:
+                gps_streak = 0 if flags[0] else gps_streak + 1
+                if s.reinit_after_gated_fixes and gps_streak >= s.reinit_after_gated_fixes:
+                    _reinitialise(ukf, d, gi, t, gps_streak, s, P0)
+                    warnings.append(
+                        f"{gps_streak} GPS fixes in a row gated at t = {t:.1f} s: position "
+                        "and velocity re-initialised from the GPS"
+                    )
+                    n_reinit += 1
+                    gps_streak = 0
             post_k = ukf.x.copy()
             seg_post[j] = post_k
             inc = ImuIncrement(ukf.x[BA].copy(), ukf.x[BG].copy())
@@ -416,3 +621,4 @@ def estimate_stream(
     result.imu_samples = n_imu
     result.heading_source = heading_source
     result.warnings = warnings
+    result.reinitialised = n_reinit

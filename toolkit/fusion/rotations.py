@@ -6,6 +6,8 @@ base_link vectors into ENU (world from body).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -74,6 +76,30 @@ def so3_exp(phi: FloatArray) -> FloatArray:
     a = np.where(small, 1.0 - theta2 / 6.0, np.sin(t) / t)
     b = np.where(small, 0.5 - theta2 / 24.0, 0.5 * half_sinc**2)
     return np.asarray(np.eye(3) + a * k + b * (k @ k), dtype=np.float64)
+
+
+def so3_exp_one(phi: FloatArray) -> FloatArray:
+    """:func:`so3_exp` of one rotation vector ``phi`` (3,) -> (3, 3), the same formula in
+    scalar arithmetic (the IMU pre-integration calls it once per sample, where numpy's
+    per-call overhead dominates). With ``K^2 = phi phi^T - theta^2 I``::
+
+        Exp(phi) = I + a K + b (phi phi^T - theta^2 I)
+    """
+    x, y, z = float(phi[0]), float(phi[1]), float(phi[2])
+    th2 = x * x + y * y + z * z
+    if th2 < SO3_SERIES_BELOW_RAD**2:
+        a, b = 1.0 - th2 / 6.0, 0.5 - th2 / 24.0
+    else:
+        th = math.sqrt(th2)
+        half_sinc = math.sin(0.5 * th) / (0.5 * th)
+        a, b = math.sin(th) / th, 0.5 * half_sinc * half_sinc
+    return np.array(
+        [
+            [1.0 + b * (x * x - th2), -a * z + b * x * y, a * y + b * x * z],
+            [a * z + b * x * y, 1.0 + b * (y * y - th2), -a * x + b * y * z],
+            [-a * y + b * x * z, a * x + b * y * z, 1.0 + b * (z * z - th2)],
+        ]
+    )
 
 
 def euler_rates(rpy: FloatArray, omega_body: FloatArray) -> FloatArray:

@@ -1,6 +1,6 @@
 """An IMU-driven unscented Kalman filter for the vehicle pose (paper sect. 3), on filterpy.
 
-State vector ``x`` (15), all in the local ENU world frame unless said otherwise:
+State vector ``x`` (16), all in the local ENU world frame unless said otherwise:
 
 ====  ===============  =====  ==============================================================
 idx   name             unit   meaning
@@ -10,6 +10,8 @@ idx   name             unit   meaning
 6-8   roll,pitch,yaw   rad    attitude of base_link (Z-Y-X Euler; IMU axes = base_link axes)
 9-11  bax, bay, baz    m/s^2  accelerometer bias (IMU frame)
 12-14 bgx, bgy, bgz    rad/s  gyro bias (IMU frame)
+15    ks               1      wheel-speed scale error: the odometer reads ``(1 + ks)`` times
+                              the true forward speed (tyre radius, wear, load)
 ====  ===============  =====  ==============================================================
 
 Process model (one filter step over ``[t_a, t_b]``, ``T = t_b - t_a``). The IMU samples
@@ -26,20 +28,28 @@ Each sigma point then moves in one vectorised step, with first-order bias correc
     R' = R(rpy) dR Exp(-dbg T)                 rpy' = euler(R')
     v' = v + g T + R(rpy) (dv - Jv dba)        g = (0, 0, -9.80665)
     p' = p + v T + 1/2 g T^2 + R(rpy) (dp - Jp dba)
-    ba' = ba,  bg' = bg
+    ba' = ba,  bg' = bg,  ks' = ks
 
 Process noise (additive, per step, diagonal; :meth:`NoiseModel.q`): velocity
-``accel_noise^2 T``, attitude ``gyro_noise^2 T``, biases ``walk^2 T``, position
-``accel_noise^2 T^3 / 3``, plus small floors (1e-9 m^2 on position, 1e-14 and 1e-16 on the
-accelerometer and gyro biases) that keep ``Q`` positive definite for a tiny ``T``.
+``accel_noise^2 T``, attitude ``gyro_noise^2 T``, biases and wheel scale ``walk^2 T``,
+position ``accel_noise^2 T^3 / 3``, plus small floors (1e-9 m^2 on position, 1e-14, 1e-16
+and 1e-14 on the accelerometer bias, gyro bias and wheel scale) that keep ``Q`` positive
+definite for a tiny ``T``.
 
 Measurement models (``R(rpy)`` world from body; ``l`` a lever arm from the IMU in base_link;
 ``w`` the bias-corrected gyro rate at the measurement time, a known input):
 
 - GPS position (3): ``z = p + R(rpy) l_gps``; noise from the fix's diagonal covariance.
 - GPS-compass yaw (1): ``z = yaw``; residual wrapped to [-pi, pi).
-- Wheel speed (1): ``z = e_x . R(rpy)^T v + (w x l_axle)_x``, forward speed of the rear-axle
-  centre (``l_axle`` = base_link origin, on the ground below the rear axle, from the IMU).
+- Wheel speed (1): ``z = (1 + ks) (e_x . R(rpy)^T v + (w x l_axle)_x)``, the odometer's
+  reading of the forward speed of the rear-axle centre (``l_axle`` = base_link origin, on
+  the ground below the rear axle, from the IMU). Without ``ks`` a scale error of 0.3 % is a
+  steady velocity bias that the GPS can correct only through the position, so the pose runs
+  ahead of (or behind) the truth by that bias times the GPS correction's time constant
+  (several seconds when IMU, wheels and NHC make the filter confident of its velocity).
+- Attitude (2, optional): ``z = (roll, pitch)`` of base_link from an IMU that reports its
+  orientation (:func:`roll_pitch_model`; :func:`attitude_model` adds yaw); residuals
+  wrapped.
 - Non-holonomic constraint (2): the lateral and vertical body velocity of the rear-axle
   centre are zero, ``z = (e_y, e_z) . (R(rpy)^T v + w x l_axle) = 0``, with
   :data:`NHC_STD_MPS`.
@@ -69,16 +79,26 @@ import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints
 
 from toolkit.errors import StageError
-from toolkit.fusion.rotations import FloatArray, euler_to_rot, rot_to_euler, so3_exp, wrap_angle
+from toolkit.fusion.rotations import (
+    FloatArray,
+    euler_to_rot,
+    rot_to_euler,
+    so3_exp,
+    so3_exp_one,
+    wrap_angle,
+)
 
 #: Dimension of the state vector.
-DIM_X = 15
-#: Slices of the state vector: position, velocity, attitude, accelerometer and gyro bias.
+DIM_X = 16
+#: Slices of the state vector: position, velocity, attitude, accelerometer and gyro bias,
+#: wheel-speed scale error.
 POS, VEL, ATT, BA, BG = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
+#: Index of the wheel-speed scale error (dimensionless) in the state vector.
+SCALE = 15
 #: Index of yaw in the state vector (the last attitude angle).
 YAW = ATT.start + 2
 #: The motion states (position, velocity, attitude), which an unobserved interval makes
-#: uncertain; the biases (BA, BG) follow them in the state vector.
+#: uncertain; the biases (BA, BG) and the wheel scale follow them in the state vector.
 MOTION = slice(POS.start, ATT.stop)
 #: Components of a base_link-axis vector: forward (x) and lateral and vertical (y, z).
 FORWARD, LATERAL_VERTICAL = slice(0, 1), slice(1, 3)
@@ -99,14 +119,14 @@ MeasFn = Callable[[FloatArray], FloatArray]
 
 
 def state_residual(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``a - b`` for states (..., 15), attitude angles wrapped."""
+    """``a - b`` for states (..., 16), attitude angles wrapped."""
     d = np.asarray(a, dtype=np.float64) - b
     d[..., ATT] = wrap_angle(d[..., ATT])
     return d
 
 
 def state_mean(sigmas: FloatArray, wm: FloatArray) -> FloatArray:
-    """Weighted mean of states (M, 15); angles averaged as wrapped offsets from sigma 0."""
+    """Weighted mean of states (M, 16); angles averaged as wrapped offsets from sigma 0."""
     ref = sigmas[0, ATT]
     x = wm @ sigmas
     x[ATT] = wrap_angle(ref + wm @ wrap_angle(sigmas[:, ATT] - ref))
@@ -192,12 +212,12 @@ class ImuIncrement:
         self.Jp += self.Jv * dt + self.rot_inc * half
         self.dv += f * dt
         self.Jv += self.rot_inc * dt
-        self.rot_inc = self.rot_inc @ so3_exp((gyro - self.bg0) * dt)
+        self.rot_inc = self.rot_inc @ so3_exp_one((gyro - self.bg0) * dt)
         self.T += dt
 
 
 def propagate(sigmas: FloatArray, inc: ImuIncrement) -> FloatArray:
-    """The process model: states (M, 15) moved over one increment, (M, 15) out (see the
+    """The process model: states (M, 16) moved over one increment, (M, 16) out (see the
     module docstring)."""
     T = inc.T
     rot = euler_to_rot(sigmas[:, ATT])
@@ -241,16 +261,32 @@ def axle_velocity_body(s: FloatArray, gyro: FloatArray, lever_axle: FloatArray) 
     """Body-frame velocity of the rear-axle centre, (M, 3)."""
     rot = euler_to_rot(s[:, ATT])
     v_body = np.einsum("mji,mj->mi", rot, s[:, VEL])
-    return np.asarray(v_body + np.cross(gyro, lever_axle), dtype=np.float64)
+    # w x l for one (3,) pair, written out: np.cross costs more than the rest of this model.
+    w, lv = gyro, lever_axle
+    w_x_l = np.array(
+        [w[1] * lv[2] - w[2] * lv[1], w[2] * lv[0] - w[0] * lv[2], w[0] * lv[1] - w[1] * lv[0]]
+    )
+    return np.asarray(v_body + w_x_l, dtype=np.float64)
 
 
 def wheel_model(gyro: FloatArray, lever_axle: FloatArray) -> MeasFn:
-    """z = forward speed of the rear-axle centre."""
+    """z = (1 + ks) x forward speed of the rear-axle centre (the odometer's reading)."""
 
     def hx(s: FloatArray) -> FloatArray:
-        return axle_velocity_body(s, gyro, lever_axle)[:, FORWARD]
+        fwd = axle_velocity_body(s, gyro, lever_axle)[:, FORWARD]
+        return np.asarray(fwd * (1.0 + s[:, SCALE : SCALE + 1]), dtype=np.float64)
 
     return hx
+
+
+def attitude_model(s: FloatArray) -> FloatArray:
+    """z = (roll, pitch, yaw) of base_link."""
+    return np.asarray(s[:, ATT], dtype=np.float64)
+
+
+def roll_pitch_model(s: FloatArray) -> FloatArray:
+    """z = (roll, pitch) of base_link."""
+    return np.asarray(s[:, ATT.start : ATT.start + 2], dtype=np.float64)
 
 
 def nhc_model(gyro: FloatArray, lever_axle: FloatArray) -> MeasFn:
@@ -268,20 +304,38 @@ def nhc_model(gyro: FloatArray, lever_axle: FloatArray) -> MeasFn:
 
 
 @dataclass(frozen=True)
+class Measurement:
+    """One sensor's measurement for :meth:`PoseUKF.update_joint`: ``z`` (k,), noise
+    covariance ``R`` (k, k), model ``hx`` (sigma points (M, 16) -> (M, k)), gate
+    ``gate_chi2`` on ``y^T S^-1 y``, and how to average and subtract it (the angle
+    versions for angles). ``name`` counts it as accepted or gated."""
+
+    name: str
+    z: FloatArray
+    R: FloatArray
+    hx: MeasFn
+    gate_chi2: float
+    mean_fn: Callable[[FloatArray, FloatArray], FloatArray] = plain_mean
+    residual_fn: Callable[[FloatArray, FloatArray], FloatArray] = plain_residual
+
+
+@dataclass(frozen=True)
 class NoiseModel:
     """Process noise densities, each per sqrt(s): ``accel`` m/s^2, ``gyro`` rad/s,
-    ``accel_bias_walk`` m/s^2, ``gyro_bias_walk`` rad/s."""
+    ``accel_bias_walk`` m/s^2, ``gyro_bias_walk`` rad/s, ``wheel_scale_walk`` 1/sqrt(s)."""
 
     accel: float
     gyro: float
     accel_bias_walk: float
     gyro_bias_walk: float
+    wheel_scale_walk: float = 0.0
 
     def q(self, T: float) -> FloatArray:
-        """Additive process noise covariance (15, 15) for a step of ``T`` seconds::
+        """Additive process noise covariance (16, 16) for a step of ``T`` seconds::
 
         Q = diag(accel^2 T^3 / 3 + 1e-9 (POS), accel^2 T (VEL), gyro^2 T (ATT),
-                 accel_bias_walk^2 T + 1e-14 (BA), gyro_bias_walk^2 T + 1e-16 (BG))
+                 accel_bias_walk^2 T + 1e-14 (BA), gyro_bias_walk^2 T + 1e-16 (BG),
+                 wheel_scale_walk^2 T + 1e-14 (SCALE))
         """
         d = np.empty(DIM_X)
         d[POS] = self.accel**2 * T**3 / 3.0 + 1e-9
@@ -289,14 +343,15 @@ class NoiseModel:
         d[ATT] = self.gyro**2 * T
         d[BA] = self.accel_bias_walk**2 * T + 1e-14
         d[BG] = self.gyro_bias_walk**2 * T + 1e-16
+        d[SCALE] = self.wheel_scale_walk**2 * T + 1e-14
         return np.diag(d)
 
 
 class PoseUKF:
-    """The pose filter: an unscented Kalman filter over the 15-state model above.
+    """The pose filter: an unscented Kalman filter over the 16-state model above.
 
     It holds filterpy's scaled sigma points and the state privately; every public method is
-    ours. ``n = 15`` is the state dimension, ``x`` (n,) the mean, ``P`` (n, n) the covariance.
+    ours. ``n = 16`` is the state dimension, ``x`` (n,) the mean, ``P`` (n, n) the covariance.
 
     Sigma points (Van der Merwe's scaled set, filterpy's ``MerweScaledSigmaPoints``), 2n + 1
     of them, with ``lambda = alpha^2 (n + kappa) - n`` and ``U`` the upper Cholesky factor of
@@ -342,17 +397,17 @@ class PoseUKF:
         beta: float,
         kappa: float,
     ) -> None:
-        """Start from the mean ``x0`` (15,) and covariance ``P0`` (15, 15).
+        """Start from the mean ``x0`` (16,) and covariance ``P0`` (16, 16).
 
         ``alpha``, ``beta``, ``kappa``: the sigma-point parameters (see the class docstring).
         """
         self._x = _checked(x0, (DIM_X,), "x0")
         self._P = _checked(P0, (DIM_X, DIM_X), "P0")
         self._noise = noise
-        # state_residual as filterpy's `subtract`: X_i = x +- U_i with the angles wrapped.
-        self._points = MerweScaledSigmaPoints(
-            DIM_X, alpha=alpha, beta=beta, kappa=kappa, subtract=state_residual
-        )
+        # filterpy forms X_i = x +- U_i with its default subtract (one call per sigma point);
+        # _sigma_points wraps the angles of all of them at once afterwards, the same numbers
+        # as passing state_residual as `subtract`, without 2n Python calls per draw.
+        self._points = MerweScaledSigmaPoints(DIM_X, alpha=alpha, beta=beta, kappa=kappa)
         self._wm: FloatArray = np.asarray(self._points.Wm, dtype=np.float64)
         self._wc: FloatArray = np.asarray(self._points.Wc, dtype=np.float64)
         self._gated: Counter[str] = Counter()
@@ -363,12 +418,12 @@ class PoseUKF:
 
     @property
     def x(self) -> FloatArray:
-        """The state mean (15,), a read-only view."""
+        """The state mean (16,), a read-only view."""
         return _read_only(self._x)
 
     @property
     def P(self) -> FloatArray:  # noqa: N802 (P, the covariance's textbook name)
-        """The state covariance (15, 15), a read-only view."""
+        """The state covariance (16, 16), a read-only view."""
         return _read_only(self._P)
 
     @property
@@ -413,7 +468,7 @@ class PoseUKF:
     ) -> bool:
         """Update with the measurement ``z`` (k,) of noise covariance ``R`` (k, k).
 
-        ``hx`` maps sigma points (M, 15) to predicted measurements (M, k); ``mean_fn`` and
+        ``hx`` maps sigma points (M, 16) to predicted measurements (M, k); ``mean_fn`` and
         ``residual_fn`` average and subtract measurements (the angle versions for angles).
         Returns False, leaving the state alone and counting the rejection under ``name``,
         when the squared Mahalanobis distance of the innovation exceeds ``gate_chi2``.
@@ -441,10 +496,91 @@ class PoseUKF:
         self._accepted[name] += 1
         return True
 
+    def update_joint(self, blocks: list[Measurement]) -> list[bool]:
+        """Update with several measurements taken at the same time, from one sigma-point draw.
+
+        Each block ``b`` (a :class:`Measurement`) has ``z_b`` (k_b,), ``R_b``, ``h_b`` and a
+        gate. The blocks are stacked into one measurement, ``Z_i = (h_1(X_i), ..., h_B(X_i))``
+        with ``R = blockdiag(R_b)``, and its unscented transform is taken once (``z^``,
+        ``S``, ``Pxz`` as in :meth:`update`; angle blocks averaged and subtracted wrapped).
+        Each block is gated on its own marginal innovation, ``d2_b = y_b^T S_bb^-1 y_b``
+        (``S_bb`` the block's diagonal block of ``S``), exactly what :meth:`update` would
+        compute for it alone. The accepted blocks ``a`` then update together::
+
+            K = Pxz[:, a] S[a, a]^-1,    x+ = x + K y_a,    P+ = P - K S[a, a] K^T
+
+        For measurements linear in the state this equals the sequential updates; it draws
+        sigma points once instead of once per sensor. Returns the accepted flag per block.
+        """
+        if not blocks:
+            return []
+        sigmas = self._sigma_points()
+        zs_parts: list[FloatArray] = []
+        zp_parts: list[FloatArray] = []
+        y_parts: list[FloatArray] = []
+        dz_parts: list[FloatArray] = []
+        for b in blocks:
+            zs = b.hx(sigmas)
+            zp = b.mean_fn(zs, self._wm)
+            zs_parts.append(zs)
+            zp_parts.append(zp)
+            y_parts.append(b.residual_fn(np.asarray(b.z, dtype=np.float64), zp))
+            dz_parts.append(b.residual_fn(zs, zp))
+        dz = np.concatenate(dz_parts, axis=1)
+        y = np.concatenate(y_parts)
+        S = (dz.T * self._wc) @ dz
+        sizes = [p.shape[1] for p in dz_parts]
+        starts = np.concatenate([[0], np.cumsum(sizes)])
+        keep: list[int] = []
+        flags: list[bool] = []
+        for i, b in enumerate(blocks):
+            sl = slice(int(starts[i]), int(starts[i + 1]))
+            S[sl, sl] += b.R
+            yb = y[sl]
+            d2 = float(yb @ np.linalg.solve(S[sl, sl], yb))
+            self._last_d2 = d2
+            ok = bool(np.isfinite(d2) and d2 <= b.gate_chi2)
+            flags.append(ok)
+            if ok:
+                keep.extend(range(sl.start, sl.stop))
+                self._accepted[b.name] += 1
+            else:
+                self._gated[b.name] += 1
+        if not keep:
+            return flags
+        idx = np.asarray(keep)
+        S_a = S[np.ix_(idx, idx)]
+        dx = state_residual(sigmas, self._x)
+        Pxz = (dx.T * self._wc) @ dz[:, idx]
+        K = np.linalg.solve(S_a, Pxz.T).T  # Pxz S^-1, S symmetric
+        x = self._x + K @ y[idx]
+        x[ATT] = wrap_angle(x[ATT])
+        P = self._P - K @ S_a @ K.T
+        self._x = x
+        self._P = 0.5 * (P + P.T)
+        return flags
+
+    def reset_motion(self, x_motion: FloatArray, P0: FloatArray) -> None:
+        """Re-initialise position and velocity: ``x[POS, VEL] = x_motion`` (6,), and their
+        rows and columns of ``P`` replaced by ``P0``'s (cross-covariances with everything
+        else zeroed, so ``P`` stays positive definite). Attitude, biases and wheel scale
+        keep their estimate and covariance: a filter locked out by its GPS gate has lost its
+        position, not the IMU's calibration."""
+        pv = slice(POS.start, VEL.stop)
+        x = self._x.copy()
+        x[pv] = _checked(x_motion, (6,), "x_motion")
+        P0c = _checked(P0, (DIM_X, DIM_X), "P0")
+        P = self._P.copy()
+        P[pv, :] = 0.0
+        P[:, pv] = 0.0
+        P[pv, pv] = P0c[pv, pv]
+        self._x = x
+        self._P = 0.5 * (P + P.T)
+
     def restart(self, P0: FloatArray) -> None:
         """Forget the motion after an interval nobody observed (a long IMU gap).
 
-        ``P0`` (15, 15) is the initial covariance; only its motion block ``F = P0[MOTION,
+        ``P0`` (16, 16) is the initial covariance; only its motion block ``F = P0[MOTION,
         MOTION]`` (9, 9: position, velocity, attitude; positive definite) is used. With
         ``A = P[MOTION, MOTION]`` and ``F = L L^T`` (Cholesky), the motion block is raised to
         at least ``F`` in the matrix order by flooring the eigenvalues of ``A`` measured in
@@ -483,9 +619,11 @@ class PoseUKF:
         self._P = 0.5 * (P + P.T)
 
     def _sigma_points(self) -> FloatArray:
-        """The 2n + 1 sigma points (31, 15) of the current ``x, P``."""
+        """The 2n + 1 sigma points (33, 16) of the current ``x, P``."""
         try:
-            return np.asarray(self._points.sigma_points(self._x, self._P), dtype=np.float64)
+            sigmas = np.asarray(self._points.sigma_points(self._x, self._P), dtype=np.float64)
+            sigmas[:, ATT] = wrap_angle(sigmas[:, ATT])
+            return sigmas
         except np.linalg.LinAlgError as exc:
             raise StageError(
                 f"pose filter diverged: its state covariance is no longer positive definite ({exc})"
@@ -514,16 +652,20 @@ __all__ = [
     "GRAVITY",
     "MOTION",
     "ImuIncrement",
+    "Measurement",
     "NoiseModel",
     "POS",
     "VEL",
     "YAW",
     "PoseUKF",
+    "SCALE",
     "angle_mean",
     "angle_residual",
+    "attitude_model",
     "gps_model",
     "nhc_model",
     "propagate",
+    "roll_pitch_model",
     "state_mean",
     "state_residual",
     "unscented_transform",

@@ -2,9 +2,11 @@
 
 Inputs ``WS/logs/<id>/{imu,gps,heading,wheels}.parquet`` and ``tf_static.json`` (lever arms);
 output ``pose.parquet`` (contract columns, base_link in the local ENU frame whose origin is
-the log's first valid GPS fix, stored as JSON under the ``enu_origin`` metadata key).
-Manifest record ``pose``: input hashes, config hash, rows, gating rejections per sensor,
-IMU gaps bridged / restarted, timings; for simulated logs (``truth_pose.parquet`` and the
+the first valid GPS fix that the fixes after it agree with,
+:func:`~toolkit.frames.choose_enu_origin`; earlier fixes are ignored; stored as JSON under
+the ``enu_origin`` metadata key). Manifest record ``pose``: input hashes, config hash, rows,
+gating rejections per sensor, IMU gaps bridged / restarted, re-initialisations from the GPS
+(``reinitialised``), timings; for simulated logs (``truth_pose.parquet`` and the
 ``terrain_sim`` record in ``mcap_metadata.json``) an ``accuracy`` header section against
 truth: horizontal RMSE (m), roll / pitch / yaw RMSE (deg), position error at the end of each
 GPS dropout (m). Idempotent: an up-to-date pose is not recomputed.
@@ -30,11 +32,13 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
+from scipy.spatial.transform import Rotation
 
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.frames import ENU_FRAME_ID, choose_enu_origin
 from toolkit.fusion.estimator import (
+    MAX_STEP_S,
     EstimateResult,
     FilterSettings,
     ImuWindow,
@@ -42,7 +46,7 @@ from toolkit.fusion.estimator import (
     SensorData,
     estimate_stream,
 )
-from toolkit.fusion.rotations import FloatArray, wrap_angle
+from toolkit.fusion.rotations import FloatArray, rot_to_euler, wrap_angle
 from toolkit.fusion.ukf import NoiseModel
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.mounts import Mount, sensor_mounts
@@ -54,11 +58,14 @@ from toolkit.workspace import (
     digest_files,
     file_sha256,
     remove_dead_temp_files,
+    require_finished,
 )
 
 _log = logging.getLogger(__name__)
 
 STAGE = "pose"
+#: ``frame_id`` of a pose without GPS: a local frame whose origin is the first pose.
+LOCAL_FRAME_ID = "local_first_pose"
 INPUT_TABLES = ("imu", "gps", "heading", "wheels")
 #: Configuration sections pose reads: the filter, timing, and the vehicle's mounts.
 CONFIG_SECTIONS = ("pose", "time", "vehicle")
@@ -131,11 +138,12 @@ def _require_roles(
     log_dir: Path, n_imu: int, n_fixes: int, n_gps: int, n_wheels: int, config: PipelineConfig
 ) -> None:
     """One StageError naming every role pose needs and the log lacks: the IMU drives the
-    filter, and a valid GPS fix places the log in the world."""
+    filter, and a valid GPS fix places the log in the world (without one, wheel speeds let
+    it dead-reckon in a local frame)."""
     lacking = []
     if n_imu < 2:
         lacking.append(f"imu ({n_imu} usable rows; accepts sensor_msgs/msg/Imu)")
-    if n_fixes == 0:
+    if n_fixes == 0 and n_wheels < 2:
         lacking.append(
             f"gps ({n_gps} rows, no fix with status >= {config.pose.gps_min_status}; accepts "
             "sensor_msgs/msg/NavSatFix"
@@ -146,17 +154,96 @@ def _require_roles(
         raise StageError(f"pose needs roles the log lacks: {'; '.join(lacking)}", path=log_dir)
 
 
+def _fix_variances(covs_col: pa.ChunkedArray, idx: np.ndarray, default: FloatArray) -> FloatArray:
+    """Per-fix (east, north, up) variances, m^2: each fix's own covariance where it has one
+    (the contract's diagonal of 3, or a full 3 x 3 row-major of 9 whose diagonal is taken),
+    positive and finite; ``default`` (K, 3) rows elsewhere (unknown covariance is null)."""
+    out = default.copy()
+    covs = covs_col.combine_chunks().take(pa.array(idx, pa.int64()))
+    if len(covs) == 0:
+        return out
+    lengths = np.asarray(pc.list_value_length(covs).fill_null(0).to_numpy(zero_copy_only=False))
+    flat = np.asarray(pc.list_flatten(covs).to_numpy(zero_copy_only=False), dtype=np.float64)
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+    for n, cols in ((3, [0, 1, 2]), (9, [0, 4, 8])):
+        rows = np.flatnonzero(lengths == n)
+        if rows.size == 0:
+            continue
+        diag = flat[starts[rows][:, None] + np.asarray(cols)[None, :]]
+        ok = np.all(np.isfinite(diag) & (diag > 0.0), axis=1)
+        out[rows[ok]] = diag[ok]
+    return out
+
+
+def _imu_attitude(
+    imu_path: Path, t0_ns: int, base_from_imu: FloatArray, min_interval_s: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The orientation the IMU reports, as base_link's attitude: (t (K,) s, roll-pitch-yaw
+    (K, 3) rad, their variances (K, 3) rad^2, NaN where the IMU gives none).
+
+    The IMU's quaternion is world-from-imu; base_link's attitude is
+    ``R_world_base = R_world_imu R_base_imu^T`` (``R_base_imu`` the mount's rotation), read as
+    Z-Y-X Euler angles. One sample per ``min_interval_s`` is kept (the filter updates at
+    most that often), so memory is that of the GPS, not of the IMU.
+    """
+    cols = ["t_ns", *(f"orientation_{a}" for a in "xyzw"), "orientation_covariance"]
+    ts: list[FloatArray] = []
+    rpys: list[FloatArray] = []
+    vs: list[FloatArray] = []
+    last_slot = -np.inf
+    for b in _batches(imu_path, "imu", cols):
+        q = np.stack(
+            [
+                np.asarray(b.column(i).to_numpy(zero_copy_only=False), np.float64)
+                for i in range(1, 5)
+            ],
+            axis=1,
+        )
+        has = np.all(np.isfinite(q), axis=1)
+        if not has.any():
+            continue
+        t = (np.asarray(b.column(0).to_numpy(), np.int64) - t0_ns).astype(np.float64) * 1e-9
+        # Thin to one sample per min_interval_s slot (the first with an orientation in each
+        # slot), never repeating the slot the previous batch ended in.
+        slot = np.floor(t / min_interval_s)
+        cand = np.flatnonzero(has & (slot > last_slot))
+        _, first = np.unique(slot[cand], return_index=True)
+        idx = cand[first]
+        if idx.size == 0:
+            continue
+        last_slot = float(slot[idx[-1]])
+        r_wi = Rotation.from_quat(q[idx]).as_matrix()  # world from imu, (K, 3, 3)
+        rpys.append(rot_to_euler(r_wi @ base_from_imu.T))
+        var = np.full((idx.size, 3), np.nan)
+        cov = b.column(5).take(pa.array(idx, pa.int64()))
+        lengths = np.asarray(pc.list_value_length(cov).fill_null(0).to_numpy(zero_copy_only=False))
+        flat = np.asarray(pc.list_flatten(cov).to_numpy(zero_copy_only=False), np.float64)
+        starts = np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)
+        for n, sel in ((3, [0, 1, 2]), (9, [0, 4, 8])):
+            rows = np.flatnonzero(lengths == n)
+            if rows.size:
+                var[rows] = flat[starts[rows][:, None] + np.asarray(sel)[None, :]]
+        vs.append(var)
+        ts.append(t[idx])
+    if not ts:
+        return np.zeros(0), np.zeros((0, 3)), np.zeros((0, 3))
+    return np.concatenate(ts), np.concatenate(rpys), np.concatenate(vs)
+
+
 def _sensor_data(
     log_dir: Path, config: PipelineConfig, imu_mount: Mount
-) -> tuple[SensorData, GeodeticOrigin, list[str], Callable[[], Iterator[ImuWindow]], float, float]:
+) -> tuple[
+    SensorData, GeodeticOrigin | None, list[str], Callable[[], Iterator[ImuWindow]], float, float
+]:
     """The low-rate sensors as arrays and a re-startable stream over the IMU.
 
     The IMU's samples are turned into base_link axes by its mount's rotation (specific force
     and rate are vectors: ``v_base = R v_imu``), so the filter's attitude is base_link's
     whatever way the IMU is mounted.
 
-    Returns (data without IMU arrays, origin, warnings, IMU window factory, last IMU time
-    (s), nominal IMU period (s, the median interval of the first batch)).
+    Returns (data without IMU arrays, origin (None without a GPS fix: the frame is then local,
+    its origin the first pose), warnings, IMU window factory, last IMU time (s), nominal IMU
+    period (s, the median interval of the first batch)).
     """
     imu_path = log_dir / "imu.parquet"
     n_imu = read_table(imu_path, "imu", columns=[]).num_rows  # checks the contract
@@ -168,10 +255,18 @@ def _sensor_data(
     valid = (status >= config.pose.gps_min_status) & np.isfinite(lat) & np.isfinite(lon)
     valid &= np.isfinite(alt)
     _require_roles(log_dir, n_imu, int(valid.sum()), gps.num_rows, wheels.num_rows, config)
-    chosen = choose_enu_origin(gps)
-    if chosen is None:  # pragma: no cover - _require_roles refused a log without a fix
-        raise StageError("no GPS fix to place the log in the world", path=log_dir)
-    origin = chosen[0]
+    chosen = choose_enu_origin(gps, config.pose.gps_min_status) if valid.any() else None
+    origin, origin_row = chosen if chosen is not None else (None, 0)
+    warnings: list[str] = []
+    # Fixes before the origin are the ones their successors disagree with (a receiver's
+    # wild first fixes): the filter would start there and gate every good fix after them.
+    early = valid & (np.arange(valid.size) < origin_row)
+    if early.any():
+        warnings.append(
+            f"{int(early.sum())} GPS fix(es) before the first one the later fixes agree with "
+            "ignored"
+        )
+        valid &= ~early
     first_batch = next(_batches(imu_path, "imu", ["t_ns"]))
     t_first = np.asarray(first_batch.column(0).to_numpy(), dtype=np.int64)
     t0_ns = int(t_first[0])
@@ -199,25 +294,22 @@ def _sensor_data(
             yield t, accel, gyro
 
     gps_t = rel(gps)[valid]
-    enu = geodetic_to_enu(lat[valid], lon[valid], alt[valid], origin)
+    enu = (
+        np.asarray(geodetic_to_enu(lat[valid], lon[valid], alt[valid], origin), np.float64)
+        if origin is not None
+        else np.zeros((0, 3))
+    )
     p = config.pose
     default_var = np.array([p.gps_noise_m**2, p.gps_noise_m**2, p.gps_vertical_noise_m**2])
     gvar = np.tile(default_var, (int(valid.sum()), 1))
-    idx = np.flatnonzero(valid)
-    covs = gps.column("position_covariance").combine_chunks().take(pa.array(idx))
-    if (
-        len(covs)
-        and covs.null_count == 0
-        and pc.all(pc.equal(pc.list_value_length(covs), 9)).as_py()
-    ):
-        flat = np.asarray(pc.list_flatten(covs).to_numpy(zero_copy_only=False), dtype=np.float64)
-        diag = flat.reshape(-1, 9)[:, [0, 4, 8]]
-        ok = np.all(np.isfinite(diag) & (diag > 0), axis=1)
-        gvar[ok] = diag[ok]
+    gvar = _fix_variances(gps.column("position_covariance"), np.flatnonzero(valid), gvar)
     yaw_std = _col(head, "yaw_std") if head.num_rows else np.zeros(0)
     head_var = np.where(np.isfinite(yaw_std) & (yaw_std > 0), yaw_std**2, p.heading_noise_rad**2)
     wheel_speed = _col(wheels, "speed") if wheels.num_rows else np.zeros(0)
     wok = np.isfinite(wheel_speed)
+    att_t, att_rpy, att_var = _imu_attitude(imu_path, t0_ns, imu_mount.rotation, MAX_STEP_S)
+    bad_var = ~(np.isfinite(att_var) & (att_var > 0.0))
+    att_var = np.where(bad_var, p.orientation_noise_rad**2, att_var)
     data = SensorData(
         t0_ns=t0_ns,
         imu_t=np.zeros(0),
@@ -231,8 +323,11 @@ def _sensor_data(
         head_var=head_var,
         wheel_t=rel(wheels)[wok],
         wheel_speed=wheel_speed[wok],
+        att_t=att_t,
+        att_rpy=att_rpy,
+        att_var=att_var,
     )
-    return data, origin, [], imu_windows, t_end, period
+    return data, origin, warnings, imu_windows, t_end, period
 
 
 def _settings(
@@ -241,7 +336,11 @@ def _settings(
     p = config.pose
     return FilterSettings(
         noise=NoiseModel(
-            p.accel_noise_mps2, p.gyro_noise_radps, p.accel_bias_walk_mps2, p.gyro_bias_walk_radps
+            p.accel_noise_mps2,
+            p.gyro_noise_radps,
+            p.accel_bias_walk_mps2,
+            p.gyro_bias_walk_radps,
+            p.wheel_scale_walk_per_sqrt_s,
         ),
         alpha=p.sigma_alpha,
         beta=p.sigma_beta,
@@ -256,6 +355,10 @@ def _settings(
         lever_gps=lever_gps,
         lever_axle=lever_axle,
         output_rate_hz=p.output_rate_hz,
+        init_wheel_scale_std=p.initial_wheel_scale_std,
+        reinit_after_gated_fixes=p.reinit_after_gated_fixes,
+        gate_attitude=p.gate_chi2_attitude,
+        track_min_distance_m=p.track_min_distance_m,
     )
 
 
@@ -266,7 +369,13 @@ class TruthAccuracy:
     sums of squares, counts and the error at the end of each GPS dropout are kept.
     """
 
-    def __init__(self, truth_path: Path, sim: dict[str, Any], origin: GeodeticOrigin) -> None:
+    def __init__(
+        self, truth_path: Path, sim: dict[str, Any], origin: GeodeticOrigin | None
+    ) -> None:
+        """``origin`` None: the pose is in a local frame (no GPS) whose origin and zero yaw
+        are the first pose; the truth is then moved into it (translated to its position and
+        turned by its yaw at the first pose time), so the errors are the dead-reckoning's
+        drift."""
         # The truth's frame: ingest writes it in the pose's frame (its metadata says so);
         # a table without that metadata is still in the simulator's own frame.
         meta = read_table_metadata(truth_path)
@@ -289,6 +398,8 @@ class TruthAccuracy:
             (int(lo), int(hi)) for lo, hi in json.loads(sim.get("gps_dropouts_ns", "[]"))
         ]
         self.drop_err: dict[int, float] = {}
+        self.local_ref: tuple[FloatArray, float] | None = None  # truth (xyz, yaw) at start
+        self.last_h = 0.0
 
     def _cover(self, t_hi: int) -> pa.Table:
         """Truth rows from the last one at or before the previous chunk up to >= t_hi."""
@@ -317,7 +428,18 @@ class TruthAccuracy:
         tr = (tt - self.tt0).astype(np.float64)
         tq = tq[inside]
         xyz = np.stack([_col(truth, c) for c in "xyz"], axis=1)
-        if self.sim_origin != self.origin:
+        yaw_shift = 0.0
+        if self.origin is None:
+            if self.local_ref is None:
+                t_ref = tq[0]
+                p_ref = np.array([np.interp(t_ref, tr, xyz[:, k]) for k in range(3)])
+                yaw_ref = float(np.interp(t_ref, tr, np.unwrap(_col(truth, "yaw"))))
+                self.local_ref = (p_ref, yaw_ref)
+            p_ref, yaw_shift = self.local_ref
+            c, s_ = np.cos(-yaw_shift), np.sin(-yaw_shift)
+            d = xyz - p_ref
+            xyz = np.stack([c * d[:, 0] - s_ * d[:, 1], s_ * d[:, 0] + c * d[:, 1], d[:, 2]], 1)
+        elif self.sim_origin != self.origin:
             lat, lon, alt = enu_to_geodetic(xyz, self.sim_origin)
             xyz = geodetic_to_enu(lat, lon, alt, self.origin)
 
@@ -331,10 +453,11 @@ class TruthAccuracy:
         self.sums["h"] += float(np.sum(eh**2))
         self.sums["v"] += float(np.sum(ez**2))
         for name in ("roll", "pitch", "yaw"):
-            tv = np.unwrap(_col(truth, name))
+            tv = np.unwrap(_col(truth, name)) - (yaw_shift if name == "yaw" else 0.0)
             e = wrap_angle(cols[name][inside] - wrap_angle(at(tv)))
             self.sums[name] += float(np.sum(e**2))
         t_abs = t_ns[inside]
+        self.last_h = float(eh[-1])
         self.n += int(t_abs.size)
         if self.t_first is None:
             self.t_first = int(t_abs[0])
@@ -373,10 +496,11 @@ class TruthAccuracy:
             "pitch_rmse_deg": round(float(np.degrees(rms("pitch"))), 4),
             "yaw_rmse_deg": round(float(np.degrees(rms("yaw"))), 4),
             "gps_dropouts": dropouts,
+            "horizontal_error_at_end_m": round(self.last_h, 4),
         }
 
 
-def truth_accuracy(log_dir: Path, origin: GeodeticOrigin) -> TruthAccuracy | None:
+def truth_accuracy(log_dir: Path, origin: GeodeticOrigin | None) -> TruthAccuracy | None:
     """An accumulator against the simulator's truth, or None for a real log."""
     meta_path = log_dir / "mcap_metadata.json"
     truth_path = log_dir / "truth_pose.parquet"
@@ -405,6 +529,13 @@ def run_pose(
     inputs = {f.stem: file_sha256(f) for f in in_files}
     if tf_path.is_file():
         inputs["tf_static"] = file_sha256(tf_path)
+    # Only what a finished ingest wrote: not a table an interrupted run left, nor one edited.
+    require_finished(
+        manifest.stage("ingest"),
+        "ingest",
+        {f.name: inputs[f.stem] for f in [*in_files, tf_path] if f.stem in inputs},
+        log_dir,
+    )
     cfg_hash = stage_config_hash(config)
     out_path = log_dir / OUTPUT
     record = manifest.stage(STAGE)
@@ -435,13 +566,20 @@ def run_pose(
     lever_gps = mounts.gps.translation_m - mounts.imu.translation_m
     lever_axle = -mounts.imu.translation_m
     sha = json.loads(json.dumps(manifest.read().get("source", {}))).get("sha256", "")
-    origin_json = json.dumps(
-        {
-            "latitude_deg": origin.latitude_deg,
-            "longitude_deg": origin.longitude_deg,
-            "altitude_m": origin.altitude_m,
-        }
-    )
+    if origin is not None:
+        origin_json = json.dumps(
+            {
+                "latitude_deg": origin.latitude_deg,
+                "longitude_deg": origin.longitude_deg,
+                "altitude_m": origin.altitude_m,
+            }
+        )
+        frame_meta = {"enu_origin": origin_json, "frame_id": ENU_FRAME_ID}
+    else:
+        # No GPS: the frame is the first pose's (x forward, z up at that instant, yaw 0).
+        t_first_pose = data.t0_ns + int(round(float(data.wheel_t[0]) * 1e9))
+        origin_json = json.dumps({"frame": LOCAL_FRAME_ID, "t_ns": t_first_pose})
+        frame_meta = {"local_origin": origin_json, "frame_id": LOCAL_FRAME_ID}
     acc = truth_accuracy(log_dir, origin)
     timings["read"] += time.perf_counter() - t
     est = EstimateResult({}, np.zeros(0, np.int64), {}, {}, 0, 0, 0, 0, "")
@@ -461,7 +599,7 @@ def run_pose(
         "pose",
         source_sha256=sha,
         config_hash=cfg_hash,
-        extra_metadata={"enu_origin": origin_json, "frame_id": ENU_FRAME_ID},
+        extra_metadata=frame_meta,
     ) as writer:
         while True:
             t = time.perf_counter()
@@ -494,13 +632,14 @@ def run_pose(
         float(t_last - t_first) * 1e-9 if t_first is not None and t_last is not None else 0.0
     )
     filter_detail = {
-        "enu_origin": json.loads(origin_json),
+        ("enu_origin" if origin is not None else "local_origin"): json.loads(origin_json),
         "heading_source": est.heading_source,
         "epochs": est.epochs,
         "imu_samples": est.imu_samples,
         "accepted": dict(sorted(est.accepted.items())),
         "gated": dict(sorted(est.gated.items())),
         "imu_gaps": {"bridged": est.imu_gaps_bridged, "restarted": est.imu_gaps_restarted},
+        "reinitialised": est.reinitialised,
         "x_real_time": round(duration_s / max(timings["filter"], 1e-9), 1),
     }
     manifest.set_header(pose=filter_detail, pose_accuracy=accuracy)
