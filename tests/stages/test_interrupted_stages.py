@@ -8,6 +8,7 @@ own name is byte for byte the one the complete run wrote.
 
 from __future__ import annotations
 
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 
@@ -57,9 +58,16 @@ def _files(directory: Path) -> dict[str, bytes]:
 @pytest.mark.parametrize("fault", sorted(FAULTS))
 @pytest.mark.parametrize("stage", sorted(STAGES))
 def test_interrupted_stage_leaves_no_partial_file(
-    posed: tuple[Workspace, str], stage: str, fault: str, monkeypatch: pytest.MonkeyPatch
+    posed: tuple[Workspace, str],
+    stage: str,
+    fault: str,
+    monkeypatch: pytest.MonkeyPatch,
+    tmp_path: Path,
 ) -> None:
-    ws, log_id = posed
+    # Each case on its own copy: an interrupted ingest leaves its log not current (its
+    # record removed), which a later case must not inherit.
+    shutil.copytree(posed[0].root, tmp_path / "ws")
+    ws, log_id = Workspace(tmp_path / "ws"), posed[1]
     log_dir = ws.log_dir(log_id)
     before = {k: v for k, v in _files(log_dir).items() if k.endswith(".parquet")}
     assert {"imu.parquet", "laser.parquet", "pose.parquet"} <= before.keys()
