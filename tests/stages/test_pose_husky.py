@@ -72,28 +72,139 @@ def test_husky_uses_what_its_sensors_report(husky: tuple[Workspace, str, PoseRes
     assert ws.manifest(log_id).read()["pose"]["reinitialised"] <= 5
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="measured 11.5 deg median (target 10): gyro + GPS at 1 m/s with 0.9 m fixes hold the "
-    "heading to ~8-12 deg over 25 s stretches, and the IMU's magnetic yaw is off by -90 to "
-    "-147 deg depending on direction, so it cannot anchor it",
-)
+def _straight_runs_yaw(ws: Workspace, log_id: str, span_s: float) -> tuple[np.ndarray, ...]:
+    """GPS track directions of straight runs: (mid time ns, track yaw rad) for every pair of
+    fixes ``span_s`` apart where the robot moved faster than 0.5 m/s and its gyro (rotated
+    by the configured IMU mount) turned less than 5 deg between them, so that the chord's
+    direction is the heading and not a cut across a turn."""
+    from toolkit.fusion.rotations import euler_to_rot
+
+    t_fix, xy = _fixes_enu(ws, log_id)
+    imu = read_table(ws.log_table(log_id, "imu"), "imu")
+    t_imu = imu.column("t_ns").to_numpy()
+    gyro = np.stack([imu.column(f"gyro_{a}").to_numpy() for a in "xyz"], axis=1)
+    base_from_imu = euler_to_rot(np.array(load_config(HUSKY_CONFIG).vehicle.imu_orientation_rad))
+    yaw_rate = (gyro @ base_from_imu.T)[:, 2]
+    turned = np.concatenate(
+        [[0.0], np.cumsum(0.5 * (yaw_rate[1:] + yaw_rate[:-1]) * np.diff(t_imu) * 1e-9)]
+    )
+    j = np.searchsorted(t_fix, t_fix + int(span_s * 1e9))
+    ok = j < t_fix.size
+    i, j = np.flatnonzero(ok), j[ok]
+    d = xy[j] - xy[i]
+    speed = np.hypot(d[:, 0], d[:, 1]) / ((t_fix[j] - t_fix[i]) * 1e-9)
+    turn = np.abs(np.interp(t_fix[j], t_imu, turned) - np.interp(t_fix[i], t_imu, turned))
+    keep = (speed > 0.5) & (turn < np.radians(5.0))
+    mid = (t_fix[i] + t_fix[j])[keep] // 2
+    return mid, np.arctan2(d[keep, 1], d[keep, 0])
+
+
 def test_husky_heading_follows_its_track(husky: tuple[Workspace, str, PoseResult]) -> None:
+    """Median heading error against the GPS track at most 10 deg where the robot moves.
+
+    The reference must itself be good to well under 10 deg. At 1 m/s with fixes good to
+    about a metre, the chord between fixes 2 s apart is not: a non-causal heading made of the
+    gyro's integral plus the offset that best fits those chords in each 30 s (a ceiling no
+    filter reaches) still differs from them by 9.7 deg median, and this pose by 11.7.
+    Chords of straight runs 6 s long (about 6 m; the gyro turned < 5 deg, so the chord is
+    the heading) are good to a few degrees; against them this pose is at 8.3 deg median
+    (22.6 at the 90th percentile) over about 560 runs.
+    """
     ws, log_id, _ = husky
     pose = read_table(ws.log_table(log_id, "pose"), "pose")
     t = pose.column("t_ns").to_numpy()
-    t_fix, xy = _fixes_enu(ws, log_id)
-    # Direction of travel between fixes 2 s apart (5 fixes at 2.5 Hz): the consumer GPS's
-    # metre-level noise over a 2 m baseline at 1 m/s still gives the track to ~15-30 deg, and
-    # the median over hundreds of pairs is what the target (10 deg) is about.
-    step = 5
-    d = xy[step:] - xy[:-step]
-    dt = (t_fix[step:] - t_fix[:-step]) * 1e-9
-    speed = np.hypot(d[:, 0], d[:, 1]) / dt
-    mid = (t_fix[step:] + t_fix[:-step]) // 2
-    moving = (speed > 0.5) & (mid >= t[0]) & (mid <= t[-1])
-    track = np.arctan2(d[moving, 1], d[moving, 0])
-    yaw = np.interp(mid[moving], t, np.unwrap(pose.column("yaw").to_numpy()))
-    err = np.degrees(np.abs(np.angle(np.exp(1j * (yaw - track)))))
-    assert moving.sum() > 100
+    mid, track = _straight_runs_yaw(ws, log_id, span_s=6.0)
+    inside = (mid >= t[0]) & (mid <= t[-1])
+    yaw = np.interp(mid[inside], t, np.unwrap(pose.column("yaw").to_numpy()))
+    err = np.degrees(np.abs(np.angle(np.exp(1j * (yaw - track[inside])))))
+    assert inside.sum() > 300
     assert float(np.median(err)) <= 10.0, f"median heading error {np.median(err):.1f} deg"
+
+
+@pytest.fixture(scope="module")
+def husky_without_gps(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> tuple[Workspace, str, PoseResult]:
+    """The same log with its GPS set absent on purpose (``gps = ""``)."""
+    import dataclasses
+
+    config = load_config(HUSKY_CONFIG)
+    config = dataclasses.replace(config, topics=dataclasses.replace(config.topics, gps=None))
+    ws = Workspace(tmp_path_factory.mktemp("husky-dr") / "ws")
+    log_id = ingest_log(HUSKY_LOG, ws, config).log_id
+    return ws, log_id, run_pose(ws, log_id, config)
+
+
+def _odometry_and_gyro(ws: Workspace, log_id: str, t0_ns: int) -> tuple[np.ndarray, ...]:
+    """The plain dead reckoning a reader would do by hand from t0: wheel speed along the
+    heading the gyro (rotated by the configured mount) integrates, at the IMU's 30 Hz.
+    Returns (t_ns, x, y, distance travelled)."""
+    from toolkit.fusion.rotations import euler_to_rot
+
+    imu = read_table(ws.log_table(log_id, "imu"), "imu")
+    t = imu.column("t_ns").to_numpy()
+    keep = t >= t0_ns
+    t = t[keep]
+    gyro = np.stack([imu.column(f"gyro_{a}").to_numpy()[keep] for a in "xyz"], axis=1)
+    base_from_imu = euler_to_rot(np.array(load_config(HUSKY_CONFIG).vehicle.imu_orientation_rad))
+    yaw_rate = (gyro @ base_from_imu.T)[:, 2]
+    dt = np.diff(t, prepend=t[0]) * 1e-9
+    yaw = np.cumsum(yaw_rate * dt)
+    wheels = read_table(ws.log_table(log_id, "wheels"), "wheels")
+    speed = np.interp(t, wheels.column("t_ns").to_numpy(), wheels.column("speed").to_numpy())
+    x = np.cumsum(speed * np.cos(yaw) * dt)
+    y = np.cumsum(speed * np.sin(yaw) * dt)
+    return t, x, y, float(np.sum(np.abs(speed) * dt))
+
+
+def test_husky_without_gps_dead_reckons_in_a_local_frame(
+    husky_without_gps: tuple[Workspace, str, PoseResult],
+) -> None:
+    """No fix at all: the pose is in the local frame of its first pose (origin written in
+    the table's metadata), heading source ``local``, and it is said on the terminal."""
+    import json
+
+    ws, log_id, result = husky_without_gps
+    assert result.heading_source == "local"
+    assert "gps" not in result.accepted and "gps_track" not in result.accepted
+    assert any("no GPS fix" in w for w in result.warnings)
+    meta = read_table_metadata(ws.log_table(log_id, "pose"))
+    assert meta["frame_id"] == "local_first_pose"
+    origin = json.loads(meta["local_origin"])
+    pose = read_table(ws.log_table(log_id, "pose"), "pose")
+    t = pose.column("t_ns").to_numpy()
+    assert origin["t_ns"] <= t[0] + 10_000_000
+    x, y = pose.column("x").to_numpy(), pose.column("y").to_numpy()
+    assert np.hypot(x[0], y[0]) < 0.5 and abs(pose.column("yaw").to_numpy()[0]) < 0.05
+    # It moved as far as the wheels say: end-to-start distance of the pose's 1 Hz track
+    # against the odometry's distance (both ~360 m).
+    _, _, _, distance = _odometry_and_gyro(ws, log_id, int(t[0]))
+    track = float(np.hypot(np.diff(x[::100]), np.diff(y[::100])).sum())
+    assert distance > 300
+    assert abs(track - distance) <= 0.25 * distance, f"{track:.0f} m vs odometry {distance:.0f} m"
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="measured: the filter ends 36 m (10 % of 359 m) from the odometry + gyro integral and "
+    "25 m from the GPS track (aligned over the first 30 s), where the plain integral ends 12 m "
+    "from it: without GPS the loose non-holonomic constraint lets a lateral velocity of ~0.12 "
+    "m/s build up and turns the yaw by up to 20 deg",
+)
+def test_husky_without_gps_ends_where_odometry_and_imu_say(
+    husky_without_gps: tuple[Workspace, str, PoseResult],
+) -> None:
+    ws, log_id, _ = husky_without_gps
+    pose = read_table(ws.log_table(log_id, "pose"), "pose")
+    t = pose.column("t_ns").to_numpy()
+    t_dr, x_dr, y_dr, distance = _odometry_and_gyro(ws, log_id, int(t[0]))
+    yaw0 = float(pose.column("yaw").to_numpy()[0])
+    x_end = x_dr[-1] * np.cos(yaw0) - y_dr[-1] * np.sin(yaw0) + pose.column("x").to_numpy()[0]
+    y_end = x_dr[-1] * np.sin(yaw0) + y_dr[-1] * np.cos(yaw0) + pose.column("y").to_numpy()[0]
+    i = int(np.searchsorted(t, t_dr[-1])) - 1
+    gap = float(
+        np.hypot(pose.column("x").to_numpy()[i] - x_end, pose.column("y").to_numpy()[i] - y_end)
+    )
+    assert gap <= 0.05 * distance, (
+        f"{gap:.1f} m from the odometry + gyro end ({distance:.0f} m driven)"
+    )

@@ -12,7 +12,8 @@ non-holonomic constraint), each sensor gated on its own innovation
 
 Heading: from the compass when there is one; else from the GPS track once a run of fixes
 lies on a straight line long enough for its direction (:func:`_start`), whatever the speed,
-and afterwards the direction of the latest straight stretch of the track is a yaw
+and afterwards the direction of the latest straight stretch of the track, carried from the
+stretch's mean time to now by the turn the filter made since (:class:`_YawHistory`), is a yaw
 measurement at every fix (``gps_track``, :func:`_track_headings`, variance
 ``2 sigma_h^2 / L^2 +`` :data:`TRACK_YAW_FLOOR_RAD` ``^2``, gated like the compass).
 An IMU that reports its orientation contributes its roll and pitch (gravity-referenced) as
@@ -204,13 +205,23 @@ def _track_line(d: SensorData, i: int, j: int) -> tuple[float | None, float]:
     return float(np.arctan2(axis[1], axis[0])), 2.0 * sigma_h**2 / span**2
 
 
-def _track_headings(d: SensorData, track_min_distance_m: float) -> tuple[FloatArray, FloatArray]:
+def _track_headings(
+    d: SensorData, track_min_distance_m: float
+) -> tuple[FloatArray, FloatArray, FloatArray]:
     """Per fix ``k``, the GPS track's direction over the latest straight run of fixes ending
-    at ``k`` (:func:`_track_line` of ``i..k``, ``i`` the last fix at least ``D`` back) and its
-    variance; NaN where there is none. Causal: only fixes up to ``k``."""
+    at ``k`` (:func:`_track_line` of ``i..k``, ``i`` the last fix at least ``D`` back), its
+    variance and the run's mean time (s); NaN where there is none. Causal: only fixes up to
+    ``k``.
+
+    The principal axis of a run is the direction of travel near the run's centroid, that is
+    at its mean time, not at fix ``k``: on a gentle curve (which still passes the
+    straightness test) the two differ by the turn made since. The filter therefore compares
+    the track with its own yaw at the mean time (see :func:`_delayed_yaw`).
+    """
     n = d.gps_t.size
     yaw = np.full(n, np.nan)
     var = np.full(n, np.nan)
+    t_mid = np.full(n, np.nan)
     xy = d.gps_enu[:, :2]
     for k in range(1, n):
         sigma_h = float(np.sqrt(0.5 * (d.gps_var[k, 0] + d.gps_var[k, 1])))
@@ -222,8 +233,35 @@ def _track_headings(d: SensorData, track_min_distance_m: float) -> tuple[FloatAr
         i = lo + int(back[-1])
         y, v = _track_line(d, i, k)
         if y is not None:
-            yaw[k], var[k] = y, v
-    return yaw, var
+            yaw[k], var[k], t_mid[k] = y, v, float(d.gps_t[i : k + 1].mean())
+    return yaw, var, t_mid
+
+
+class _YawHistory:
+    """The filter's posterior yaw at recent epochs (unwrapped), to carry a measurement of
+    the yaw at an earlier time to now: ``z_now = z_then + (yaw_now - yaw_then)``, the turn
+    made since as the filter itself integrated it (gyro and corrections). Holds at most
+    :data:`TRACK_MAX_SPAN_S` of history, so memory is bounded."""
+
+    def __init__(self) -> None:
+        self._t: list[float] = []
+        self._yaw: list[float] = []
+
+    def add(self, t: float, yaw: float) -> None:
+        if self._yaw:
+            yaw = self._yaw[-1] + float(wrap_angle(np.array(yaw - self._yaw[-1])))
+        self._t.append(t)
+        self._yaw.append(yaw)
+        if len(self._t) > 64 and self._t[0] < t - TRACK_MAX_SPAN_S - 1.0:
+            cut = int(np.searchsorted(self._t, t - TRACK_MAX_SPAN_S - 1.0))
+            del self._t[:cut], self._yaw[:cut]
+
+    def turn_since(self, t_then: float, yaw_now: float) -> float | None:
+        """``yaw_now - yaw(t_then)`` wrapped to [-pi, pi), or None before the history."""
+        if not self._t or t_then < self._t[0]:
+            return None
+        then = float(np.interp(t_then, self._t, self._yaw))
+        return float(wrap_angle(np.array(yaw_now - then)))
 
 
 def _start(d: SensorData, track_min_distance_m: float) -> tuple[float, float, str]:
@@ -338,9 +376,10 @@ def estimate_stream(
         warnings.append("no compass and the GPS track never runs straight far enough for a heading")
     epochs = _epochs(d, t_start, t_end)
     if heading_source == "compass":
-        track_yaw = track_var = np.full(d.gps_t.size, np.nan)
+        track_yaw = track_var = track_t = np.full(d.gps_t.size, np.nan)
     else:
-        track_yaw, track_var = _track_headings(d, s.track_min_distance_m)
+        track_yaw, track_var, track_t = _track_headings(d, s.track_min_distance_m)
+    yaw_history = _YawHistory()
 
     # Initial attitude from the first second of IMU after the start.
     first_t: list[FloatArray] = []
@@ -489,13 +528,20 @@ def estimate_stream(
                         angle_residual,
                     )
                 )
-            if gi is not None and np.isfinite(track_yaw[gi]):
-                # No compass: the direction of the latest straight GPS track, as a yaw.
+            ti = gi if gi is not None and np.isfinite(track_yaw[gi]) else None
+            turn = (
+                None
+                if ti is None
+                else yaw_history.turn_since(float(track_t[ti]), float(ukf.x[YAW]))
+            )
+            if ti is not None and turn is not None:
+                # No compass: the direction of the latest straight GPS track, which is the
+                # yaw at the run's mean time, carried to now by the turn made since.
                 blocks.append(
                     Measurement(
                         "gps_track",
-                        track_yaw[gi : gi + 1],
-                        np.array([[track_var[gi] + TRACK_YAW_FLOOR_RAD**2]]),
+                        wrap_angle(track_yaw[ti : ti + 1] + turn),
+                        np.array([[track_var[ti] + TRACK_YAW_FLOOR_RAD**2]]),
                         hx_yaw,
                         s.gate_heading,
                         angle_mean,
@@ -544,6 +590,7 @@ def estimate_stream(
                     n_reinit += 1
                     gps_streak = 0
             post_k = ukf.x.copy()
+            yaw_history.add(t, float(post_k[YAW]))
             seg_post[j] = post_k
             inc = ImuIncrement(ukf.x[BA].copy(), ukf.x[BG].copy())
         prev_bound = float(bounds[-1])
