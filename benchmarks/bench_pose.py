@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shutil
 import tempfile
 import time
 from pathlib import Path
@@ -29,6 +30,8 @@ def main() -> None:
     log = root / "race.mcap"
     if not log.exists():
         simulate(log, profile="race", distance_m=args.distance_m, seed=args.seed)
+    # A fresh workspace each time: a kept one may hold another configuration's outputs.
+    shutil.rmtree(root / "ws", ignore_errors=True)
     ws = Workspace(root / "ws")
     cfg = default_config()
     log_id = ingest_log(log, ws, cfg).log_id
