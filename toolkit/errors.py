@@ -17,6 +17,16 @@ class ToolkitError(Exception):
         self.path = None if path is None else Path(path)
         super().__init__(f"{self.path}: {message}" if self.path is not None else message)
 
+    def moved(self, old: Path, new: Path) -> None:
+        """Name ``new`` wherever the error names ``old`` (a path or a directory above it): a
+        stage works in a hidden copy of a log's directory, but the user knows it by its
+        public name (see :mod:`toolkit.generations`)."""
+        if self.path is not None and self.path.is_relative_to(old):
+            self.path = new / self.path.relative_to(old)
+        self.args = tuple(
+            a.replace(str(old), str(new)) if isinstance(a, str) else a for a in self.args
+        )
+
 
 class ConfigError(ToolkitError):
     """A configuration file or value is unusable (names the key and the value)."""

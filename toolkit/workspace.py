@@ -14,6 +14,11 @@ The workspace and its manifests are the only state shared between stages. Files 
 only when complete (:func:`atomic_write_bytes`, :func:`atomic_output`), a manifest is
 updated by read-modify-write under a lock on its directory, and one process at a time
 works on a workspace (:meth:`Workspace.lock`).
+
+``WS/logs/<log_id>`` is a link to the log's current *generation*: a stage changes a log by
+writing a new generation and switching the link in one atomic rename
+(:meth:`Workspace.change_log`, :mod:`toolkit.generations`), so a log is always in the state
+before a stage or after it, whenever the stage is killed.
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from typing import Any
 
 from toolkit.config import PipelineConfig, config_hash, dump_toml, load_config
 from toolkit.errors import ConfigError, WorkspaceError
+from toolkit.generations import Generation, open_generation
 
 #: Version of the manifest's JSON layout.
 MANIFEST_FORMAT = 1
@@ -470,7 +476,12 @@ class WorkspaceLock:
         """Take the lock or raise WorkspaceError naming the holder's pid."""
         if self._fd is not None:
             raise WorkspaceError("workspace lock already held by this object", path=self.path)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as exc:  # read-only workspace, no permission, ...
+            raise WorkspaceError(
+                f"cannot lock the workspace: {exc.strerror or exc}", path=self.path.parent
+            ) from exc
         try:
             fcntl.flock(fd, (fcntl.LOCK_SH if self.shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -618,7 +629,20 @@ class Workspace:
         """Ids of the logs in the workspace, sorted."""
         if not self.logs_dir.is_dir():
             return []
-        return sorted(p.name for p in self.logs_dir.iterdir() if p.is_dir())
+        return sorted(
+            p.name for p in self.logs_dir.iterdir() if p.is_dir() and not p.name.startswith(".")
+        )
+
+    def change_log(self, log_id: str) -> contextlib.AbstractContextManager[Generation]:
+        """Open a new generation of ``WS/logs/<log_id>`` to change it all or nothing::
+
+            with ws.change_log(log_id) as gen:
+                ...read and write under gen.path...
+                gen.commit()
+
+        (see :mod:`toolkit.generations`)."""
+        self.log_dir(log_id)  # validates the id
+        return open_generation(self.logs_dir, log_id)
 
     def lock(self, *, shared: bool = False) -> WorkspaceLock:
         """The workspace's lock, exclusive or shared; use as ``with ws.lock(): ...``."""

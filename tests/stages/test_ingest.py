@@ -720,15 +720,20 @@ def test_failure_midway_leaves_no_partial_file(
         ingest_log(log, ws, make_config(), reorder_buffer_bytes=1024)
     assert not partial_files(ws.root)
     assert ws.log_ids() == []  # a first ingest that fails leaves no trace
-    # A failed re-run after a good one leaves the old files whole and the stage not current.
+    # A failed re-run after a good one leaves the log exactly as it was: the old files
+    # byte for byte and their record (a new generation is discarded, never half-published).
     monkeypatch.setitem(converters, "sensor_msgs/msg/Imu", real)
     good = ingest_log(log, ws, make_config())
+    before = {p.name: p.read_bytes() for p in ws.log_dir(good.log_id).iterdir()}
     monkeypatch.setitem(converters, "sensor_msgs/msg/Imu", _failing_after(3, real))
     with pytest.raises(RuntimeError):
         ingest_log(log, ws, make_config(), overwrite=True, reorder_buffer_bytes=1024)
     assert not partial_files(ws.root)
-    assert ws.manifest(good.log_id).stage("ingest") is None
+    assert {p.name: p.read_bytes() for p in ws.log_dir(good.log_id).iterdir()} == before
     assert read_table(ws.log_table(good.log_id, "imu"), "imu").num_rows == 200
+    assert [p.name for p in ws.logs_dir.iterdir() if p.name.endswith(".gen")] == [
+        ws.log_dir(good.log_id).resolve().name
+    ]
 
 
 def test_config_in_force_is_recorded_and_a_different_one_refused(
@@ -1002,23 +1007,28 @@ def test_one_message_stamped_far_away_is_a_time_outlier(
 def test_ingest_removes_what_killed_runs_left(
     tmp_path: Path, ws: Workspace, caplog: pytest.LogCaptureFixture
 ) -> None:
+    """A run killed while changing a log leaves a hidden generation (never a file in the
+    log's directory); the next change of that log removes it and says so."""
     import subprocess
     import sys
 
     log = write_log(tmp_path / "log.mcap", basic_topics())
     first = ingest_log(log, ws, make_config())
-    target = ws.log_table(first.log_id, "imu")
+    before = sorted(p.name for p in ws.log_dir(first.log_id).iterdir())
     code = (
-        "import sys; from pathlib import Path; from toolkit.workspace import temp_path_beside; "
-        "p = temp_path_beside(Path(sys.argv[1]), 'partial'); p.write_bytes(b'x'); print(p)"
+        "import os, sys; from toolkit.workspace import Workspace; "
+        "cm = Workspace(sys.argv[1]).change_log(sys.argv[2]); gen = cm.__enter__(); "
+        "(gen.path / 'imu.parquet').unlink(); (gen.path / 'half.parquet').write_bytes(b'x'); "
+        "print(gen.path, flush=True); os._exit(9)"
     )
     out = subprocess.run(
-        [sys.executable, "-c", code, str(target)], capture_output=True, text=True, check=True
+        [sys.executable, "-c", code, str(ws.root), first.log_id], capture_output=True, text=True
     )
     orphan = Path(out.stdout.strip())
-    assert orphan.exists()
+    assert out.returncode == 9 and orphan.is_dir(), out.stderr
+    assert sorted(p.name for p in ws.log_dir(first.log_id).iterdir()) == before
     with caplog.at_level(logging.WARNING, logger="toolkit"):
-        ingest_log(log, ws, make_config())
+        assert ingest_log(log, ws, make_config()).status == "up_to_date"
     assert not orphan.exists()
     assert any("left by killed runs" in r.getMessage() for r in caplog.records)
 

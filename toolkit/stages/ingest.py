@@ -78,6 +78,7 @@ from toolkit.stages.timecheck import stream_time_outliers
 from toolkit.stages.truth import sim_origin, truth_to_pose_frame
 from toolkit.tableio import TableWriter
 from toolkit.workspace import (
+    Manifest,
     StageRecord,
     Workspace,
     atomic_write_json,
@@ -85,7 +86,6 @@ from toolkit.workspace import (
     digest_files,
     file_sha256,
     make_log_id,
-    remove_dead_temp_files,
 )
 
 _log = logging.getLogger(__name__)
@@ -655,94 +655,93 @@ def ingest_log(
     workspace.create()
     adopt_config = workspace.check_config(config, overwrite=overwrite)
     cfg_hash = stage_config_hash(config)
-    log_dir = workspace.log_dir(log_id)
-    _clean_up_after_dead_runs(log_dir)
-    manifest = workspace.manifest(log_id)
     inputs = {"log": sha256}
-    record = manifest.stage(STAGE)
-    if record is not None and not overwrite:
-        outputs = [log_dir / o for o in record.outputs]
-        if check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=outputs):
-            _log.info("%s: up to date (%s)", log_path, log_id)
-            if adopt_config:
-                workspace.write_config(config)
-            return _result_from_record(
-                log_path,
-                log_id,
-                record,
-                manifest.read().get(STAGE, {}),
-                time.perf_counter() - start,
-            )
-    if record is not None:
-        manifest.remove_stage(STAGE)  # a failure from here on leaves the stage not current
-    created_dir = not log_dir.exists()
-    log_dir.mkdir(parents=True, exist_ok=True)
-    run: _Run | None = None
-    try:
-        with LogReader(log_path, topics=_configured_topics(config)) as reader:
-            plans, missing, warnings = resolve_topics(config, reader.channels(), log_path)
-            buffers = _make_buffers(
-                plans,
-                workspace,
-                log_id,
-                source_sha256=sha256,
+    # Everything below reads and writes a new generation of the log's directory, published
+    # in one atomic switch once complete (toolkit.generations): killed at any moment, the
+    # log is as it was before or as it is after, never in between.
+    with workspace.change_log(log_id) as gen:
+        log_dir = gen.path
+        manifest = Manifest(log_dir / Workspace.MANIFEST_NAME)
+        record = manifest.stage(STAGE)
+        if record is not None and not overwrite:
+            outputs = [log_dir / o for o in record.outputs]
+            if check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=outputs):
+                _log.info("%s: up to date (%s)", log_path, log_id)
+                if adopt_config:
+                    workspace.write_config(config)
+                return _result_from_record(
+                    log_path,
+                    log_id,
+                    record,
+                    manifest.read().get(STAGE, {}),
+                    time.perf_counter() - start,
+                )
+        run: _Run | None = None
+        try:
+            with LogReader(log_path, topics=_configured_topics(config)) as reader:
+                plans, missing, warnings = resolve_topics(config, reader.channels(), log_path)
+                buffers = _make_buffers(
+                    plans,
+                    log_dir,
+                    source_sha256=sha256,
+                    config_hash=cfg_hash,
+                    buffer_bytes=reorder_buffer_bytes,
+                )
+                run = _Run(
+                    plans, buffers, config, log_path, source_sha256=sha256, cfg_hash=cfg_hash
+                )
+                t_read = time.perf_counter()
+                batches = reader.batches()
+                for batch in progress(batches, desc=f"ingest {log_path.name}", unit="batch"):
+                    run.consume(batch)
+                spent = run.timings["decode_convert"] + run.timings["write"]
+                run.timings["read"] = time.perf_counter() - t_read - spent
+                report = reader.report
+            if _identity(log_path) != before:  # the hash must describe the bytes read
+                raise LogReadError(
+                    "the log changed while it was read (size or modification time); ingest "
+                    "it again once it is complete",
+                    path=log_path,
+                )
+            run.mcap_metadata = report.metadata
+            run.finish(report)
+            warnings += run.warnings
+            damage_warning = report.summary_line()  # the same line `terrain info` prints
+            if damage_warning:
+                warnings.append(damage_warning)
+            for w in warnings:
+                _log.warning("%s: %s", log_path, w)
+            out_files = run.commit(log_dir)
+        except BaseException:
+            if run is not None:
+                run.discard()
+            raise
+        _remove_stale_outputs(log_dir, record, out_files)
+        run.timings["total"] = time.perf_counter() - start
+        rejects_total: Counter[str] = Counter()
+        for by_reason in run.rejects_by_topic().values():
+            rejects_total.update(by_reason)
+        source = {
+            "path": str(log_path.resolve()),
+            "sha256": sha256,
+            "log_id": log_id,
+            "size_bytes": log_path.stat().st_size,
+        }
+        manifest.set_header(source=source, ingest=run.detail(report, missing))
+        manifest.record_stage(
+            STAGE,
+            StageRecord(
+                inputs=inputs,
                 config_hash=cfg_hash,
-                buffer_bytes=reorder_buffer_bytes,
-            )
-            run = _Run(plans, buffers, config, log_path, source_sha256=sha256, cfg_hash=cfg_hash)
-            t_read = time.perf_counter()
-            for batch in progress(reader.batches(), desc=f"ingest {log_path.name}", unit="batch"):
-                run.consume(batch)
-            spent = run.timings["decode_convert"] + run.timings["write"]
-            run.timings["read"] = time.perf_counter() - t_read - spent
-            report = reader.report
-        if _identity(log_path) != before:  # the hash must describe the bytes read
-            raise LogReadError(
-                "the log changed while it was read (size or modification time); ingest it "
-                "again once it is complete",
-                path=log_path,
-            )
-        run.mcap_metadata = report.metadata
-        run.finish(report)
-        warnings += run.warnings
-        damage_warning = report.summary_line()  # the same line `terrain info` prints
-        if damage_warning:
-            warnings.append(damage_warning)
-        for w in warnings:
-            _log.warning("%s: %s", log_path, w)
-        out_files = run.commit(log_dir)
-    except BaseException:
-        if run is not None:
-            run.discard()
-        if created_dir:  # a log that failed on its first ingest leaves no trace
-            with contextlib.suppress(OSError):
-                log_dir.rmdir()
-        raise
-    _remove_stale_outputs(log_dir, record, out_files)
-    run.timings["total"] = time.perf_counter() - start
-    rejects_total: Counter[str] = Counter()
-    for by_reason in run.rejects_by_topic().values():
-        rejects_total.update(by_reason)
-    source = {
-        "path": str(log_path.resolve()),
-        "sha256": sha256,
-        "log_id": log_id,
-        "size_bytes": log_path.stat().st_size,
-    }
-    manifest.set_header(source=source, ingest=run.detail(report, missing))
-    manifest.record_stage(
-        STAGE,
-        StageRecord(
-            inputs=inputs,
-            config_hash=cfg_hash,
-            outputs=tuple(out_files),
-            row_counts=run.row_counts(),
-            rejects=dict(sorted(rejects_total.items())),
-            timings_s={k: round(v, 6) for k, v in sorted(run.timings.items())},
-            warnings=tuple(warnings),
-            output_files=digest_files(log_dir, out_files),
-        ),
-    )
+                outputs=tuple(out_files),
+                row_counts=run.row_counts(),
+                rejects=dict(sorted(rejects_total.items())),
+                timings_s={k: round(v, 6) for k, v in sorted(run.timings.items())},
+                warnings=tuple(warnings),
+                output_files=digest_files(log_dir, out_files),
+            ),
+        )
+        gen.commit()
     if adopt_config:  # only now, having succeeded with it, is it the workspace's
         workspace.write_config(config)
     result = IngestResult(
@@ -759,19 +758,6 @@ def ingest_log(
     return result
 
 
-def _clean_up_after_dead_runs(log_dir: Path) -> None:
-    """Remove the hidden files a killed run of this host left in ``log_dir`` (said, so a user
-    who wonders where disk space went hears it)."""
-    removed = remove_dead_temp_files(log_dir)
-    if removed:
-        _log.warning(
-            "%s: removed %d file(s) left by killed runs (%s)",
-            log_dir,
-            len(removed),
-            ", ".join(sorted(removed)[:3]) + (", ..." if len(removed) > 3 else ""),
-        )
-
-
 def _identity(path: Path) -> tuple[int, int, int, int]:
     """(device, inode, size, mtime ns): what changes when a file is rewritten or appended."""
     st = path.stat()
@@ -784,8 +770,7 @@ def _configured_topics(config: PipelineConfig) -> list[str]:
 
 def _make_buffers(
     plans: Mapping[str, TopicPlan],
-    workspace: Workspace,
-    log_id: str,
+    log_dir: Path,
     *,
     source_sha256: str,
     config_hash: str,
@@ -802,7 +787,7 @@ def _make_buffers(
     return {
         name: ReorderBuffer(
             TableWriter(
-                workspace.log_table(log_id, name),
+                log_dir / f"{name}.parquet",
                 name if name in SCHEMA_TABLES else None,
                 table_name=name,
                 source_sha256=source_sha256,

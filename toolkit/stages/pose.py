@@ -52,12 +52,12 @@ from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.mounts import Mount, sensor_mounts
 from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
 from toolkit.workspace import (
+    Manifest,
     StageRecord,
     Workspace,
     check_up_to_date,
     digest_files,
     file_sha256,
-    remove_dead_temp_files,
     require_finished,
 )
 
@@ -506,10 +506,17 @@ def truth_accuracy(log_dir: Path, origin: GeodeticOrigin | None) -> TruthAccurac
     truth_path = log_dir / "truth_pose.parquet"
     if not (meta_path.is_file() and truth_path.is_file()):
         return None
-    sim = json.loads(meta_path.read_text()).get("terrain_sim")
-    if not sim or "origin" not in sim:
-        return None
-    return TruthAccuracy(truth_path, sim, origin)
+    try:
+        sim = json.loads(meta_path.read_text(encoding="utf-8")).get("terrain_sim")
+        if not sim or "origin" not in sim:
+            return None
+        return TruthAccuracy(truth_path, sim, origin)
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:  # JSONDecodeError too
+        raise StageError(
+            f"not the simulator metadata ingest writes ({type(exc).__name__}: {exc}); "
+            "run `terrain ingest --overwrite` on its log",
+            path=meta_path,
+        ) from exc
 
 
 def run_pose(
@@ -517,23 +524,43 @@ def run_pose(
 ) -> PoseResult:
     """Estimate the pose of one ingested log (see the module docstring)."""
     start = time.perf_counter()
-    log_dir = workspace.log_dir(log_id)
-    for name in remove_dead_temp_files(log_dir):
-        _log.warning("%s: removed %s, left by a killed run", log_id, name)
-    manifest = workspace.manifest(log_id)
+    if not workspace.log_dir(log_id).is_dir():
+        raise StageError(
+            "no such log in the workspace; run `terrain ingest` first",
+            path=workspace.log_dir(log_id),
+        )
+    # Read and written in a new generation of the log's directory, published in one atomic
+    # switch (toolkit.generations): killed at any moment, the log is as before or as after.
+    with workspace.change_log(log_id) as gen:
+        result = _pose_in(gen.path, log_id, config, overwrite=overwrite, start=start)
+        if result.status != "up_to_date":
+            gen.commit()
+    for warning in result.warnings:  # said on the terminal, not only in the manifest
+        _log.warning("%s: %s", log_id, warning)
+    return result
+
+
+def _pose_in(
+    log_dir: Path, log_id: str, config: PipelineConfig, *, overwrite: bool, start: float
+) -> PoseResult:
+    """:func:`run_pose` inside an open generation ``log_dir`` (not committed here)."""
+    manifest = Manifest(log_dir / Workspace.MANIFEST_NAME)
     in_files = [log_dir / f"{n}.parquet" for n in INPUT_TABLES]
     tf_path = log_dir / "tf_static.json"
+    meta_path = log_dir / "mcap_metadata.json"
     for f in in_files:
         if not f.is_file():
             raise StageError("input table missing; run `terrain ingest` first", path=f)
     inputs = {f.stem: file_sha256(f) for f in in_files}
     if tf_path.is_file():
         inputs["tf_static"] = file_sha256(tf_path)
+    if meta_path.is_file():
+        inputs["mcap_metadata"] = file_sha256(meta_path)
     # Only what a finished ingest wrote: not a table an interrupted run left, nor one edited.
     require_finished(
         manifest.stage("ingest"),
         "ingest",
-        {f.name: inputs[f.stem] for f in [*in_files, tf_path] if f.stem in inputs},
+        {f.name: inputs[f.stem] for f in [*in_files, tf_path, meta_path] if f.stem in inputs},
         log_dir,
     )
     cfg_hash = stage_config_hash(config)
@@ -656,8 +683,6 @@ def run_pose(
             output_files=digest_files(log_dir, (OUTPUT,)),
         ),
     )
-    for warning in warnings:  # said on the terminal, not only in the manifest
-        _log.warning("%s: %s", log_id, warning)
     return PoseResult(
         log_id,
         "estimated",
