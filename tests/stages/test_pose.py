@@ -229,6 +229,33 @@ def test_long_imu_gap_restarts_the_filter(
     assert result.accuracy["horizontal_rmse_m"] <= 0.5  # the 1 s crossing costs a little
 
 
+@pytest.mark.parametrize("pause_s", [60.0, 365 * 86400.0])
+def test_a_paused_recorder_leaves_a_hole_not_made_up_rows(
+    sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path, pause_s: float
+) -> None:
+    """Every sensor silent for a minute or a year (a recorder paused): no pose row inside the
+    pause, memory and time that do not grow with it, and the first fix after it puts the
+    filter back on the GPS (said on the terminal, counted)."""
+    _, log_id, before = sample_pose
+    ws = _copy_workspace(sample_pose, tmp_path)
+    t0 = int(read_table(ws.log_table(log_id, "imu"), "imu", columns=["t_ns"])["t_ns"][0].as_py())
+    cut = t0 + 20 * 1_000_000_000
+    shift = int(pause_s * 1e9)
+    for name in ("imu", "gps", "heading", "wheels"):
+        table = read_table(ws.log_table(log_id, name), name)
+        t = table.column("t_ns").to_numpy()
+        moved = pa.array(np.where(t >= cut, t + shift, t), pa.int64())
+        _rewrite(ws, log_id, name, table.set_column(0, "t_ns", moved))
+    result = run_pose(ws, log_id, default_config())
+    t = read_table(ws.log_table(log_id, "pose"), "pose", columns=["t_ns"])["t_ns"].to_numpy()
+    step_ns = 10_000_000
+    assert not np.any((t > cut + step_ns) & (t < cut + shift - step_ns))
+    assert abs(result.rows - before.rows) < 100  # the same rows, less the pause
+    assert any("no pose for" in w and "IMU gap" in w for w in result.warnings)
+    assert any("re-initialised from the GPS" in w for w in result.warnings)
+    assert ws.manifest(log_id).read()["pose"]["reinitialised"] >= 1
+
+
 def test_single_vehicle_speed_meets_the_targets(
     sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path
 ) -> None:

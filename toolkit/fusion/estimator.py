@@ -73,6 +73,12 @@ from toolkit.fusion.ukf import (
 MAX_STEP_S = 0.1
 #: Longest IMU gap bridged; a longer one restarts the filter, s.
 MAX_BRIDGE_S = 0.5
+#: Longest IMU gap crossed at constant velocity and attitude, s. After a longer one (a
+#: recorder paused, a sensor unplugged) where the vehicle went is unknown: the crossing
+#: stops after this long (so neither the motion nor the process noise is integrated over a
+#: gap of hours, which would only make up a position and overflow the covariance), and the
+#: first GPS fix after the gap re-initialises position and velocity.
+MAX_CROSS_S = 2.0
 #: Longest time a run of fixes may span to give the GPS-track heading, s.
 TRACK_MAX_SPAN_S = 30.0
 #: Largest RMS distance of a run of fixes from their line, in fix sigmas, for a track heading.
@@ -302,13 +308,30 @@ def _start(d: SensorData, track_min_distance_m: float) -> tuple[float, float, st
     return t_fix, 0.0, "none"
 
 
-def _epochs(d: SensorData, t_start: float, t_end: float) -> FloatArray:
+def _inside(x: FloatArray, gaps: FloatArray) -> np.ndarray:
+    """Whether each time of ``x`` lies strictly inside one of the sorted, disjoint
+    ``gaps`` (K, 2) intervals."""
+    if gaps.shape[0] == 0:
+        return np.zeros(np.shape(x), dtype=bool)
+    i = np.searchsorted(gaps[:, 0], x, side="right") - 1
+    ok = i >= 0
+    j = np.maximum(i, 0)
+    return np.asarray(ok & (x > gaps[j, 0]) & (x < gaps[j, 1]), dtype=bool)
+
+
+def _epochs(d: SensorData, t_start: float, t_end: float, imu_gaps: FloatArray) -> FloatArray:
+    """Filter step times: every GPS fix and compass reading, and fillers so that no step is
+    longer than :data:`MAX_STEP_S` -- except inside the IMU gaps the filter restarts
+    across, where there is nothing to step on. So the count grows with the data, never
+    with the time a log spans (a recorder paused for a year adds two epochs, not 300 M)."""
     t = np.union1d(d.gps_t, d.head_t)
     t = t[(t > t_start) & (t <= t_end)]
-    t = np.concatenate([[t_start], t, [t_end]])
-    t = np.unique(t)
+    edges = imu_gaps.ravel()
+    edges = edges[(edges > t_start) & (edges <= t_end)]
+    t = np.unique(np.concatenate([[t_start], t, edges, [t_end]]))
     gaps = np.diff(t)
     n_fill = np.maximum(np.ceil(gaps / MAX_STEP_S).astype(int) - 1, 0)
+    n_fill[_inside(0.5 * (t[:-1] + t[1:]), imu_gaps)] = 0
     if n_fill.any():
         fills = [
             t[i] + gaps[i] * np.arange(1, n + 1) / (n + 1) for i, n in enumerate(n_fill) if n > 0
@@ -348,6 +371,25 @@ OutputChunk = tuple[np.ndarray, dict[str, FloatArray]]
 """Output rows of one window: (t_ns (M,), pose columns)."""
 
 
+def _grid_outside(
+    t0: float, step: float, m_lo: int, m_hi: int, gaps: FloatArray
+) -> tuple[FloatArray, int]:
+    """The output times ``t0 + step m`` for ``m_lo <= m <= m_hi`` that are not strictly
+    inside a gap, and how many were left out; nothing is allocated for the times left out."""
+    pieces: list[np.ndarray] = []
+    m = m_lo
+    lo_t, hi_t = t0 + step * m_lo, t0 + step * m_hi
+    for a, b in gaps[(gaps[:, 1] > lo_t) & (gaps[:, 0] < hi_t)]:
+        m_a = min(int(np.floor((a - t0) / step)), m_hi)  # the last time at or before a
+        if m_a >= m:
+            pieces.append(np.arange(m, m_a + 1))
+        m = max(m, int(np.ceil((b - t0) / step)))  # the first at or after b
+    if m <= m_hi:
+        pieces.append(np.arange(m, m_hi + 1))
+    ms = np.concatenate(pieces) if pieces else np.zeros(0, dtype=np.int64)
+    return np.asarray(t0 + step * ms, dtype=np.float64), (m_hi - m_lo + 1) - int(ms.size)
+
+
 def estimate_stream(
     d: SensorData,
     imu_windows: Callable[[], Iterable[ImuWindow]],
@@ -356,6 +398,7 @@ def estimate_stream(
     t_end: float,
     period: float,
     result: EstimateResult,
+    imu_gaps: FloatArray | None = None,
 ) -> Iterator[OutputChunk]:
     """Run the causal filter window by window (see the module docstring).
 
@@ -364,7 +407,12 @@ def estimate_stream(
     initial attitude, once for the run); ``t_end`` is the last IMU time and ``period`` the
     nominal IMU period. Output rows are yielded per window, so memory does not grow with the
     log; the accounting is written into ``result`` when the generator is exhausted.
+
+    ``imu_gaps`` (K, 2): start and end (s) of the IMU gaps longer than :data:`MAX_BRIDGE_S`
+    (the filter restarts across them). No pose row is written strictly inside one: with no
+    IMU there, a row would be an extrapolation, not an estimate.
     """
+    gaps = np.zeros((0, 2)) if imu_gaps is None else np.asarray(imu_gaps, dtype=np.float64)
     t_start, yaw0, heading_source = _start(d, s.track_min_distance_m)
     warnings: list[str] = []
     if heading_source == "local":
@@ -374,7 +422,7 @@ def estimate_stream(
         )
     elif heading_source == "none":
         warnings.append("no compass and the GPS track never runs straight far enough for a heading")
-    epochs = _epochs(d, t_start, t_end)
+    epochs = _epochs(d, t_start, t_end, gaps)
     if heading_source == "compass":
         track_yaw = track_var = track_t = np.full(d.gps_t.size, np.nan)
     else:
@@ -444,11 +492,12 @@ def estimate_stream(
     post_k = ukf.x.copy()  # posterior at the start of the current epoch interval
     inc = ImuIncrement(ukf.x[BA].copy(), ukf.x[BG].copy())
     restart_pending = False
+    lost_track_s = 0.0  # the longest gap not crossed since the last fix
     prev_imu_t: float | None = None
     prev_bound = t_start  # the last segment end handled
     prev_row: dict[str, float] | None = None  # last segment's values, for interpolation
     first_seg_t: float | None = None
-    n_bridged = n_restart = n_imu = n_reinit = 0
+    n_bridged = n_restart = n_imu = n_reinit = rows_in_gaps = 0
     gps_streak = 0  # consecutive gated fixes
     last_att = -1  # index of the last IMU attitude used
     m_next = 1  # next output index (t_out = t_start + step * m)
@@ -490,8 +539,10 @@ def estimate_stream(
             seg_base[j] = post_k
             if restart_seg[j]:
                 f_hold = inc.rot_inc.T @ euler_to_rot(post_k[ATT]).T @ (-GRAVITY) + inc.ba0
-                inc.add(f_hold, inc.bg0, float(seg_dt[j]))
+                inc.add(f_hold, inc.bg0, min(float(seg_dt[j]), MAX_CROSS_S))
                 restart_pending = True
+                if seg_dt[j] > MAX_CROSS_S:
+                    lost_track_s = max(lost_track_s, float(seg_dt[j]))
             else:
                 inc.add(accel[i], gyro[i], float(seg_dt[j]))
             seg_tau[j] = inc.T
@@ -578,6 +629,15 @@ def estimate_stream(
             blocks.append(
                 Measurement("nhc", zero2, nhc_cov, nhc_model(w_now, s.lever_axle), NHC_GATE_CHI2)
             )
+            if gi is not None and lost_track_s > 0.0:
+                # After a gap too long to cross, the first fix says where the vehicle is.
+                _reinitialise(ukf, d, gi, t, 1, s, P0)
+                warnings.append(
+                    f"IMU gap of {lost_track_s:.1f} s (longer than {MAX_CROSS_S} s) before t = "
+                    f"{t:.1f} s: position and velocity re-initialised from the GPS"
+                )
+                n_reinit += 1
+                lost_track_s = 0.0
             flags = ukf.update_joint(blocks)
             if gi is not None:
                 gps_streak = 0 if flags[0] else gps_streak + 1
@@ -647,7 +707,8 @@ def estimate_stream(
         m_hi = min(int(np.floor((t_seg[-1] - t_start) / step)), n_out_total)
         if m_hi < m_next:
             continue
-        t_out = t_start + step * np.arange(m_next, m_hi + 1)
+        t_out, n_left_out = _grid_outside(t_start, step, m_next, m_hi, gaps)
+        rows_in_gaps += n_left_out
         m_next = m_hi + 1
         t_out = t_out[t_out >= first_seg_t]
         if t_out.size == 0:
@@ -667,5 +728,10 @@ def estimate_stream(
     result.epochs = int(epochs.size)
     result.imu_samples = n_imu
     result.heading_source = heading_source
+    if rows_in_gaps:
+        warnings.append(
+            f"no pose for {rows_in_gaps * step:.1f} s in {gaps.shape[0]} IMU gap(s) longer than "
+            f"{MAX_BRIDGE_S} s: nothing was measured there to estimate it from"
+        )
     result.warnings = warnings
     result.reinitialised = n_reinit

@@ -38,6 +38,7 @@ from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.frames import ENU_FRAME_ID, choose_enu_origin
 from toolkit.fusion.estimator import (
+    MAX_BRIDGE_S,
     MAX_STEP_S,
     EstimateResult,
     FilterSettings,
@@ -233,7 +234,13 @@ def _imu_attitude(
 def _sensor_data(
     log_dir: Path, config: PipelineConfig, imu_mount: Mount
 ) -> tuple[
-    SensorData, GeodeticOrigin | None, list[str], Callable[[], Iterator[ImuWindow]], float, float
+    SensorData,
+    GeodeticOrigin | None,
+    list[str],
+    Callable[[], Iterator[ImuWindow]],
+    float,
+    float,
+    FloatArray,
 ]:
     """The low-rate sensors as arrays and a re-startable stream over the IMU.
 
@@ -243,7 +250,8 @@ def _sensor_data(
 
     Returns (data without IMU arrays, origin (None without a GPS fix: the frame is then local,
     its origin the first pose), warnings, IMU window factory, last IMU time (s), nominal IMU
-    period (s, the median interval of the first batch)).
+    period (s, the median interval of the first batch), the IMU gaps the filter restarts
+    across (K, 2), s).
     """
     imu_path = log_dir / "imu.parquet"
     n_imu = read_table(imu_path, "imu", columns=[]).num_rows  # checks the contract
@@ -275,6 +283,20 @@ def _sensor_data(
 
     def rel_ns(t: np.ndarray) -> FloatArray:
         return (np.asarray(t, dtype=np.int64) - t0_ns).astype(np.float64) * 1e-9
+
+    # The IMU gaps the filter restarts across, from one pass over the times alone.
+    gap_parts: list[FloatArray] = []
+    last: float | None = None
+    for b in _batches(imu_path, "imu", ["t_ns"]):
+        t = rel_ns(b.column(0).to_numpy())
+        if last is not None:
+            t = np.concatenate([[last], t])
+        if t.size:
+            dt = np.diff(t)
+            k = np.flatnonzero((dt > 1.5 * period) & (dt > MAX_BRIDGE_S))
+            gap_parts.append(np.stack([t[k], t[k + 1]], axis=1))
+            last = float(t[-1])
+    imu_gaps = np.concatenate(gap_parts) if gap_parts else np.zeros((0, 2))
 
     def rel(table: pa.Table) -> FloatArray:
         return rel_ns(table.column("t_ns").to_numpy())
@@ -327,7 +349,7 @@ def _sensor_data(
         att_rpy=att_rpy,
         att_var=att_var,
     )
-    return data, origin, warnings, imu_windows, t_end, period
+    return data, origin, warnings, imu_windows, t_end, period, imu_gaps
 
 
 def _settings(
@@ -585,7 +607,7 @@ def _pose_in(
     t = time.perf_counter()
     mounts = sensor_mounts(tf_path, config.vehicle)
     warnings = list(mounts.warnings)
-    data, origin, data_warnings, imu_windows, t_end, period = _sensor_data(
+    data, origin, data_warnings, imu_windows, t_end, period, imu_gaps = _sensor_data(
         log_dir, config, mounts.imu
     )
     warnings += data_warnings
@@ -620,6 +642,7 @@ def _pose_in(
         t_end=t_end,
         period=period,
         result=est,
+        imu_gaps=imu_gaps,
     )
     with TableWriter(
         out_path,
