@@ -68,13 +68,88 @@ def test_a_commit_killed_between_its_two_renames_recovers_the_old_state(tmp_path
     logs = tmp_path / "logs"
     (logs / "a").mkdir(parents=True)
     (logs / "a" / "x.parquet").write_bytes(b"old")
-    aside = logs / ".a.host-1-0123456789ab.old"
+    dead = _dead_pid()
+    aside = logs / f".a.{_host()}-{dead}-0123456789ab.old"
     os.rename(logs / "a", aside)  # what the killed commit had done
-    (logs / ".a.host-1-0123456789ac.gen").mkdir()  # and the generation it was publishing
+    orphan = logs / f".a.{_host()}-{dead}-0123456789ac.gen"
+    orphan.mkdir()  # and the generation it was publishing
+    foreign = logs / ".a.otherhost-1-0123456789ad.gen"
+    foreign.mkdir()  # another host's, maybe alive (network file system): left alone
     with open_generation(logs, "a") as gen:
         assert _files(logs / "a") == {"x.parquet": b"old"}
         assert _files(gen.path) == {"x.parquet": b"old"}
-    assert not aside.exists() and not (logs / ".a.host-1-0123456789ac.gen").exists()
+    assert not aside.exists() and not orphan.exists() and foreign.exists()
+
+
+def _host() -> str:
+    import re
+    import socket
+
+    return re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname())
+
+
+def _dead_pid() -> int:
+    import subprocess
+    import sys
+
+    child = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    return int(child.stdout)
+
+
+def test_interrupted_just_after_the_switch_the_log_is_the_new_one(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import toolkit.generations as generations
+
+    logs = tmp_path / "logs"
+    with open_generation(logs, "a") as gen:
+        (gen.path / "x").write_bytes(b"old")
+        gen.commit()
+
+    def interrupted(directory: Path) -> None:
+        if directory == logs:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(generations, "_fsync_dir", interrupted)
+    with pytest.raises(KeyboardInterrupt), open_generation(logs, "a") as gen:
+        (gen.path / "x").unlink()
+        (gen.path / "x").write_bytes(b"new")
+        gen.commit()
+    monkeypatch.undo()
+    assert _files(logs / "a") == {"x": b"new"}
+    with open_generation(logs, "a"):
+        pass
+    assert _files(logs / "a") == {"x": b"new"}
+
+
+def test_a_log_whose_id_extends_another_is_left_alone(tmp_path: Path) -> None:
+    logs = tmp_path / "logs"
+    for log_id in ("a", "a.b"):
+        with open_generation(logs, log_id) as gen:
+            (gen.path / "x").write_bytes(log_id.encode())
+            gen.commit()
+    for _ in range(2):
+        with open_generation(logs, "a"):
+            pass
+    assert _files(logs / "a.b") == {"x": b"a.b"} and _files(logs / "a") == {"x": b"a"}
+
+
+def test_a_link_to_nothing_is_pointed_at_the_newest_generation(tmp_path: Path) -> None:
+    logs = tmp_path / "logs"
+    with open_generation(logs, "a") as gen:
+        (gen.path / "x").write_bytes(b"1")
+        gen.commit()
+    target = (logs / "a").resolve()
+    kept = logs / f".a.{_host()}-{_dead_pid()}-0123456789ab.gen"
+    os.rename(target, kept)  # the link now points at nothing
+    with open_generation(logs, "a"):
+        pass
+    assert _files(logs / "a") == {"x": b"1"}
 
 
 def test_two_changes_of_one_log_take_turns(tmp_path: Path) -> None:

@@ -21,6 +21,13 @@ One change of a log at a time: :func:`open_generation` holds an exclusive ``floc
 changing the same log wait for each other instead of losing each other's work (the last
 switch would otherwise win).
 
+What is all or nothing is the change: a reader that opens several files of a log by their
+public paths while a stage commits may get some from each generation, and a path already
+resolved through the link (or a shell whose working directory is inside it) points into a
+generation that the commit removes. Stages therefore read and write only inside a generation
+they opened, under the log's lock. A run that finds nothing to do still opens (and discards)
+a generation: a few milliseconds and one hard link per file.
+
 A directory left from before generations existed (a plain ``WS/logs/<log_id>/``) is taken
 as the current generation; the first commit moves it aside (``.old``), puts the link in its
 place and removes it. A kill between those two renames leaves no ``WS/logs/<log_id>`` and one
@@ -36,6 +43,7 @@ import os
 import re
 import shutil
 import socket
+import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -51,22 +59,61 @@ _LINK_SUFFIX = ".link"
 _OLD_SUFFIX = ".old"
 
 
+#: Age after which another host's unfinished generation counts as abandoned, s.
+FOREIGN_AGE_S = 24 * 3600.0
+
+
+def _host() -> str:
+    return re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
+
+
 def _hidden_name(log_id: str, suffix: str) -> str:
     """``.<log_id>.<host>-<pid>-<random><suffix>``: hidden, and naming who made it."""
-    host = re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
-    return f".{log_id}.{host}-{os.getpid()}-{uuid.uuid4().hex[:12]}{suffix}"
+    return f".{log_id}.{_host()}-{os.getpid()}-{uuid.uuid4().hex[:12]}{suffix}"
 
 
 def _siblings(logs_dir: Path, log_id: str, suffix: str) -> list[Path]:
     """The hidden entries of ``log_id`` in ``logs_dir`` that end in ``suffix``."""
-    pattern = re.compile(rf"^\.{re.escape(log_id)}\.[^/]+-\d+-[0-9a-f]{{12}}{re.escape(suffix)}$")
+    # The host part has no dot (see _hidden_name), so log "a" never matches log "a.b"'s.
+    pattern = re.compile(
+        rf"^\.{re.escape(log_id)}\.(?P<host>[A-Za-z0-9_]+)-(?P<pid>\d+)-[0-9a-f]{{12}}"
+        rf"{re.escape(suffix)}$"
+    )
     return sorted(p for p in logs_dir.iterdir() if pattern.match(p.name))
 
 
+def _abandoned(path: Path) -> bool:
+    """Whether a hidden entry was left by a run that is gone: one of this host whose process
+    no longer exists, or one of another host (which may share the workspace over a network
+    file system, where locks cannot be relied on) untouched for :data:`FOREIGN_AGE_S`."""
+    m = re.search(r"\.(?P<host>[A-Za-z0-9_]+)-(?P<pid>\d+)-[0-9a-f]{12}\.[a-z]+$", path.name)
+    if m is None:
+        return False
+    if m["host"] == _host():
+        try:
+            os.kill(int(m["pid"]), 0)
+        except ProcessLookupError:
+            return True
+        except (PermissionError, OverflowError):
+            return False
+        return int(m["pid"]) == os.getpid()  # our own leftovers, from an earlier change
+    try:
+        return time.time() - path.lstat().st_mtime > FOREIGN_AGE_S
+    except OSError:
+        return False
+
+
 def _fsync_dir(directory: Path) -> None:
-    fd = os.open(directory, os.O_RDONLY)
+    """fsync a directory, so renames in it survive a power cut; best effort, since some
+    file systems cannot fsync a directory (EINVAL), and a rename there is all there is."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
     try:
         os.fsync(fd)
+    except OSError:
+        pass
     finally:
         os.close(fd)
 
@@ -105,21 +152,33 @@ class Generation:
             raise WorkspaceError("generation already committed", path=self.path)
         _fsync_tree(self.path)
         tmp_link = self.logs_dir / _hidden_name(self.log_id, _LINK_SUFFIX)
-        os.symlink(self.path.name, tmp_link)  # relative: a copied workspace still works
+        try:
+            os.symlink(self.path.name, tmp_link)  # relative: a copied workspace still works
+        except OSError as exc:
+            raise WorkspaceError(
+                f"cannot make a symbolic link ({exc.strerror or exc}); the workspace needs a "
+                "file system that has them (not FAT or exFAT)",
+                path=self.logs_dir,
+            ) from exc
         try:
             if self.link.is_symlink() or not self.link.exists():
                 os.replace(tmp_link, self.link)
             else:  # a plain directory from before generations: move it aside first
                 aside = self.logs_dir / _hidden_name(self.log_id, _OLD_SUFFIX)
                 os.rename(self.link, aside)
-                os.replace(tmp_link, self.link)
+                try:
+                    os.replace(tmp_link, self.link)
+                except BaseException:
+                    os.rename(aside, self.link)  # put it back: the old state
+                    raise
                 self._current = aside
         except BaseException:
             with contextlib.suppress(OSError):
                 tmp_link.unlink()
             raise
-        _fsync_dir(self.logs_dir)
+        # From here the new generation is the log: nothing below may discard it.
         self.committed = True
+        _fsync_dir(self.logs_dir)
         if self._current is not None:
             shutil.rmtree(self._current, ignore_errors=True)
 
@@ -148,11 +207,22 @@ def _recover(logs_dir: Path, log_id: str) -> None:
     if not link.exists() and not link.is_symlink() and aside:
         os.rename(aside[-1], link)
         aside = aside[:-1]
+    if link.is_symlink() and not link.exists():
+        # A link to nothing (its generation removed by hand, or by a run of an older
+        # version): never guess by deleting; point it at the newest generation there is.
+        gens = sorted(
+            _siblings(logs_dir, log_id, GENERATION_SUFFIX), key=lambda p: p.stat().st_mtime
+        )
+        if gens:
+            tmp_link = logs_dir / _hidden_name(log_id, _LINK_SUFFIX)
+            os.symlink(gens[-1].name, tmp_link)
+            os.replace(tmp_link, link)
+            _log.warning("%s: pointed at its newest version %s", link, gens[-1].name)
     current = current_generation(logs_dir, log_id)
     stale = [
         p
         for p in _siblings(logs_dir, log_id, GENERATION_SUFFIX) + aside
-        if current is None or p.resolve() != current.resolve()
+        if (current is None or p.resolve() != current.resolve()) and _abandoned(p)
     ]
     for p in stale:
         shutil.rmtree(p, ignore_errors=True)
@@ -165,6 +235,14 @@ def _recover(logs_dir: Path, log_id: str) -> None:
             logs_dir / log_id,
             len(stale),
         )
+
+
+def _link_or_copy(src: str, dst: str) -> None:
+    """A hard link, or a copy on a file system without them (slower, the same result)."""
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
 
 
 @contextlib.contextmanager
@@ -181,6 +259,12 @@ def _log_lock(logs_dir: Path, log_id: str) -> Iterator[None]:
         except BlockingIOError:
             _log.warning("%s: another terrain process is changing this log; waiting", path)
             fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError as exc:  # a file system without flock
+            raise WorkspaceError(
+                f"cannot lock the log ({exc.strerror or exc}); the workspace needs a file "
+                "system with flock",
+                path=path,
+            ) from exc
         yield
     finally:
         os.close(fd)  # releases the lock
@@ -209,14 +293,15 @@ def open_generation(logs_dir: Path, log_id: str) -> Iterator[Generation]:
                     current,
                     path,
                     symlinks=True,
-                    copy_function=os.link,
+                    copy_function=_link_or_copy,
                     ignore=lambda _d, names: [n for n in names if n.startswith(".")],
                 )
-        except OSError as exc:
+        except (OSError, shutil.Error) as exc:
             shutil.rmtree(path, ignore_errors=True)
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else type(exc)
             raise WorkspaceError(
-                f"cannot open a new version of the log: {exc.strerror or exc}", path=logs_dir
-            ) from exc
+                f"cannot open a new version of the log: {reason}", path=logs_dir / log_id
+            ) from None
         gen = Generation(logs_dir, log_id, path, current)
         try:
             yield gen

@@ -307,8 +307,11 @@ class Manifest:
     """A manifest file: stage name -> :class:`StageRecord`, plus free-form header fields.
 
     Reads tolerate a missing file (no stages yet). Updates are read-modify-write under an
-    exclusive lock on the manifest's directory and land with an atomic rename, so two
-    processes updating different stages of the same log do not lose each other's records.
+    exclusive lock on the manifest's directory and land with an atomic rename. A log's
+    manifest is written by stages only inside :meth:`Workspace.change_log` (the manifest of
+    the new generation, under the log's lock, so two stages of one log take turns); an update
+    through ``Workspace.manifest(log_id)`` outside one writes the current generation and is
+    lost if a stage running at that moment commits after it.
     """
 
     def __init__(self, path: str | Path) -> None:

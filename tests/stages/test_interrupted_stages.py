@@ -66,7 +66,7 @@ def test_interrupted_stage_leaves_no_partial_file(
 ) -> None:
     # Each case on its own copy: an interrupted ingest leaves its log not current (its
     # record removed), which a later case must not inherit.
-    shutil.copytree(posed[0].root, tmp_path / "ws")
+    shutil.copytree(posed[0].root, tmp_path / "ws", symlinks=True)
     ws, log_id = Workspace(tmp_path / "ws"), posed[1]
     log_dir = ws.log_dir(log_id)
     before = {k: v for k, v in _files(log_dir).items() if k.endswith(".parquet")}

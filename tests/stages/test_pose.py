@@ -106,7 +106,7 @@ def test_no_gps_fix_dead_reckons_and_without_wheels_is_a_stage_error(
 ) -> None:
     ws0, log_id, _ = sample_pose
     ws = Workspace(tmp_path / "ws")
-    shutil.copytree(ws0.root, ws.root)
+    shutil.copytree(ws0.root, ws.root, symlinks=True)
     gps_path = ws.log_table(log_id, "gps")
     gps = read_table(gps_path, "gps")
     n = gps.num_rows
@@ -161,7 +161,7 @@ def test_no_compass_heading_from_gps_track(
 ) -> None:
     ws0, log_id, _ = sample_pose
     ws = Workspace(tmp_path / "ws")
-    shutil.copytree(ws0.root, ws.root)
+    shutil.copytree(ws0.root, ws.root, symlinks=True)
     path = ws.log_table(log_id, "heading")
     head = read_table(path, "heading")
     meta = read_table_metadata(path)
@@ -182,7 +182,7 @@ def test_no_compass_heading_from_gps_track(
 def _copy_workspace(sample_pose: tuple[Workspace, str, PoseResult], tmp_path: Path) -> Workspace:
     ws0, _, _ = sample_pose
     ws = Workspace(tmp_path / "ws")
-    shutil.copytree(ws0.root, ws.root)
+    shutil.copytree(ws0.root, ws.root, symlinks=True)
     return ws
 
 

@@ -42,7 +42,7 @@ def posed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, str, pa.
 
 
 def _copy(ws: Workspace, log_id: str, to: Path) -> Workspace:
-    shutil.copytree(ws.root, to)
+    shutil.copytree(ws.root, to, symlinks=True)
     copy = Workspace(to)
     for name in ("pose.parquet",):
         (copy.log_dir(log_id) / name).unlink()
