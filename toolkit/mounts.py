@@ -142,23 +142,27 @@ class Mounts:
     warnings: tuple[str, ...]
 
 
-def sensor_mounts(tf_static_path: Path, vehicle: VehicleConfig) -> Mounts:
+def sensor_mounts(tf_static_path: Path, vehicle: VehicleConfig, *, gps: bool = True) -> Mounts:
     """The IMU and GPS antenna mounts: from the log's static transforms by the configured
-    frame names, else from the configuration (with a warning naming the keys used)."""
+    frame names, else from the configuration (with a warning naming the keys used; none for
+    the antenna of a vehicle configured without GPS, ``gps=False``, whose mount is unused)."""
     transforms = read_tf_static(tf_static_path)
     warnings: list[str] = []
     where = "the log has no /tf_static" if not transforms else "not in the log's /tf_static"
 
-    def mount(frame: str, position: Sequence[float], rpy: Sequence[float], keys: str) -> Mount:
+    def mount(
+        frame: str, position: Sequence[float], rpy: Sequence[float], keys: str, used: bool = True
+    ) -> Mount:
         found = chain_to_base(frame, transforms, vehicle.base_frame)
         if found is not None:
             rotation, translation = found
             return Mount(frame, translation, rotation, FROM_TF_STATIC)
-        warnings.append(
-            f"mount of {frame!r}: {where} (below {vehicle.base_frame!r}); using the "
-            f"configuration's [vehicle] {keys} = {list(position)}"
-            + (f", rpy {list(rpy)}" if any(rpy) else "")
-        )
+        if used:
+            warnings.append(
+                f"mount of {frame!r}: {where} (below {vehicle.base_frame!r}); using the "
+                f"configuration's [vehicle] {keys} = {list(position)}"
+                + (f", rpy {list(rpy)}" if any(rpy) else "")
+            )
         return Mount.from_rpy(frame, position, rpy, FROM_CONFIG)
 
     imu = mount(
@@ -167,10 +171,14 @@ def sensor_mounts(tf_static_path: Path, vehicle: VehicleConfig) -> Mounts:
         vehicle.imu_orientation_rad,
         "imu_position_m/imu_orientation_rad",
     )
-    gps = mount(
-        vehicle.gps_frame, vehicle.gps_antenna_position_m, (0.0, 0.0, 0.0), "gps_antenna_position_m"
+    antenna = mount(
+        vehicle.gps_frame,
+        vehicle.gps_antenna_position_m,
+        (0.0, 0.0, 0.0),
+        "gps_antenna_position_m",
+        used=gps,
     )
-    return Mounts(imu, gps, tuple(warnings))
+    return Mounts(imu, antenna, tuple(warnings))
 
 
 __all__ = [

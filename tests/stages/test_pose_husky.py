@@ -168,6 +168,7 @@ def test_husky_without_gps_dead_reckons_in_a_local_frame(
     assert result.heading_source == "local"
     assert "gps" not in result.accepted and "gps_track" not in result.accepted
     assert any("no GPS fix" in w for w in result.warnings)
+    assert not any("gps_link" in w for w in result.warnings)  # no antenna, no mount to miss
     meta = read_table_metadata(ws.log_table(log_id, "pose"))
     assert meta["frame_id"] == "local_first_pose"
     origin = json.loads(meta["local_origin"])

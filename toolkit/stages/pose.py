@@ -605,7 +605,7 @@ def _pose_in(
         )
     timings: dict[str, float] = dict.fromkeys(("read", "filter", "write", "accuracy"), 0.0)
     t = time.perf_counter()
-    mounts = sensor_mounts(tf_path, config.vehicle)
+    mounts = sensor_mounts(tf_path, config.vehicle, gps=config.topics.gps is not None)
     warnings = list(mounts.warnings)
     data, origin, data_warnings, imu_windows, t_end, period, imu_gaps = _sensor_data(
         log_dir, config, mounts.imu
