@@ -115,7 +115,7 @@ def test_interrupted_just_after_the_switch_the_log_is_the_new_one(
         if directory == logs:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(generations, "_fsync_dir", interrupted)
+    monkeypatch.setattr(generations, "fsync_dir", interrupted)
     with pytest.raises(KeyboardInterrupt), open_generation(logs, "a") as gen:
         (gen.path / "x").unlink()
         (gen.path / "x").write_bytes(b"new")

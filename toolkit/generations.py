@@ -63,13 +63,14 @@ _OLD_SUFFIX = ".old"
 FOREIGN_AGE_S = 24 * 3600.0
 
 
-def _host() -> str:
+def host_name() -> str:
+    """This host's name as it appears in hidden file names (letters, digits, ``_``)."""
     return re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
 
 
 def _hidden_name(log_id: str, suffix: str) -> str:
     """``.<log_id>.<host>-<pid>-<random><suffix>``: hidden, and naming who made it."""
-    return f".{log_id}.{_host()}-{os.getpid()}-{uuid.uuid4().hex[:12]}{suffix}"
+    return f".{log_id}.{host_name()}-{os.getpid()}-{uuid.uuid4().hex[:12]}{suffix}"
 
 
 def _siblings(logs_dir: Path, log_id: str, suffix: str) -> list[Path]:
@@ -83,27 +84,24 @@ def _siblings(logs_dir: Path, log_id: str, suffix: str) -> list[Path]:
 
 
 def _abandoned(path: Path) -> bool:
-    """Whether a hidden entry was left by a run that is gone: one of this host whose process
-    no longer exists, or one of another host (which may share the workspace over a network
-    file system, where locks cannot be relied on) untouched for :data:`FOREIGN_AGE_S`."""
+    """Whether a hidden entry (not the current generation) was left by a run that is gone,
+    asked under the log's lock. One of this host: always, since a live run of this host
+    changing the log would hold that lock (its pid is no help: a killed process can linger as
+    a zombie where nothing reaps it, and pids are reused). One of another host, which may
+    share the workspace over a network file system where locks cannot be relied on: only
+    once untouched for :data:`FOREIGN_AGE_S`."""
     m = re.search(r"\.(?P<host>[A-Za-z0-9_]+)-(?P<pid>\d+)-[0-9a-f]{12}\.[a-z]+$", path.name)
     if m is None:
         return False
-    if m["host"] == _host():
-        try:
-            os.kill(int(m["pid"]), 0)
-        except ProcessLookupError:
-            return True
-        except (PermissionError, OverflowError):
-            return False
-        return int(m["pid"]) == os.getpid()  # our own leftovers, from an earlier change
+    if m["host"] == host_name():
+        return True
     try:
         return time.time() - path.lstat().st_mtime > FOREIGN_AGE_S
     except OSError:
         return False
 
 
-def _fsync_dir(directory: Path) -> None:
+def fsync_dir(directory: Path) -> None:
     """fsync a directory, so renames in it survive a power cut; best effort, since some
     file systems cannot fsync a directory (EINVAL), and a rename there is all there is."""
     try:
@@ -122,7 +120,7 @@ def _fsync_tree(directory: Path) -> None:
     """fsync every directory of a generation: the renames in it must be on the disk before
     the switch that publishes it (the files themselves were fsynced by their writers)."""
     for root, _dirs, _files in os.walk(directory):
-        _fsync_dir(Path(root))
+        fsync_dir(Path(root))
 
 
 class Generation:
@@ -178,7 +176,7 @@ class Generation:
             raise
         # From here the new generation is the log: nothing below may discard it.
         self.committed = True
-        _fsync_dir(self.logs_dir)
+        fsync_dir(self.logs_dir)
         if self._current is not None:
             shutil.rmtree(self._current, ignore_errors=True)
 
@@ -312,4 +310,11 @@ def open_generation(logs_dir: Path, log_id: str) -> Iterator[Generation]:
             gen.discard()
 
 
-__all__ = ["GENERATION_SUFFIX", "Generation", "current_generation", "open_generation"]
+__all__ = [
+    "GENERATION_SUFFIX",
+    "Generation",
+    "current_generation",
+    "fsync_dir",
+    "host_name",
+    "open_generation",
+]

@@ -31,7 +31,6 @@ import hashlib
 import json
 import os
 import re
-import socket
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -40,7 +39,7 @@ from typing import Any
 
 from toolkit.config import PipelineConfig, config_hash, dump_toml, load_config
 from toolkit.errors import ConfigError, WorkspaceError
-from toolkit.generations import Generation, open_generation
+from toolkit.generations import Generation, fsync_dir, host_name, open_generation
 
 #: Version of the manifest's JSON layout.
 MANIFEST_FORMAT = 1
@@ -93,15 +92,13 @@ def log_id_for(path: str | Path) -> str:
 _TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<host>[^.]+)-(?P<pid>\d+)-[0-9a-f]{12}\.[a-z]+$")
 
 
-def _host() -> str:
-    return re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
-
-
 def temp_path_beside(path: Path, suffix: str = "tmp") -> Path:
     """A fresh hidden name beside ``path`` for writing aside, naming the host and process
     that writes it (``.<name>.<host>-<pid>-<random>.<suffix>``), so a later run can tell
     the files of a dead run from those of a live one (:func:`remove_dead_temp_files`)."""
-    return path.with_name(f".{path.name}.{_host()}-{os.getpid()}-{uuid.uuid4().hex[:12]}.{suffix}")
+    return path.with_name(
+        f".{path.name}.{host_name()}-{os.getpid()}-{uuid.uuid4().hex[:12]}.{suffix}"
+    )
 
 
 def _pid_alive(pid: int) -> bool:
@@ -121,7 +118,7 @@ def remove_dead_temp_files(directory: Path) -> list[str]:
     removed: list[str] = []
     if not directory.is_dir():
         return removed
-    host = _host()
+    host = host_name()
     for entry in directory.iterdir():
         m = _TEMP_NAME.match(entry.name)
         if m is None or m["host"] != host or _pid_alive(int(m["pid"])):
@@ -138,20 +135,6 @@ def fsync_file(path: Path) -> None:
     fd = os.open(path, os.O_RDONLY)
     try:
         os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def fsync_dir(directory: Path) -> None:
-    """Make a rename durable (best effort: some filesystems refuse fsync on directories)."""
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
     finally:
         os.close(fd)
 
