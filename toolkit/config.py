@@ -201,6 +201,14 @@ class PoseConfig:
     orientation_noise_rad: Annotated[float, Rule(gt=0.0)]
     gate_chi2_attitude: Annotated[float, Rule(gt=0.0)]
     track_min_distance_m: Annotated[float, Rule(gt=0.0)]
+    #: Without any GPS fix: ``inertial`` lets wheel and non-holonomic updates correct every
+    #: state through the accelerometer (heading and gyro bias from the centripetal term, for a
+    #: fast vehicle with a good IMU); ``odometry`` conditions them on position, yaw, z gyro
+    #: bias and wheel scale, so the heading is the gyro's integral and the position the
+    #: integral of the velocity the wheels measure (robot_localization's odom-frame practice,
+    #: for a slow robot whose accelerometer errors at walking speed equal degrees per second
+    #: of yaw rate). See ``toolkit.fusion.ukf.PoseUKF._conditioned``.
+    dead_reckoning: Annotated[str, Rule(choices=("inertial", "odometry"))] = "inertial"
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ from toolkit.fusion.ukf import (
     ATT,
     BA,
     BG,
+    DEAD_RECKONING_GIVEN,
     DIM_X,
     GRAVITY,
     MOTION,
@@ -307,6 +308,70 @@ def test_joint_update_equals_the_kalman_update_for_linear_measurements() -> None
     np.testing.assert_allclose(ukf.P, P - K @ S @ K.T, rtol=0, atol=1e-11 * np.abs(P).max())
     assert ukf.last_d2 == pytest.approx(float(y[3] ** 2 / S[3, 3]), rel=1e-9)
     assert ukf.accepted["gps"] == ukf.accepted["heading"] == 1
+
+
+def test_conditioned_update_equals_the_kalman_update_of_the_regression_residual() -> None:
+    """Conditioned on ``c`` (dead reckoning's position, yaw, z gyro bias, wheel scale), a
+    linear measurement ``z = H x + v`` updates only ``e = x_r - A x_c`` (``A = P_rc
+    P_cc^-1``): ``x_c`` and ``P_cc`` stay, ``P_rc+ = A P_cc``, ``P_rr+ = P_r|c+ + A P_cc
+    A^T``, with ``P_r|c+`` the Kalman update of ``P_r|c`` by ``H_r`` (PoseUKF._conditioned)."""
+    rng = np.random.default_rng(11)
+    P = correlated_covariance(seed=7)
+    ukf = make_filter(P0=P)
+    x = ukf.x.copy()
+    H = rng.normal(size=(2, DIM_X))
+    R = np.diag([0.04, 0.09])
+    z = np.array([0.3, -0.2])
+    c = np.asarray(DEAD_RECKONING_GIVEN)
+    r = np.setdiff1d(np.arange(DIM_X), c)
+    A = P[np.ix_(r, c)] @ np.linalg.inv(P[np.ix_(c, c)])
+    P_rc = P[np.ix_(r, r)] - A @ P[np.ix_(c, r)]
+    H_r = H[:, r]
+    S = H_r @ P_rc @ H_r.T + R
+    K = P_rc @ H_r.T @ np.linalg.inv(S)
+    flags = ukf.update_joint(
+        [Measurement("linear", z, R, lambda sig: sig @ H.T, 1e9)], given=DEAD_RECKONING_GIVEN
+    )
+    assert flags == [True]
+    x_exp = x.copy()
+    x_exp[r] += K @ (z - H @ x)
+    P_exp = P.copy()
+    P_exp[np.ix_(r, r)] = P_rc - K @ S @ K.T + A @ P[np.ix_(c, c)] @ A.T
+    P_exp[np.ix_(r, c)] = A @ P[np.ix_(c, c)]
+    P_exp[np.ix_(c, r)] = P_exp[np.ix_(r, c)].T
+    np.testing.assert_allclose(ukf.x, x_exp, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(ukf.P, P_exp, rtol=0, atol=1e-8 * np.abs(P).max())
+    # The conditioned states are neither moved nor made more certain; the update only
+    # removes uncertainty (P - P+ is positive semi-definite) and P+ stays positive definite.
+    np.testing.assert_array_equal(ukf.x[c], x[c])
+    np.testing.assert_allclose(ukf.P[np.ix_(c, c)], P[np.ix_(c, c)], rtol=1e-12)
+    assert np.linalg.eigvalsh(P - ukf.P).min() > -1e-10 * np.abs(P).max()
+    assert np.linalg.eigvalsh(ukf.P).min() > 0.0
+
+
+def test_an_unconditioned_update_moves_what_a_conditioned_one_holds() -> None:
+    """The same wheel-speed update, free and conditioned: free, the cross-covariances make it
+    move position and yaw (the dead-reckoning drift ``_conditioned`` prevents); conditioned,
+    it moves the velocity and leaves them where they were."""
+    P = correlated_covariance(seed=3)
+    free, held = make_filter(P0=P), make_filter(P0=P)
+    for ukf, given in ((free, ()), (held, DEAD_RECKONING_GIVEN)):
+        ukf.update_joint(
+            [
+                Measurement(
+                    "wheels",
+                    np.array([1.0]),
+                    np.array([[0.01]]),
+                    wheel_model(np.zeros(3), np.zeros(3)),
+                    1e9,
+                )
+            ],
+            given=given,
+        )
+    c = list(DEAD_RECKONING_GIVEN)
+    assert np.abs(free.x[c]).max() > 1e-3
+    np.testing.assert_array_equal(held.x[c], np.zeros(len(c)))
+    assert np.abs(held.x[VEL] - make_filter().x[VEL]).max() > 1e-2
 
 
 def test_joint_update_gates_each_sensor_on_its_own() -> None:

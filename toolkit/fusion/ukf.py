@@ -57,6 +57,12 @@ Measurement models (``R(rpy)`` world from body; ``l`` a lever arm from the IMU i
 Every measurement is gated: the squared Mahalanobis distance of its innovation,
 ``y^T S^-1 y``, above the sensor's threshold rejects it; rejections are counted per sensor.
 
+An update may be conditioned on some states (``PoseUKF.update_joint(..., given=c)``): they
+are held at their mean for the update, which then moves neither them nor their marginal
+covariance and keeps the regression of the other states on them. Dead reckoning uses it for
+the directions its body-frame measurements cannot see (:data:`DEAD_RECKONING_GIVEN`; the
+reasons are in ``PoseUKF._conditioned``).
+
 Angles: the state mean of the sigma points averages the attitude angles as wrapped offsets
 from the first sigma point, and state and yaw residuals are wrapped, so a yaw near +-pi
 averages correctly.
@@ -105,6 +111,19 @@ FORWARD, LATERAL_VERTICAL = slice(0, 1), slice(1, 3)
 #: Standard gravity, m/s^2; gravity in ENU is (0, 0, -G).
 G = 9.80665
 GRAVITY = np.array([0.0, 0.0, -G])
+#: States a dead-reckoning update (no GPS, compass or GPS track) is conditioned on: the
+#: position and yaw (translating the whole solution, or turning it about gravity, changes no
+#: body-frame measurement), the z gyro bias and the wheel scale (seen only through the
+#: accelerometer, whose errors on a vehicle are larger than their signal). See
+#: ``PoseUKF._conditioned``.
+DEAD_RECKONING_GIVEN: tuple[int, ...] = (
+    POS.start,
+    POS.start + 1,
+    POS.start + 2,
+    YAW,
+    BG.stop - 1,
+    SCALE,
+)
 #: 1 sigma of the non-holonomic constraint (lateral and vertical axle speed), m/s.
 NHC_STD_MPS = 0.3
 #: chi-square (2 dof, p = 0.9999) gate for the non-holonomic constraint.
@@ -496,7 +515,7 @@ class PoseUKF:
         self._accepted[name] += 1
         return True
 
-    def update_joint(self, blocks: list[Measurement]) -> list[bool]:
+    def update_joint(self, blocks: list[Measurement], *, given: tuple[int, ...] = ()) -> list[bool]:
         """Update with several measurements taken at the same time, from one sigma-point draw.
 
         Each block ``b`` (a :class:`Measurement`) has ``z_b`` (k_b,), ``R_b``, ``h_b`` and a
@@ -511,9 +530,14 @@ class PoseUKF:
 
         For measurements linear in the state this equals the sequential updates; it draws
         sigma points once instead of once per sensor. Returns the accepted flag per block.
+
+        ``given``: state indices ``c`` the update is conditioned on (none by default); see
+        :meth:`_conditioned`, which says how and why.
         """
         if not blocks:
             return []
+        if given:
+            return self._conditioned(blocks, np.asarray(given, dtype=np.intp))
         sigmas = self._sigma_points()
         zs_parts: list[FloatArray] = []
         zp_parts: list[FloatArray] = []
@@ -558,6 +582,68 @@ class PoseUKF:
         P = self._P - K @ S_a @ K.T
         self._x = x
         self._P = 0.5 * (P + P.T)
+        return flags
+
+    def _conditioned(self, blocks: list[Measurement], c: np.ndarray) -> list[bool]:
+        """:meth:`update_joint` conditioned on the states ``c``; ``r`` are the others.
+
+        The prior is split into the marginal of ``x_c`` and the regression of ``x_r`` on it::
+
+            A = P_rc P_cc^-1,        P_r|c = P_rr - A P_cr      (x_r = x^_r + A (x_c - x^_c) + e)
+
+        The measurements update ``e`` alone, from sigma points drawn with ``x_c`` held at its
+        mean (the update's ``x^_r -> x^_r+``, ``P_r|c -> P_r|c+``); then the joint is put back
+        with the marginal of ``x_c`` and the regression ``A`` unchanged::
+
+            x^_c+ = x^_c,   P_cc+ = P_cc,   P_rc+ = A P_cc,   P_rr+ = P_r|c+ + A P_cc A^T
+
+        ``P+`` is positive definite when ``P`` is (its Schur complement in ``P_cc`` is
+        ``P_r|c+``). No measurement moves ``x_c`` or shrinks its variance, and unlike a
+        Schmidt ("consider") update, whose innovation covariance includes ``H_c P_cc H_c^T``,
+        the spread of ``x_c`` does not loosen the measurements' hold on ``x_r``.
+
+        Why: this is gauge fixing for the directions the measurements cannot see. Used in
+        dead reckoning (:mod:`toolkit.fusion.estimator`, ``c`` = position, yaw, z gyro bias,
+        wheel scale): wheel speed, the non-holonomic constraint and the IMU's roll and pitch
+        are all body-frame quantities, invariant when the whole solution is translated or
+        turned about gravity (``p -> Rz p + t``, ``v -> Rz v``, ``yaw -> yaw + a``; gravity
+        is vertical, so the process model is invariant too). Those four directions are
+        unobservable (the odometer/NHC-aided INS; e.g. Dissanayake et al. 2001, IEEE T-RA
+        17(5); Shin 2001, UCGE 20156), and a filter that updates them anyway gains spurious
+        information about them (Huang, Mourikis, Roumeliotis 2010, IJRR 29(5); Hesch et al.
+        2014, IEEE T-RO 30(1)): here, through the position-velocity and yaw-velocity
+        cross-covariances every wheel/NHC innovation moved the position and turned the yaw.
+        Conditioning on them makes a velocity innovation correct the velocity in the frame of
+        the current heading, and the position stay the integral of the velocity. The z gyro
+        bias and the wheel scale are observable in dead reckoning only through the
+        accelerometer (centripetal ``v w_z`` against the gyro; integrated specific force
+        against the odometer), where a lateral accelerometer bias ``b`` is a yaw-rate error
+        ``b / v`` (0.05 m/s^2 is 3 deg/s at 1 m/s) and vibration, slip and tilt errors are
+        as large as the signal, so the filter would fit them to those errors instead; they
+        keep their prior (or what GPS taught them) with an honest, growing covariance.
+        """
+        r = np.setdiff1d(np.arange(DIM_X), c)
+        P = self._P
+        P_cc = P[np.ix_(c, c)]
+        A = np.linalg.solve(P_cc, P[np.ix_(c, r)]).T  # P_rc P_cc^-1, (|r|, |c|)
+        P_cond = np.zeros_like(P)
+        P_cond[np.ix_(r, r)] = P[np.ix_(r, r)] - A @ P[np.ix_(c, r)]
+        # x_c held at its mean: a negligible spread keeps the sigma points' Cholesky defined.
+        P_cond[np.ix_(c, c)] = np.eye(c.size) * 1e-14
+        x_c = self._x[c].copy()
+        self._P = 0.5 * (P_cond + P_cond.T)
+        try:
+            flags = self.update_joint(blocks)
+        finally:
+            x = self._x.copy()
+            x[c] = x_c
+            self._x = x
+            out = self._P.copy()
+            out[np.ix_(r, r)] += A @ P_cc @ A.T
+            out[np.ix_(r, c)] = A @ P_cc
+            out[np.ix_(c, r)] = (A @ P_cc).T
+            out[np.ix_(c, c)] = P_cc
+            self._P = 0.5 * (out + out.T)
         return flags
 
     def reset_motion(self, x_motion: FloatArray, P0: FloatArray) -> None:
@@ -646,6 +732,7 @@ def _read_only(a: FloatArray) -> FloatArray:
 
 __all__ = [
     "ATT",
+    "DEAD_RECKONING_GIVEN",
     "BA",
     "BG",
     "DIM_X",
