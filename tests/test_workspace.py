@@ -253,7 +253,7 @@ def test_workspace_paths_follow_the_contract(tmp_path: Path) -> None:
     assert ws.scores_table == tmp_path / "report" / "scores.parquet"
     assert ws.summary_path == tmp_path / "report" / "summary.json"
     assert ws.manifest().path == tmp_path / "manifest.json"
-    for bad in ("", "..", "a/b"):
+    for bad in ("", "..", "a/b", ".a.lock", ".a.host-1-abc.gen", "a\\b"):
         with pytest.raises(WorkspaceError, match="invalid log id"):
             ws.log_dir(bad)
 

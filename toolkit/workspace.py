@@ -540,8 +540,10 @@ class Workspace:
         return self.root / "logs"
 
     def log_dir(self, log_id: str) -> Path:
-        """``WS/logs/<log_id>``."""
-        if not log_id or "/" in log_id or log_id in (".", ".."):
+        """``WS/logs/<log_id>``. A log id never starts with a dot: those names are the
+        generations' hidden directories and locks (:mod:`toolkit.generations`), which a
+        stage must never take for a log."""
+        if not log_id or "/" in log_id or "\\" in log_id or log_id.startswith("."):
             raise WorkspaceError(f"invalid log id {log_id!r}", path=self.root)
         return self.logs_dir / log_id
 
