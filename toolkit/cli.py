@@ -16,9 +16,10 @@ import json
 import logging
 import sys
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import click
 
@@ -339,20 +340,24 @@ def ingest(
     ctx.exit(1)
 
 
-@main.command()
-@click.option(
-    "-w",
-    "--workspace",
-    required=True,
-    type=click.Path(file_okay=False, path_type=Path),
-    help="Workspace directory (ingested).",
-)
-@click.option("--log", "log_id", default=None, help="One log id (default: every log).")
-@click.option("--overwrite", is_flag=True, help="Recompute poses that are up to date.")
-def pose(workspace: Path, log_id: str | None, overwrite: bool) -> None:
-    """UKF pose fusion: WS/logs/<id>/pose.parquet at 100 Hz."""
+class _StageResult(Protocol):
+    @property
+    def status(self) -> str: ...
+
+    def summary(self) -> str: ...
+
+
+def _each_log(
+    workspace: Path,
+    log_id: str | None,
+    verb: str,
+    nothing: str,
+    run: Callable[[Any, str, Any], _StageResult],
+) -> None:
+    """Run a per-log stage on one log or every log of the workspace, under its lock: one
+    summary line per log, one error line per failed log (the others still run), a total
+    line for several logs, exit 1 when any failed."""
     from toolkit.errors import WorkspaceError
-    from toolkit.stages.pose import run_pose
     from toolkit.workspace import Workspace
 
     ws = Workspace(workspace)
@@ -363,14 +368,16 @@ def pose(workspace: Path, log_id: str | None, overwrite: bool) -> None:
             raise WorkspaceError(f"no log {log_id!r} in the workspace", path=ws.root)
         ids = [log_id]
     if not ids:
-        click.echo(f"nothing to pose: no ingested log in {ws.root} (run `terrain ingest` first)")
+        click.echo(
+            f"nothing to {nothing}: no ingested log in {ws.root} (run `terrain ingest` first)"
+        )
         return
     failed: list[str] = []
     done: dict[str, int] = {}
     with ws.lock():
         for one in ids:  # one log's failure never stops the others
             try:
-                result = run_pose(ws, one, cfg, overwrite=overwrite)
+                result = run(ws, one, cfg)
             except ToolkitError as exc:
                 _error_line(f"{one}: {exc}")
                 failed.append(one)
@@ -379,6 +386,57 @@ def pose(workspace: Path, log_id: str | None, overwrite: bool) -> None:
             done[result.status] = done.get(result.status, 0) + 1
     if len(ids) > 1 or failed:
         parts = [f"{n} {status.replace('_', ' ')}" for status, n in sorted(done.items())]
-        click.echo(f"pose: {len(ids)} logs: {', '.join(parts + [f'{len(failed)} failed'])}")
+        click.echo(f"{verb}: {len(ids)} logs: {', '.join(parts + [f'{len(failed)} failed'])}")
     if failed:
         raise click.exceptions.Exit(1)
+
+
+def _per_log_options(what: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+    """The options every per-log verb takes: -w, --log, --overwrite."""
+
+    def apply(f: Callable[..., Any]) -> Callable[..., Any]:
+        f = click.option(
+            "--overwrite", is_flag=True, help=f"Recompute {what} that are up to date."
+        )(f)
+        f = click.option("--log", "log_id", default=None, help="One log id (default: every log).")(
+            f
+        )
+        return click.option(
+            "-w",
+            "--workspace",
+            required=True,
+            type=click.Path(file_okay=False, path_type=Path),
+            help="Workspace directory (ingested).",
+        )(f)
+
+    return apply
+
+
+@main.command()
+@_per_log_options("poses")
+def pose(workspace: Path, log_id: str | None, overwrite: bool) -> None:
+    """UKF pose fusion: WS/logs/<id>/pose.parquet at 100 Hz."""
+    from toolkit.stages.pose import run_pose
+
+    _each_log(
+        workspace,
+        log_id,
+        "pose",
+        "pose",
+        lambda ws, one, cfg: run_pose(ws, one, cfg, overwrite=overwrite),
+    )
+
+
+@main.command()
+@_per_log_options("point clouds")
+def project(workspace: Path, log_id: str | None, overwrite: bool) -> None:
+    """Laser scans + pose -> WS/logs/<id>/points.parquet, the 3-D point cloud (sect. 3)."""
+    from toolkit.stages.project import run_project
+
+    _each_log(
+        workspace,
+        log_id,
+        "project",
+        "project",
+        lambda ws, one, cfg: run_project(ws, one, cfg, overwrite=overwrite),
+    )

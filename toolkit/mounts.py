@@ -181,6 +181,29 @@ def sensor_mounts(tf_static_path: Path, vehicle: VehicleConfig, *, gps: bool = T
     return Mounts(imu, antenna, tuple(warnings))
 
 
+def frame_mounts(
+    tf_static_path: Path, base_frame: str, frames: Sequence[str]
+) -> tuple[dict[str, Mount], tuple[str, ...]]:
+    """Mounts of sensors known only by their frames (the lasers: ``frame_id`` of their scans)
+    from the log's static transforms. Returns the mounts found and one warning per frame
+    found nowhere (the configuration has no laser positions: such a sensor's data cannot
+    be placed on the vehicle, and the caller drops it)."""
+    transforms = read_tf_static(tf_static_path)
+    where = "the log has no /tf_static" if not transforms else "not in the log's /tf_static"
+    found: dict[str, Mount] = {}
+    warnings: list[str] = []
+    for frame in sorted(set(frames)):
+        chained = chain_to_base(frame, transforms, base_frame) if frame else None
+        if chained is None:
+            warnings.append(
+                f"mount of {frame!r}: {where} (below {base_frame!r}); its data is not used"
+            )
+            continue
+        rotation, translation = chained
+        found[frame] = Mount(frame, translation, rotation, FROM_TF_STATIC)
+    return found, tuple(warnings)
+
+
 __all__ = [
     "FROM_CONFIG",
     "FROM_TF_STATIC",
@@ -188,6 +211,7 @@ __all__ = [
     "Mounts",
     "StaticTransform",
     "chain_to_base",
+    "frame_mounts",
     "read_tf_static",
     "sensor_mounts",
 ]

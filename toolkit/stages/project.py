@@ -1,0 +1,515 @@
+"""Project stage: laser scans + pose -> the 3-D point cloud ``points.parquet`` (paper sect. 3).
+
+Every return of every scan becomes a world point, placed with the pose *at the beam's own
+time* and the laser's mount (``base_link_from_laser``, from ``tf_static.json`` by the scan's
+``frame_id``, :func:`~toolkit.mounts.frame_mounts`)::
+
+    t_b       = t_scan + b * time_increment                      (ROS LaserScan: stamp = beam 0)
+    theta_b   = angle_min + b * angle_increment
+    p_laser   = r_b (cos theta_b, sin theta_b, 0)
+    p_world   = p_world_base(t_b) + R_world_base(t_b) (R_base_laser p_laser + t_base_laser)
+
+``p_world_base`` is interpolated linearly between the two pose rows around ``t_b`` and
+``R_world_base`` on the rotation group (:class:`scipy.spatial.transform.Slerp`: the constant
+angular velocity arc between the two attitudes, which per-angle interpolation of roll, pitch
+and yaw is not; it also never wraps yaw the long way round). The pose is the causal filter
+output, what the vehicle knew while driving, as the paper projects with. Each point keeps its
+laser, beam, range, scan time (``scan_t_ns``) and the time since that laser's previous scan
+(``scan_dt_s``, NaN for a laser's first scan), and the roll and pitch rates at its time (the
+paper's gamma and psi features, eq. 1; its tau is ``t_ns``).
+
+Dropped and counted by reason (manifest ``rejects``; a warning on the terminal when any
+are): ``no_return`` (NaN/inf range), ``out_of_range`` (outside the scan's ``[range_min,
+range_max]``), ``no_pose`` (before the first or after the last pose row, or inside a gap of
+the pose longer than :data:`MAX_POSE_GAP_S`: no estimate to place it with) and ``no_mount``
+(a laser whose frame the log's static transforms do not place on the vehicle).
+
+Memory is bounded: scans are read :data:`SCAN_BATCH` at a time and the pose is streamed
+alongside them (:class:`PoseStream`), so neither the scans nor the cloud of a long log is ever
+whole in memory. Points are written in scan order (scans by time, beams in order).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+from toolkit.config import PipelineConfig, config_hash
+from toolkit.errors import StageError
+from toolkit.fusion.rotations import euler_to_rot
+from toolkit.mounts import Mount, frame_mounts
+from toolkit.tableio import TableWriter, iter_table_batches, read_table_metadata
+from toolkit.workspace import (
+    Manifest,
+    StageRecord,
+    Workspace,
+    check_up_to_date,
+    digest_files,
+    file_sha256,
+    require_finished,
+)
+
+_log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+STAGE = "project"
+OUTPUT = "points.parquet"
+#: Configuration sections projection reads: the vehicle (its base frame, for the mounts).
+CONFIG_SECTIONS = ("vehicle",)
+#: Scans per read batch (5 lasers x 181 beams: ~360 k points, ~40 MB of arrays in flight).
+SCAN_BATCH = 2_000
+#: Pose rows per read batch.
+POSE_BATCH = 65_536
+#: Longest interval between two pose rows a point may be interpolated across, s. The pose is
+#: written at 100 Hz and has holes only where its IMU had gaps (no estimate there).
+MAX_POSE_GAP_S = 0.05
+#: Reasons a return is dropped, in the order they are checked.
+REJECT_REASONS = ("no_return", "out_of_range", "no_mount", "no_pose")
+POSE_COLUMNS = ("t_ns", "x", "y", "z", "roll", "pitch", "yaw", "roll_rate", "pitch_rate")
+LASER_COLUMNS = (
+    "t_ns",
+    "laser",
+    "angle_min",
+    "angle_increment",
+    "time_increment",
+    "ranges",
+    "range_min",
+    "range_max",
+    "frame_id",
+)
+
+
+@dataclass(frozen=True)
+class ProjectResult:
+    """What :func:`run_project` did for one log."""
+
+    log_id: str
+    status: str  # "projected" or "up_to_date"
+    points: int
+    scans: int
+    rejects: dict[str, int]
+    seconds: float
+    warnings: tuple[str, ...] = ()
+    #: Points per second of projection proper (reading and writing excluded).
+    points_per_s: float = 0.0
+
+    def summary(self) -> str:
+        """One line for people: points, scans, what was dropped and why."""
+        parts = [f"{self.points} points from {self.scans} scans"]
+        dropped = {k: v for k, v in self.rejects.items() if v}
+        if dropped:
+            parts.append("dropped " + ", ".join(f"{k} {v}" for k, v in dropped.items()))
+        if self.warnings:
+            parts.append(f"{len(self.warnings)} warning(s)")
+        return f"{self.log_id}: points {self.status.replace('_', ' ')} ({'; '.join(parts)})"
+
+
+def stage_config_hash(config: PipelineConfig) -> str:
+    return config_hash(config, sections=CONFIG_SECTIONS)
+
+
+# --------------------------------------------------------------------------------------
+# The pose, streamed alongside the scans
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class PoseWindow:
+    """Pose rows covering a stretch of time: ``t_ns`` (K,), ``position`` (K, 3) m,
+    ``rotation`` (K rotations, world_from_base), ``rates`` (K, 2) roll and pitch rate rad/s."""
+
+    t_ns: IntArray
+    position: FloatArray
+    rotation: Rotation
+    rates: FloatArray
+
+    def at(self, t_ns: IntArray) -> tuple[IntArray, FloatArray, NDArray[np.bool_]]:
+        """Where the pose is defined at times ``t_ns`` (N,) and how to interpolate it there:
+        the index ``i`` (N,) of the row before, the fraction (N,) of the way to row ``i + 1``,
+        and a mask (N,) of the times it is defined at (inside the window, not across a gap
+        longer than :data:`MAX_POSE_GAP_S`)."""
+        t = self.t_ns
+        if t.size < 2:  # nothing to interpolate between: the pose is defined nowhere
+            return np.zeros(t_ns.size, np.int64), np.zeros(t_ns.size), np.zeros(t_ns.size, bool)
+        i = np.clip(np.searchsorted(t, t_ns, side="right") - 1, 0, t.size - 2)
+        inside = (t_ns >= t[0]) & (t_ns <= t[-1])
+        ok = inside & ((t[i + 1] - t[i]) <= int(MAX_POSE_GAP_S * 1e9))
+        frac = np.clip((t_ns - t[i]) / (t[i + 1] - t[i]).astype(np.float64), 0.0, 1.0)
+        return i, frac, ok
+
+    def transform(
+        self, t_ns: IntArray, p_base: FloatArray
+    ) -> tuple[FloatArray, FloatArray, NDArray[np.bool_]]:
+        """Points ``p_base`` (N, 3) in base_link at times ``t_ns`` (N,) -> world (N, 3), the
+        roll and pitch rates there (N, 2), and the mask (N,) of points the pose is defined at.
+
+        Position and rates are interpolated linearly; the attitude on the rotation group:
+        ``R(t) = R_i exp(f log(R_i^T R_i+1))`` with ``f`` the fraction of the way from row
+        ``i`` to ``i + 1`` — exactly scipy's :class:`~scipy.spatial.transform.Slerp`
+        (a test checks they agree), evaluated by rotating each point by ``exp(f r_i)`` and
+        then by ``R_i`` instead of composing N rotations, which is 30x faster.
+        """
+        i, frac, ok = self.at(t_ns)
+        if self.t_ns.size < 2:
+            return np.zeros_like(p_base), np.zeros((t_ns.size, 2)), ok
+        # Per pose interval (K - 1 of them, not per point): the relative rotation vector.
+        rel = (self.rotation[:-1].inv() * self.rotation[1:]).as_rotvec()
+        q = Rotation.from_rotvec(frac[:, None] * rel[i]).apply(p_base)
+        mats = self.rotation.as_matrix()
+        p_world = np.einsum("nij,nj->ni", mats[i], q)
+        p_world += self.position[i] + frac[:, None] * (self.position[i + 1] - self.position[i])
+        rates = self.rates[i] + frac[:, None] * (self.rates[i + 1] - self.rates[i])
+        return p_world, rates, ok
+
+
+class PoseStream:
+    """The pose table read forward in batches, giving the rows that cover each request.
+
+    Requests must come in time order (their first times non-decreasing, as scans sorted by
+    time give); rows before the one preceding a request's first time are let go, so memory
+    holds about one batch of scans' worth of pose.
+    """
+
+    def __init__(self, path: Path, schema_name: str = "pose") -> None:
+        self._path = path
+        # truth_pose has the pose's columns and frame: a check can project with the truth.
+        self._batches: Iterator[pa.RecordBatch] = iter_table_batches(
+            path, schema_name, columns=POSE_COLUMNS, batch_rows=POSE_BATCH
+        )
+        self._cols: dict[str, NDArray[Any]] = {c: np.zeros(0) for c in POSE_COLUMNS}
+        self._cols["t_ns"] = np.zeros(0, dtype=np.int64)
+        self._done = False
+        self._last_lo: int | None = None
+
+    def _pull(self) -> bool:
+        batch = next(self._batches, None)
+        if batch is None:
+            self._done = True
+            return False
+        for c in POSE_COLUMNS:
+            v = batch.column(c).to_numpy(zero_copy_only=False)
+            self._cols[c] = np.concatenate([self._cols[c], v])
+        return True
+
+    def window(self, t_lo_ns: int, t_hi_ns: int) -> PoseWindow:
+        """Pose rows from the last one at or before ``t_lo_ns`` to the first at or after
+        ``t_hi_ns`` (fewer at the ends of the table)."""
+        if self._last_lo is not None and t_lo_ns < self._last_lo:
+            raise StageError(
+                "scans are not in time order (the laser table ingest writes is); "
+                "run `terrain ingest --overwrite`",
+                path=self._path,
+            )
+        self._last_lo = t_lo_ns
+        while not self._done and (self._cols["t_ns"].size == 0 or self._cols["t_ns"][-1] < t_hi_ns):
+            self._pull()
+        t = self._cols["t_ns"]
+        first = max(int(np.searchsorted(t, t_lo_ns, side="right")) - 1, 0)
+        if first:
+            self._cols = {c: v[first:] for c, v in self._cols.items()}
+            t = self._cols["t_ns"]
+        last = min(int(np.searchsorted(t, t_hi_ns, side="left")) + 1, t.size)
+        c = {k: v[:last] for k, v in self._cols.items()}
+        rpy = np.stack([c["roll"], c["pitch"], c["yaw"]], axis=1).astype(np.float64)
+        rotation = Rotation.from_matrix(euler_to_rot(rpy)) if rpy.shape[0] else Rotation.identity(0)
+        return PoseWindow(
+            t_ns=np.asarray(c["t_ns"], dtype=np.int64),
+            position=np.stack([c["x"], c["y"], c["z"]], axis=1).astype(np.float64),
+            rotation=rotation,
+            rates=np.stack([c["roll_rate"], c["pitch_rate"]], axis=1).astype(np.float64),
+        )
+
+
+# --------------------------------------------------------------------------------------
+# Projection of a batch of scans
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class ScanBatch:
+    """Scans flattened to one row per beam: ``scan`` (M,) index of each beam's scan in the
+    batch, ``beam`` (M,), ``range_m`` (M,) float32, plus the per-scan arrays (S,)."""
+
+    t_ns: IntArray
+    laser: pa.Array
+    frame_id: list[str]
+    angle_min: FloatArray
+    angle_increment: FloatArray
+    time_increment: FloatArray
+    range_min: FloatArray
+    range_max: FloatArray
+    scan: IntArray
+    beam: IntArray
+    range_m: NDArray[np.float32]
+
+    @classmethod
+    def from_record_batch(cls, batch: pa.RecordBatch) -> ScanBatch:
+        ranges = batch.column("ranges")
+        offsets = ranges.offsets.to_numpy()
+        if ranges.offset or offsets[0]:  # a sliced list array: rebase its offsets
+            offsets = offsets - offsets[0]
+        lengths = np.diff(offsets)
+        n_scans = lengths.size
+        scan = np.repeat(np.arange(n_scans, dtype=np.int64), lengths)
+        beam = np.arange(scan.size, dtype=np.int64) - np.repeat(offsets[:-1], lengths)
+        values = pc.list_flatten(ranges).to_numpy(zero_copy_only=False).astype(np.float32)
+
+        def f64(name: str, fill: float) -> FloatArray:
+            col = batch.column(name)
+            return np.asarray(pc.fill_null(col, fill).to_numpy(zero_copy_only=False), np.float64)
+
+        return cls(
+            t_ns=np.asarray(batch.column("t_ns").to_numpy(), dtype=np.int64),
+            laser=batch.column("laser"),
+            frame_id=[str(f or "") for f in batch.column("frame_id").to_pylist()],
+            angle_min=f64("angle_min", np.nan),
+            angle_increment=f64("angle_increment", np.nan),
+            time_increment=f64("time_increment", 0.0),
+            range_min=f64("range_min", 0.0),
+            range_max=f64("range_max", np.inf),
+            scan=scan,
+            beam=beam,
+            range_m=values,
+        )
+
+
+@dataclass
+class Counts:
+    """Running totals of a projection."""
+
+    points: int = 0
+    scans: int = 0
+    rejects: dict[str, int] = field(default_factory=lambda: dict.fromkeys(REJECT_REASONS, 0))
+
+
+def project_batch(
+    scans: ScanBatch,
+    mounts: dict[str, Mount],
+    poses: PoseStream,
+    previous_scan_ns: dict[str, int],
+    counts: Counts,
+) -> pa.Table:
+    """Project one batch of scans (see the module docstring); returns the points table and
+    adds to ``counts``. ``previous_scan_ns`` (laser -> stamp of its last scan) is carried
+    from batch to batch for ``scan_dt_s``."""
+    n_scans = scans.t_ns.size
+    counts.scans += n_scans
+    # Time since each laser's previous scan, carried across batches.
+    laser_names = scans.laser.to_pylist()
+    scan_dt = np.full(n_scans, np.nan)
+    for k, name in enumerate(laser_names):  # per scan, not per point
+        prev = previous_scan_ns.get(name)
+        if prev is not None:
+            scan_dt[k] = (scans.t_ns[k] - prev) * 1e-9
+        previous_scan_ns[name] = int(scans.t_ns[k])
+
+    s, b, r = scans.scan, scans.beam, scans.range_m
+    finite = np.isfinite(r)
+    counts.rejects["no_return"] += int((~finite).sum())
+    with np.errstate(invalid="ignore"):
+        in_range = finite & (r >= scans.range_min[s]) & (r <= scans.range_max[s])
+    counts.rejects["out_of_range"] += int((finite & ~in_range).sum())
+    # Each scan's laser mount as a small integer code (-1: none), so points select by code.
+    mount_list = list(mounts.values())
+    code_of = {m.frame: k for k, m in enumerate(mount_list)}
+    scan_mount = np.array([code_of.get(f, -1) for f in scans.frame_id], dtype=np.int64)
+    mounted = in_range & (scan_mount[s] >= 0)
+    counts.rejects["no_mount"] += int((in_range & ~mounted).sum())
+    keep = np.flatnonzero(mounted)
+    s, b, r = s[keep], b[keep], r[keep].astype(np.float64)
+
+    # Beam times: stamp + beam x time_increment (ROS LaserScan: the stamp is beam 0's time).
+    t_ns = scans.t_ns[s] + np.round(b * scans.time_increment[s] * 1e9).astype(np.int64)
+    theta = scans.angle_min[s] + b * scans.angle_increment[s]
+    p_laser = np.stack([r * np.cos(theta), r * np.sin(theta), np.zeros_like(r)], axis=1)
+    # Into base_link, laser by laser (a loop over the few lasers, not over points).
+    p_base = np.empty_like(p_laser)
+    point_mount = scan_mount[s]
+    for k, mount in enumerate(mount_list):
+        sel = point_mount == k
+        if sel.any():
+            p_base[sel] = p_laser[sel] @ mount.rotation.T + mount.translation_m
+    if t_ns.size:
+        window = poses.window(int(t_ns.min()), int(t_ns.max()))
+        p_world, rates, ok = window.transform(t_ns, p_base)
+    else:
+        p_world, rates, ok = np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0, bool)
+    counts.rejects["no_pose"] += int((~ok).sum())
+    sel = np.flatnonzero(ok)
+    counts.points += sel.size
+    laser_idx = pa.array(s[sel], pa.int64())
+    return pa.table(
+        {
+            "t_ns": pa.array(t_ns[sel], pa.int64()),
+            "laser": pc.take(scans.laser, laser_idx),
+            "beam": pa.array(b[sel].astype(np.int32), pa.int32()),
+            "range": pa.array(r[sel].astype(np.float32), pa.float32()),
+            "x": pa.array(p_world[sel, 0], pa.float64()),
+            "y": pa.array(p_world[sel, 1], pa.float64()),
+            "z": pa.array(p_world[sel, 2], pa.float64()),
+            "roll_rate": pa.array(rates[sel, 0], pa.float64()),
+            "pitch_rate": pa.array(rates[sel, 1], pa.float64()),
+            "scan_t_ns": pa.array(scans.t_ns[s[sel]], pa.int64()),
+            "scan_dt_s": pa.array(scan_dt[s[sel]], pa.float64()),
+        }
+    )
+
+
+# --------------------------------------------------------------------------------------
+# The stage
+# --------------------------------------------------------------------------------------
+
+
+def run_project(
+    workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
+) -> ProjectResult:
+    """Project one log's scans into the world (see the module docstring)."""
+    start = time.perf_counter()
+    if not workspace.log_dir(log_id).is_dir():
+        raise StageError(
+            "no such log in the workspace; run `terrain ingest` first",
+            path=workspace.log_dir(log_id),
+        )
+    with workspace.change_log(log_id) as gen:
+        result = _project_in(gen.path, log_id, config, overwrite=overwrite, start=start)
+        if result.status != "up_to_date":
+            gen.commit()
+    for warning in result.warnings:
+        _log.warning("%s: %s", log_id, warning)
+    return result
+
+
+def _project_in(
+    log_dir: Path, log_id: str, config: PipelineConfig, *, overwrite: bool, start: float
+) -> ProjectResult:
+    manifest = Manifest(log_dir / Workspace.MANIFEST_NAME)
+    laser_path = log_dir / "laser.parquet"
+    pose_path = log_dir / "pose.parquet"
+    tf_path = log_dir / "tf_static.json"
+    if config.topics.lasers == () or not laser_path.is_file():
+        raise StageError(
+            "projection needs the lasers role, and this log has none (no laser.parquet; "
+            "[topics] lasers accepts sensor_msgs/msg/LaserScan topics)",
+            path=laser_path,
+        )
+    if not pose_path.is_file():
+        raise StageError("no pose; run `terrain pose` first", path=pose_path)
+    inputs = {"laser": file_sha256(laser_path), "pose": file_sha256(pose_path)}
+    if tf_path.is_file():
+        inputs["tf_static"] = file_sha256(tf_path)
+    ingest_files = {"laser.parquet": inputs["laser"]}
+    if "tf_static" in inputs:
+        ingest_files["tf_static.json"] = inputs["tf_static"]
+    require_finished(manifest.stage("ingest"), "ingest", ingest_files, log_dir)
+    require_finished(manifest.stage("pose"), "pose", {"pose.parquet": inputs["pose"]}, log_dir)
+    cfg_hash = stage_config_hash(config)
+    out_path = log_dir / OUTPUT
+    record = manifest.stage(STAGE)
+    if (
+        record is not None
+        and not overwrite
+        and check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=[out_path])
+    ):
+        return ProjectResult(
+            log_id,
+            "up_to_date",
+            int(record.row_counts.get("points", 0)),
+            int(record.row_counts.get("scans", 0)),
+            {k: int(v) for k, v in record.rejects.items()},
+            time.perf_counter() - start,
+        )
+
+    timings = dict.fromkeys(("read", "project", "write"), 0.0)
+    frames = _laser_frames(laser_path)
+    mounts, mount_warnings = frame_mounts(tf_path, config.vehicle.base_frame, frames)
+    warnings = list(mount_warnings)
+    pose_meta = read_table_metadata(pose_path)
+    frame_meta: dict[str, str] = {
+        k: pose_meta[k] for k in ("frame_id", "enu_origin", "local_origin") if k in pose_meta
+    }
+    sha = json.loads(json.dumps(manifest.read().get("source", {}))).get("sha256", "")
+    poses = PoseStream(pose_path)
+    counts = Counts()
+    previous_scan_ns: dict[str, int] = {}
+    batches = iter_table_batches(laser_path, "laser", columns=LASER_COLUMNS, batch_rows=SCAN_BATCH)
+    with TableWriter(
+        out_path, "points", source_sha256=sha, config_hash=cfg_hash, extra_metadata=frame_meta
+    ) as writer:
+        while True:
+            t = time.perf_counter()
+            batch = next(batches, None)
+            if batch is None:
+                break
+            scans = ScanBatch.from_record_batch(batch)
+            timings["read"] += time.perf_counter() - t
+            t = time.perf_counter()
+            table = project_batch(scans, mounts, poses, previous_scan_ns, counts)
+            timings["project"] += time.perf_counter() - t
+            t = time.perf_counter()
+            writer.write(table)
+            timings["write"] += time.perf_counter() - t
+    dropped = {k: v for k, v in counts.rejects.items() if v}
+    returns = counts.points + sum(counts.rejects.values())
+    if dropped:
+        warnings.append(
+            f"{sum(dropped.values())} of {returns} returns dropped ("
+            + ", ".join(f"{k} {v}" for k, v in dropped.items())
+            + ")"
+        )
+    timings["total"] = time.perf_counter() - start
+    manifest.record_stage(
+        STAGE,
+        StageRecord(
+            inputs=inputs,
+            config_hash=cfg_hash,
+            outputs=(OUTPUT,),
+            row_counts={"points": counts.points, "scans": counts.scans},
+            rejects=dict(counts.rejects),
+            timings_s={k: round(v, 6) for k, v in sorted(timings.items())},
+            warnings=tuple(warnings),
+            output_files=digest_files(log_dir, (OUTPUT,)),
+        ),
+    )
+    return ProjectResult(
+        log_id,
+        "projected",
+        counts.points,
+        counts.scans,
+        dict(counts.rejects),
+        time.perf_counter() - start,
+        warnings=tuple(warnings),
+        points_per_s=counts.points / max(timings["project"], 1e-9),
+    )
+
+
+def _laser_frames(laser_path: Path) -> list[str]:
+    """The distinct ``frame_id`` of the scans (read as one small dictionary column)."""
+    frames: set[str] = set()
+    for batch in iter_table_batches(laser_path, "laser", columns=["frame_id"], batch_rows=65_536):
+        frames.update(str(f or "") for f in pc.unique(batch.column("frame_id")).to_pylist())
+    return sorted(frames)
+
+
+__all__ = [
+    "STAGE",
+    "PoseStream",
+    "PoseWindow",
+    "ProjectResult",
+    "ScanBatch",
+    "project_batch",
+    "run_project",
+    "stage_config_hash",
+]
