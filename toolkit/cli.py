@@ -440,3 +440,24 @@ def project(workspace: Path, log_id: str | None, overwrite: bool) -> None:
         "project",
         lambda ws, one, cfg: run_project(ws, one, cfg, overwrite=overwrite),
     )
+
+
+@main.command()
+@click.option(
+    "-w",
+    "--workspace",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Workspace directory (labelled and projected).",
+)
+@click.option("--overwrite", is_flag=True, help="Rebuild the tables even if up to date.")
+def tables(workspace: Path, overwrite: bool) -> None:
+    """Events and the points under each rear tyre, split train/test: WS/tables/ (sect. 7)."""
+    from toolkit.stages.tables import run_tables
+    from toolkit.workspace import Workspace
+
+    ws = Workspace(workspace)
+    cfg = ws.read_config()
+    with ws.lock():
+        result = run_tables(ws, cfg, overwrite=overwrite)
+    click.echo(result.summary())

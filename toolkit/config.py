@@ -256,6 +256,9 @@ class TablesConfig:
     split_scope: Annotated[str, Rule(choices=("all_logs", "per_log"))]
     train_fraction: Annotated[float, Rule(gt=0.0, lt=1.0)]
     min_points_per_wheel: Annotated[int, Rule(ge=2)]
+    #: A point counts for an event when seen at most this long before the rear axle reached
+    #: it, s (on a loop of the course, terrain seen minutes earlier is not "ahead").
+    max_lookahead_s: Annotated[float, Rule(gt=0.0)] = 60.0
 
 
 @dataclass(frozen=True)

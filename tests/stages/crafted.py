@@ -16,7 +16,7 @@ from typing import Any
 import pyarrow as pa
 
 from toolkit import tableio
-from toolkit.workspace import Manifest, digest_files
+from toolkit.workspace import Manifest, StageRecord, digest_files
 
 
 def adopt_edits(log_dir: Path) -> None:
@@ -37,3 +37,18 @@ def write_table(path: str | Path, table: pa.Table, schema_name: str, **kwargs: A
     """tableio.write_table into a log's folder, then :func:`adopt_edits` of that log."""
     tableio.write_table(path, table, schema_name, **kwargs)
     adopt_edits(Path(path).parent)
+
+
+def record_stage_outputs(log_dir: Path, stage: str, outputs: list[str]) -> None:
+    """Record ``outputs`` (as they are now) as what a finished ``stage`` wrote in this log, as
+    a real run of that stage would have: for tests that craft a stage's outputs by hand."""
+    manifest = Manifest(log_dir / "manifest.json")
+    manifest.record_stage(
+        stage,
+        StageRecord(
+            inputs={},
+            config_hash="crafted",
+            outputs=tuple(outputs),
+            output_files=digest_files(log_dir, outputs),
+        ),
+    )

@@ -1,0 +1,215 @@
+"""The tables stage: points under each rear tyre of each event, split by distance (sect. 7).
+
+The events here are crafted from the pose (1.4 m stretches of the rear-axle path, a made-up
+shock) so this test depends only on projection; the label stage has its own tests.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from tests.stages.crafted import record_stage_outputs
+from toolkit.config import default_config
+from toolkit.errors import StageError
+from toolkit.stages.ingest import ingest_log
+from toolkit.stages.pose import run_pose
+from toolkit.stages.project import run_project
+from toolkit.stages.tables import TablesResult, run_tables, tyre_paths
+from toolkit.tableio import read_table, write_table
+from toolkit.workspace import Workspace
+
+SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
+EVENT_LENGTH_M = 1.4
+MPH = 0.44704
+
+
+def craft_events(ws: Workspace, log_id: str) -> pa.Table:
+    """Events every 1.4 m of the pose's path, with a deterministic made-up shock; written
+    as a finished label stage would have."""
+    pose = read_table(ws.log_table(log_id, "pose"), "pose")
+    t = pose.column("t_ns").to_numpy()
+    x, y = pose.column("x").to_numpy(), pose.column("y").to_numpy()
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(y)))])
+    edges = np.arange(0.0, s[-1], EVENT_LENGTH_M)
+    t_edges = np.interp(edges, s, t.astype(np.float64)).astype(np.int64)
+    n = edges.size - 1
+    speed = np.array(
+        [
+            pose.column("speed").to_numpy()[(t >= a) & (t < b)].mean()
+            for a, b in zip(t_edges[:-1], t_edges[1:], strict=True)
+        ]
+    )
+    shock = 0.05 + 0.3 * (np.arange(n) % 17 == 0)
+    rugged = shock / (speed / MPH)
+    events = pa.table(
+        {
+            "event_id": pa.array(np.arange(n), pa.int64()),
+            "t_start_ns": pa.array(t_edges[:-1], pa.int64()),
+            "t_end_ns": pa.array(t_edges[1:], pa.int64()),
+            "s_start_m": pa.array(edges[:-1]),
+            "s_end_m": pa.array(edges[1:]),
+            "speed_mph": pa.array(speed / MPH),
+            "shock_g": pa.array(shock),
+            "ruggedness": pa.array(rugged),
+            "rough": pa.array(rugged >= 0.02),
+        }
+    )
+    log_dir = ws.log_dir(log_id)
+    write_table(
+        log_dir / "events.parquet", events, "events", source_sha256="crafted", config_hash="crafted"
+    )
+    record_stage_outputs(log_dir, "label", ["events.parquet"])
+    return events
+
+
+@pytest.fixture(scope="module")
+def tabled(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> tuple[Workspace, str, pa.Table, TablesResult]:
+    ws = Workspace(tmp_path_factory.mktemp("tables") / "ws")
+    cfg = default_config()
+    log_id = ingest_log(SAMPLE_LOG, ws, cfg).log_id
+    run_pose(ws, log_id, cfg)
+    run_project(ws, log_id, cfg)
+    events = craft_events(ws, log_id)
+    return ws, log_id, events, run_tables(ws, cfg)
+
+
+def _polyline_distance(p: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """Distance of points p (N, 2) to the polyline (M, 2), exactly (segment by segment)."""
+    a, b = line[:-1], line[1:]
+    ab = b - a
+    w = p[:, None, :] - a[None]
+    f = np.clip((w * ab).sum(-1) / np.maximum((ab * ab).sum(-1), 1e-12), 0, 1)
+    d = np.linalg.norm(w - f[..., None] * ab, axis=-1)
+    return np.asarray(d.min(axis=1))
+
+
+def test_points_are_those_near_each_tyre_before_it_got_there(tabled) -> None:  # type: ignore[no-untyped-def]
+    """Against brute force on a few events: the tyre's polyline from the pose rows, every
+    point of the cloud: the table holds exactly the points within 30 cm seen before the
+    event started (up to 1 mm at the radius: the path is sampled every 5 cm)."""
+    ws, log_id, events, _ = tabled
+    cfg = default_config()
+    pose = read_table(ws.log_table(log_id, "pose"), "pose")
+    t_pose = pose.column("t_ns").to_numpy()
+    points = read_table(ws.log_table(log_id, "points"), "points", columns=["t_ns", "x", "y"])
+    pt = points.column("t_ns").to_numpy()
+    pxy = np.c_[points.column("x").to_numpy(), points.column("y").to_numpy()]
+    table = read_table(ws.event_points_table, "event_points")
+    kept = read_table(ws.events_table, "tables_events")
+    kept_ids = set(kept.column("event_id").to_pylist())
+    checked = 0
+    for e in range(40, events.num_rows, 19):
+        if e not in kept_ids:
+            continue
+        t0, t1 = events.column("t_start_ns")[e].as_py(), events.column("t_end_ns")[e].as_py()
+        inside = (t_pose >= t0) & (t_pose <= t1)
+        ts = np.concatenate([[t0], t_pose[inside], [t1]]).astype(np.float64)
+        cx = np.interp(ts, t_pose, pose.column("x").to_numpy())
+        cy = np.interp(ts, t_pose, pose.column("y").to_numpy())
+        yaw = np.interp(ts, t_pose, np.unwrap(pose.column("yaw").to_numpy()))
+        for sign, wheel in ((1, "left"), (-1, "right")):
+            half = sign * cfg.vehicle.track_m / 2
+            line = np.c_[cx - np.sin(yaw) * half, cy + np.cos(yaw) * half]
+            seen = (pt < t0) & (pt >= t0 - int(cfg.tables.max_lookahead_s * 1e9))
+            d = np.full(pt.size, np.inf)
+            box = (
+                seen
+                & (np.abs(pxy[:, 0] - line[:, 0].mean()) < 3)
+                & (np.abs(pxy[:, 1] - line[:, 1].mean()) < 3)
+            )
+            d[box] = _polyline_distance(pxy[box], line)
+            mine = table.filter(
+                pa.compute.and_(
+                    pa.compute.equal(table.column("event_id"), e),
+                    pa.compute.equal(table.column("wheel"), wheel),
+                )
+            )
+            got = set(mine.column("t_ns").to_pylist())
+            inner = set(pt[d <= 0.299].tolist())
+            outer = set(pt[d <= 0.301].tolist())
+            assert inner <= got <= outer, (e, wheel)
+            assert len(got) >= 2
+            checked += 1
+    assert checked >= 20
+
+
+def test_totals_agree_with_the_events_and_the_split_is_by_distance(tabled) -> None:  # type: ignore[no-untyped-def]
+    ws, log_id, events, result = tabled
+    table = read_table(ws.event_points_table, "event_points")
+    kept = read_table(ws.events_table, "tables_events")
+    split = np.array(kept.column("split").to_pylist())
+    for name in ("train", "test"):
+        mine = split == name
+        assert result.splits[name].events == int(mine.sum()) > 50
+        assert result.splits[name].positives == int(
+            kept.column("rough").to_numpy(zero_copy_only=False)[mine].sum()
+        )
+        n_points = int(
+            (kept.column("points_left").to_numpy() + kept.column("points_right").to_numpy())[
+                mine
+            ].sum()
+        )
+        assert result.splits[name].points == n_points
+    assert table.num_rows == result.splits["train"].points + result.splits["test"].points
+    # Every event kept has at least min_points_per_wheel under each tyre; the ones the
+    # lasers never saw ahead of the tyres (the first metres of the log) were dropped.
+    assert (
+        kept.column("points_left").to_numpy().min() >= default_config().tables.min_points_per_wheel
+    )
+    assert result.rejects["too_few_points"] == events.num_rows - kept.num_rows > 0
+    # First half of the distance trains, the second tests.
+    mid = 0.5 * (kept.column("s_start_m").to_numpy() + kept.column("s_end_m").to_numpy())
+    total = events.column("s_end_m").to_numpy().max()
+    assert (mid[split == "train"] < total / 2).all() and (mid[split == "test"] >= total / 2).all()
+    # tau is each point's time in seconds, before its event.
+    starts = dict(
+        zip(kept.column("event_id").to_pylist(), kept.column("t_start_ns").to_pylist(), strict=True)
+    )
+    t_start = np.array([starts[e] for e in table.column("event_id").to_pylist()])
+    assert (table.column("t_ns").to_numpy() < t_start).all()
+    np.testing.assert_allclose(
+        table.column("tau").to_numpy(), table.column("t_ns").to_numpy() * 1e-9
+    )
+    assert "train:" in result.summary() and "test:" in result.summary()
+
+
+def test_a_second_run_is_up_to_date(tabled) -> None:  # type: ignore[no-untyped-def]
+    ws, _, _, result = tabled
+    again = run_tables(ws, default_config())
+    assert again.status == "up_to_date"
+    assert again.splits == result.splits
+
+
+def test_tyre_paths_are_dense_and_beside_the_axle() -> None:
+    """A straight drive east at 10 m/s: the left tyre 0.825 m north, the right south,
+    samples at most 5 cm apart."""
+    t = np.arange(0, 2_000_000_000, 10_000_000, dtype=np.int64)
+    x = 10.0 * t * 1e-9
+    paths = tyre_paths(
+        t,
+        np.c_[x, np.zeros_like(x)],
+        np.zeros_like(x),
+        np.array([100_000_000]),
+        np.array([240_000_000]),
+        1.65,
+    )
+    left = paths.xy[paths.wheel == 0]
+    right = paths.xy[paths.wheel == 1]
+    np.testing.assert_allclose(left[:, 1], 0.825)
+    np.testing.assert_allclose(right[:, 1], -0.825)
+    assert left[:, 0].min() == pytest.approx(1.0) and left[:, 0].max() == pytest.approx(2.4)
+    assert np.diff(np.sort(left[:, 0])).max() <= 0.05 + 1e-9
+
+
+def test_without_labelled_logs_tables_refuses_in_one_line(tmp_path: Path) -> None:
+    ws = Workspace(tmp_path / "ws")
+    ingest_log(SAMPLE_LOG, ws, default_config())
+    with pytest.raises(StageError, match="run `terrain label`"):
+        run_tables(ws, default_config())
+    assert not ws.events_table.exists()

@@ -1,0 +1,518 @@
+"""Tables stage: every log's events and points -> the training and test tables (paper sect. 7).
+
+For each event (a stretch of the rear-axle path, ``events.parquet``) and each rear tyre, the
+laser points observed *before* the rear axle reached the stretch that lie within
+``[model] wheel_window_radius_m`` (30 cm, sect. 7: "all laser points fall within 30cm of
+terrain the vehicle's rear tires traversed") of the ground that tyre traversed in it. Those
+are the points the model of sect. 4 scores for that tyre (``tables/event_points.parquet``,
+the paper's ``L_i = [x, y, z, tau, gamma, psi]`` with ``tau`` the point's time in seconds).
+
+The tyres' paths: base_link is on the ground below the rear-axle centre, so the tyres touch
+the ground at ``(0, +-track_m / 2, 0)`` in base_link; their world (x, y) follow from the pose
+(position and yaw; the roll of the body moves the contact patch by millimetres, neglected).
+Each tyre's path over an event is sampled at most :data:`PATH_STEP_M` apart (the pose rows,
+densified), and a point is near it when a sample lies within the radius: a point exactly at
+the radius from the polyline is then within ``sqrt(r^2 + (step/2)^2) - r`` (1 mm) of being
+missed, a known, negligible bias. A point may serve several events (near the end of one
+stretch and the start of the next) and is then listed under each.
+
+"Before": the point's time is earlier than the event's start, and by at most
+``[tables] max_lookahead_s`` (a point seen minutes earlier, on a loop of the course, is not
+"the terrain ahead"). Events with fewer than ``[tables] min_points_per_wheel`` points under a
+tyre cannot be scored; they are dropped and counted (``too_few_points``).
+
+Split (sect. 7 trains on miles 60-70 and tests on 70-80): by distance along the driven path.
+``split_scope = "all_logs"``: the logs in time order are one route; the first
+``train_fraction`` of its total length trains, the rest tests. ``"per_log"``: each log is
+split the same way on its own. An event belongs to the side its middle lies on.
+
+Streaming: points are read a batch at a time in time order; only the events whose start lies
+within ``max_lookahead_s`` after the batch are indexed (a KD-tree of their tyre samples,
+rebuilt per batch), so memory holds one batch of points and a minute of events, however long
+the log. Both tables are written aside and published when both are complete; a kill between
+the two renames leaves outputs the manifest does not match, which the next run redoes.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import defaultdict
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from toolkit.config import PipelineConfig, config_hash
+from toolkit.errors import StageError
+from toolkit.tableio import TableWriter, iter_table_batches, read_table
+from toolkit.workspace import (
+    Manifest,
+    StageRecord,
+    Workspace,
+    check_up_to_date,
+    digest_files,
+    file_sha256,
+    require_finished,
+)
+
+_log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+STAGE = "tables"
+CONFIG_SECTIONS = ("tables", "model", "vehicle")
+#: Largest spacing of the samples of a tyre's path, m.
+PATH_STEP_M = 0.05
+#: Points per read batch.
+POINT_BATCH = 262_144
+WHEELS = ("left", "right")
+POINT_COLUMNS = ("t_ns", "laser", "x", "y", "z", "roll_rate", "pitch_rate")
+EVENT_COLUMNS = (
+    "event_id",
+    "t_start_ns",
+    "t_end_ns",
+    "s_start_m",
+    "s_end_m",
+    "speed_mph",
+    "shock_g",
+    "ruggedness",
+    "rough",
+)
+
+
+@dataclass(frozen=True)
+class SplitTotals:
+    """What one split holds (the numbers sect. 7 reports)."""
+
+    events: int
+    positives: int
+    points: int
+
+
+@dataclass(frozen=True)
+class TablesResult:
+    """What :func:`run_tables` did."""
+
+    status: str  # "written" or "up_to_date"
+    logs: int
+    splits: dict[str, SplitTotals]
+    rejects: dict[str, int]
+    seconds: float
+    warnings: tuple[str, ...] = ()
+
+    def summary(self) -> str:
+        """The totals per split, as sect. 7 reports them."""
+        parts = [
+            f"{name}: {t.events} events ({t.positives} rough, "
+            f"{100.0 * t.positives / max(t.events, 1):.2f} %), {t.points} points"
+            for name, t in self.splits.items()
+        ]
+        dropped = {k: v for k, v in self.rejects.items() if v}
+        if dropped:
+            parts.append("dropped " + ", ".join(f"{k} {v}" for k, v in dropped.items()))
+        return f"tables {self.status.replace('_', ' ')} from {self.logs} log(s): " + "; ".join(
+            parts
+        )
+
+
+def stage_config_hash(config: PipelineConfig) -> str:
+    return config_hash(config, sections=CONFIG_SECTIONS)
+
+
+# --------------------------------------------------------------------------------------
+# Tyre paths
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TyrePaths:
+    """Samples of both rear tyres' paths over every event of a log: ``xy`` (M, 2) m,
+    ``event`` (M,) row index into the log's events, ``wheel`` (M,) 0 left / 1 right."""
+
+    xy: FloatArray
+    event: IntArray
+    wheel: IntArray
+
+
+def tyre_paths(
+    pose_t_ns: IntArray,
+    pose_xy: FloatArray,
+    pose_yaw: FloatArray,
+    t_start_ns: IntArray,
+    t_end_ns: IntArray,
+    track_m: float,
+) -> TyrePaths:
+    """Sample each rear tyre's path over each event ``[t_start, t_end]`` (E,), from the pose
+    (K,) / (K, 2) / (K,) (see the module docstring). Vectorised over events: the pose times
+    inside all events at once, densified so no two samples are more than :data:`PATH_STEP_M`
+    apart."""
+    # The pose rows inside each event, plus its two ends (interpolated).
+    lo = np.searchsorted(pose_t_ns, t_start_ns, side="right")
+    hi = np.searchsorted(pose_t_ns, t_end_ns, side="left")
+    inner = np.maximum(hi - lo, 0)
+    n_ev = t_start_ns.size
+    counts = inner + 2
+    ev = np.repeat(np.arange(n_ev), counts)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    k = np.arange(ev.size) - first[ev]
+    t = np.empty(ev.size, dtype=np.int64)
+    is_start, is_end = k == 0, k == counts[ev] - 1
+    t[is_start] = t_start_ns
+    t[is_end] = t_end_ns
+    mid = ~(is_start | is_end)
+    t[mid] = pose_t_ns[lo[ev[mid]] + k[mid] - 1]
+    tf = (t - pose_t_ns[0]).astype(np.float64)
+    tp = (pose_t_ns - pose_t_ns[0]).astype(np.float64)
+    x = np.interp(tf, tp, pose_xy[:, 0])
+    y = np.interp(tf, tp, pose_xy[:, 1])
+    yaw = np.interp(tf, tp, np.unwrap(pose_yaw))
+    # Densify: each step split into ceil(length / PATH_STEP_M) pieces (within an event).
+    same = ev[1:] == ev[:-1]
+    step = np.hypot(np.diff(x), np.diff(y))
+    pieces = np.where(same, np.maximum(np.ceil(step / PATH_STEP_M), 1), 1).astype(np.int64)
+    j = np.repeat(np.arange(pieces.size), pieces)
+    f = (np.arange(j.size) - np.concatenate([[0], np.cumsum(pieces)[:-1]])[j]) / pieces[j]
+    f = np.where(same[j], f, 0.0)
+
+    def lerp(v: FloatArray) -> FloatArray:
+        return np.concatenate([v[j] + f * (v[j + 1] - v[j]), v[-1:]])
+
+    xs, ys, yaws = lerp(x), lerp(y), lerp(yaw)
+    evs = np.concatenate([ev[j], ev[-1:]])
+    half = 0.5 * track_m
+    # Left tyre at +y of base_link, right at -y: (x, y) + R(yaw) (0, +-half).
+    nx, ny = -np.sin(yaws) * half, np.cos(yaws) * half
+    xy = np.concatenate([np.c_[xs + nx, ys + ny], np.c_[xs - nx, ys - ny]])
+    return TyrePaths(
+        xy=xy,
+        event=np.concatenate([evs, evs]).astype(np.int64),
+        wheel=np.repeat(np.array([0, 1], dtype=np.int64), xs.size),
+    )
+
+
+# --------------------------------------------------------------------------------------
+# Points under the tyres, one log
+# --------------------------------------------------------------------------------------
+
+
+@dataclass
+class LogInputs:
+    """One log's inputs and their hashes."""
+
+    log_id: str
+    log_dir: Path
+    hashes: dict[str, str]
+    first_t_ns: int = 0
+
+
+def _match_batch(
+    batch: pa.RecordBatch,
+    events_t_start: IntArray,
+    paths: TyrePaths,
+    radius_m: float,
+    lookahead_ns: int,
+) -> tuple[IntArray, IntArray, IntArray]:
+    """Matches of one batch of points: (point row, event row, wheel) (each (Q,))."""
+    t = batch.column("t_ns").to_numpy()
+    if t.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64)
+    t_lo, t_hi = int(t.min()), int(t.max())
+    open_events = np.flatnonzero((events_t_start > t_lo) & (events_t_start <= t_hi + lookahead_ns))
+    empty = (np.zeros(0, np.int64),) * 3
+    if open_events.size == 0:
+        return empty
+    sel = np.isin(paths.event, open_events)
+    if not sel.any():
+        return empty
+    tree = cKDTree(paths.xy[sel])
+    sample_event, sample_wheel = paths.event[sel], paths.wheel[sel]
+    xy = np.c_[batch.column("x").to_numpy(), batch.column("y").to_numpy()]
+    # Most points are nowhere near a tyre: the nearest-sample query with an upper bound
+    # rejects them quickly; only the near ones are asked for every sample in the radius.
+    dist, _ = tree.query(xy, k=1, distance_upper_bound=radius_m)
+    near = np.flatnonzero(np.isfinite(dist))
+    if near.size == 0:
+        return empty
+    hits = tree.query_ball_point(xy[near], r=radius_m, return_sorted=False)
+    lengths = np.fromiter((len(h) for h in hits), dtype=np.int64, count=len(hits))
+    samples = np.fromiter((s for h in hits for s in h), dtype=np.int64, count=int(lengths.sum()))
+    point = np.repeat(near, lengths)
+    event, wheel = sample_event[samples], sample_wheel[samples]
+    # One row per (point, event, wheel); only points seen before the event, not too early.
+    key = np.unique(np.c_[point, event, wheel], axis=0)
+    point, event, wheel = key[:, 0], key[:, 1], key[:, 2]
+    ahead = events_t_start[event] - t[point]
+    ok = (ahead > 0) & (ahead <= lookahead_ns)
+    return point[ok], event[ok], wheel[ok]
+
+
+def _event_points_of_log(
+    inputs: LogInputs, config: PipelineConfig
+) -> Iterator[tuple[pa.Table, NDArray[np.int64]]]:
+    """The event-point rows of one log, batch by batch, with per-batch counts per
+    (event row, wheel) as an (E, 2) array."""
+    log_dir = inputs.log_dir
+    events = read_table(log_dir / "events.parquet", "events", columns=list(EVENT_COLUMNS))
+    pose = read_table(log_dir / "pose.parquet", "pose", columns=["t_ns", "x", "y", "yaw"])
+    pose_t = pose.column("t_ns").to_numpy()
+    t_start = events.column("t_start_ns").to_numpy().astype(np.int64)
+    t_end = events.column("t_end_ns").to_numpy().astype(np.int64)
+    event_id = events.column("event_id").to_numpy().astype(np.int64)
+    if pose_t.size < 2 or t_start.size == 0:
+        return
+    paths = tyre_paths(
+        pose_t,
+        np.c_[pose.column("x").to_numpy(), pose.column("y").to_numpy()],
+        pose.column("yaw").to_numpy(),
+        t_start,
+        t_end,
+        config.vehicle.track_m,
+    )
+    radius = config.model.wheel_window_radius_m
+    lookahead_ns = int(config.tables.max_lookahead_s * 1e9)
+    wheel_names = pa.array(list(WHEELS))
+    for batch in iter_table_batches(
+        log_dir / "points.parquet", "points", columns=POINT_COLUMNS, batch_rows=POINT_BATCH
+    ):
+        point, event, wheel = _match_batch(batch, t_start, paths, radius, lookahead_ns)
+        counts = np.zeros((t_start.size, 2), dtype=np.int64)
+        np.add.at(counts, (event, wheel), 1)
+        if point.size == 0:
+            yield pa.table({}), counts
+            continue
+        take = pa.array(point)
+        t_ns = batch.column("t_ns").to_numpy()[point]
+        yield (
+            pa.table(
+                {
+                    "log_id": pa.array([inputs.log_id] * point.size, pa.string()),
+                    "event_id": pa.array(event_id[event], pa.int64()),
+                    "wheel": pc.take(wheel_names, pa.array(wheel)),
+                    "x": pc.take(batch.column("x"), take),
+                    "y": pc.take(batch.column("y"), take),
+                    "z": pc.take(batch.column("z"), take),
+                    "tau": pa.array(t_ns * 1e-9, pa.float64()),
+                    "roll_rate": pc.take(batch.column("roll_rate"), take),
+                    "pitch_rate": pc.take(batch.column("pitch_rate"), take),
+                    "laser": pc.take(batch.column("laser"), take),
+                    "t_ns": pa.array(t_ns, pa.int64()),
+                }
+            ),
+            counts,
+        )
+
+
+# --------------------------------------------------------------------------------------
+# The stage
+# --------------------------------------------------------------------------------------
+
+
+def _log_inputs(workspace: Workspace) -> tuple[list[LogInputs], list[str]]:
+    """The logs that have finished events, points and pose (in time order), and a warning
+    for each log left out and why."""
+    usable: list[LogInputs] = []
+    warnings: list[str] = []
+    for log_id in workspace.log_ids():
+        log_dir = workspace.log_dir(log_id)
+        manifest = Manifest(log_dir / Workspace.MANIFEST_NAME)
+        missing = [
+            stage
+            for stage, name in (("label", "events"), ("project", "points"), ("pose", "pose"))
+            if manifest.stage(stage) is None or not (log_dir / f"{name}.parquet").is_file()
+        ]
+        if missing:
+            warnings.append(
+                f"{log_id}: left out (no finished {', '.join(missing)}; run `terrain "
+                f"{missing[0]}` on it)"
+            )
+            continue
+        hashes = {n: file_sha256(log_dir / f"{n}.parquet") for n in ("events", "points", "pose")}
+        for stage, name in (("label", "events"), ("project", "points"), ("pose", "pose")):
+            require_finished(
+                manifest.stage(stage), stage, {f"{name}.parquet": hashes[name]}, log_dir
+            )
+        pose = read_table(log_dir / "pose.parquet", "pose", columns=["t_ns"])
+        first = int(pc.min(pose.column("t_ns")).as_py() or 0) if pose.num_rows else 0
+        usable.append(LogInputs(log_id, log_dir, hashes, first))
+    usable.sort(key=lambda li: (li.first_t_ns, li.log_id))
+    return usable, warnings
+
+
+def _splits(events_by_log: list[pa.Table], config: PipelineConfig) -> list[NDArray[np.str_]]:
+    """'train' / 'test' per event of each log (see the module docstring)."""
+    frac = config.tables.train_fraction
+    lengths = [
+        float(pc.max(e.column("s_end_m")).as_py() or 0.0) if e.num_rows else 0.0
+        for e in events_by_log
+    ]
+    out = []
+    offset = 0.0
+    total = sum(lengths)
+    for events, length in zip(events_by_log, lengths, strict=True):
+        mid = 0.5 * (events.column("s_start_m").to_numpy() + events.column("s_end_m").to_numpy())
+        if config.tables.split_scope == "per_log":
+            train = mid < frac * length
+        else:
+            train = offset + mid < frac * total
+        out.append(np.where(train, "train", "test"))
+        offset += length
+    return out
+
+
+def run_tables(
+    workspace: Workspace, config: PipelineConfig, *, overwrite: bool = False
+) -> TablesResult:
+    """Build ``tables/events.parquet`` and ``tables/event_points.parquet`` from every log
+    (see the module docstring)."""
+    start = time.perf_counter()
+    logs, warnings = _log_inputs(workspace)
+    if not logs:
+        raise StageError(
+            "no log has finished events, points and pose; run `terrain label` and "
+            "`terrain project` first",
+            path=workspace.logs_dir,
+        )
+    manifest = workspace.manifest()
+    inputs = {f"{li.log_id}/{n}": h for li in logs for n, h in sorted(li.hashes.items())}
+    cfg_hash = stage_config_hash(config)
+    outputs = [workspace.events_table, workspace.event_points_table]
+    record = manifest.stage(STAGE)
+    if (
+        record is not None
+        and not overwrite
+        and check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=outputs)
+    ):
+        splits = {
+            k.removesuffix("_events"): SplitTotals(
+                int(record.row_counts.get(f"{k}", 0)),
+                int(record.row_counts.get(k.replace("_events", "_positives"), 0)),
+                int(record.row_counts.get(k.replace("_events", "_points"), 0)),
+            )
+            for k in ("train_events", "test_events")
+        }
+        return TablesResult(
+            "up_to_date", len(logs), splits, dict(record.rejects), time.perf_counter() - start
+        )
+
+    events_by_log = [
+        read_table(li.log_dir / "events.parquet", "events", columns=list(EVENT_COLUMNS))
+        for li in logs
+    ]
+    split_of = _splits(events_by_log, config)
+    # Pass 1: stream the matches into the event-points table, counting per tyre.
+    counts_by_log: list[NDArray[np.int64]] = []
+    sources = [li.hashes["events"] for li in logs]
+    points_writer = TableWriter(
+        workspace.event_points_table, "event_points", source_sha256=sources, config_hash=cfg_hash
+    )
+    events_writer = TableWriter(
+        workspace.events_table, "tables_events", source_sha256=sources, config_hash=cfg_hash
+    )
+    try:
+        for li, events in zip(logs, events_by_log, strict=True):
+            counts = np.zeros((events.num_rows, 2), dtype=np.int64)
+            for table, batch_counts in _event_points_of_log(li, config):
+                counts += batch_counts
+                if table.num_rows:
+                    points_writer.write(table)
+            counts_by_log.append(counts)
+        points_writer.finish()
+        # Events with too few points under a tyre cannot be scored: out of both tables.
+        keep_by_log = [
+            c.min(axis=1) >= config.tables.min_points_per_wheel if c.size else np.zeros(0, bool)
+            for c in counts_by_log
+        ]
+        # Kept events as sorted keys log_index * 2^40 + event_id, matched vectorised.
+        log_index = {li.log_id: k for k, li in enumerate(logs)}
+        kept_keys = np.sort(
+            np.concatenate(
+                [
+                    (k << 40) + e.column("event_id").to_numpy().astype(np.int64)[keep]
+                    for k, (e, keep) in enumerate(zip(events_by_log, keep_by_log, strict=True))
+                ]
+            )
+        )
+        rejected = int(sum((~k).sum() for k in keep_by_log))
+        points_per_split: dict[str, int] = defaultdict(int)
+        log_names = pa.array(list(log_index))
+
+        def drop_unscored(piece: pa.Table, _first: int) -> pa.Table:
+            index = pc.index_in(piece.column("log_id"), value_set=log_names).to_numpy()
+            keys = (index.astype(np.int64) << 40) + piece.column("event_id").to_numpy()
+            return piece.filter(pa.array(np.isin(keys, kept_keys)))
+
+        points_writer = points_writer.rewrite(drop_unscored)
+        positives: dict[str, int] = defaultdict(int)
+        n_events: dict[str, int] = defaultdict(int)
+        for li, events, split, keep, counts in zip(
+            logs, events_by_log, split_of, keep_by_log, counts_by_log, strict=True
+        ):
+            kept = events.filter(pa.array(keep))
+            split_kept = split[keep]
+            table = pa.table(
+                {
+                    "log_id": pa.array([li.log_id] * kept.num_rows, pa.string()),
+                    "event_id": kept.column("event_id"),
+                    "split": pa.array(split_kept.tolist(), pa.string()),
+                    **{c: kept.column(c) for c in EVENT_COLUMNS if c != "event_id"},
+                    "points_left": pa.array(counts[keep, 0], pa.int64()),
+                    "points_right": pa.array(counts[keep, 1], pa.int64()),
+                }
+            )
+            events_writer.write(table)
+            rough = kept.column("rough").to_numpy(zero_copy_only=False)
+            for name in ("train", "test"):
+                mine = split_kept == name
+                n_events[name] += int(mine.sum())
+                positives[name] += int(rough[mine].sum())
+                points_per_split[name] += int(counts[keep][mine].sum())
+        events_writer.finish()
+        points_writer.publish()
+        events_writer.publish()
+    except BaseException:
+        points_writer.abort()
+        events_writer.abort()
+        raise
+    splits = {
+        name: SplitTotals(n_events[name], positives[name], points_per_split[name])
+        for name in ("train", "test")
+    }
+    rejects = {"too_few_points": rejected}
+    if rejected:
+        warnings.append(
+            f"{rejected} events dropped: fewer than {config.tables.min_points_per_wheel} "
+            "points under a tyre"
+        )
+    row_counts: dict[str, int] = {}
+    for name, t in splits.items():
+        row_counts[f"{name}_events"] = t.events
+        row_counts[f"{name}_positives"] = t.positives
+        row_counts[f"{name}_points"] = t.points
+    manifest.record_stage(
+        STAGE,
+        StageRecord(
+            inputs=inputs,
+            config_hash=cfg_hash,
+            outputs=tuple(str(p.relative_to(workspace.root)) for p in outputs),
+            row_counts=row_counts,
+            rejects=rejects,
+            timings_s={"total": round(time.perf_counter() - start, 6)},
+            warnings=tuple(warnings),
+            output_files=digest_files(workspace.tables_dir, [p.name for p in outputs]),
+        ),
+    )
+    for warning in warnings:
+        _log.warning("%s", warning)
+    return TablesResult(
+        "written", len(logs), splits, rejects, time.perf_counter() - start, tuple(warnings)
+    )
+
+
+__all__ = ["STAGE", "SplitTotals", "TablesResult", "TyrePaths", "run_tables", "tyre_paths"]
