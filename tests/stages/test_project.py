@@ -72,14 +72,14 @@ def test_interpolation_on_the_rotation_group_equals_scipys_slerp() -> None:
     window = PoseWindow(t_ns, rng.normal(0, 10, (k, 3)), rot, rng.normal(0, 1, (k, 2)))
     tq = rng.integers(int(t_ns[0]), int(t_ns[-1]), 10_000).astype(np.int64)
     p = rng.normal(0, 5, (tq.size, 3))
-    got, rates, ok = window.transform(tq, p)
+    got, rates, ok = window.transform(tq, p.T)
     ts = (t_ns - t_ns[0]) * 1e-9
     tqs = (tq - t_ns[0]) * 1e-9
     want = Slerp(ts, rot)(tqs).apply(p) + np.stack(
         [np.interp(tqs, ts, window.position[:, j]) for j in range(3)], axis=1
     )
-    np.testing.assert_allclose(got, want, atol=1e-9)
-    np.testing.assert_allclose(rates[:, 1], np.interp(tqs, ts, window.rates[:, 1]), atol=1e-12)
+    np.testing.assert_allclose(got.T, want, atol=1e-9)
+    np.testing.assert_allclose(rates[1], np.interp(tqs, ts, window.rates[:, 1]), atol=1e-12)
     # Rows more than 50 ms apart are a hole in the pose: no point is placed across it.
     assert np.array_equal(
         ok, (np.diff(t_ns)[np.searchsorted(t_ns, tq, side="right") - 1] <= 50_000_000)
