@@ -217,6 +217,9 @@ class LabelConfig:
 
     fir_taps: Annotated[int, Rule(ge=3)]
     fir_stop_hz: Annotated[float, Rule(gt=0.0)]
+    #: Where the passband (gain 1 within 5 %) starts; must be above fir_stop_hz and below
+    #: the IMU's Nyquist frequency (checked by the label stage, which knows the rate).
+    fir_pass_hz: Annotated[float, Rule(gt=0.0)]
     event_length_m: Annotated[float, Rule(gt=0.0)]
     shock_statistic: Annotated[str, Rule(choices=("max_abs", "rms"))]
     min_speed_mps: Annotated[float, Rule(ge=0.0)]

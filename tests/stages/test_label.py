@@ -1,0 +1,365 @@
+"""Label stage (sect. 5): events along the path, shock, ruggedness, rejects, idempotence, the
+sample log against its truth, and Fig. 5 on a calibration log."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from toolkit.config import default_config
+from toolkit.errors import StageError
+from toolkit.stages.ingest import ingest_log
+from toolkit.stages.label import FIG5_CSV, FIG5_PNG, LabelResult, path_events, run_label
+from toolkit.stages.pose import run_pose
+from toolkit.tableio import read_table, write_table
+from toolkit.workspace import Manifest, StageRecord, Workspace, digest_files, file_sha256
+
+SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
+G = 9.80665
+T0_NS = 1_000_000_000_000
+LOG_ID = "crafted-000000000000"
+
+
+# --------------------------------------------------------------------------------------
+# Crafted logs: an IMU table and a pose table, recorded as a finished ingest and pose wrote
+# them.
+
+
+def imu_table(t_ns: np.ndarray, accel: np.ndarray) -> pa.Table:
+    """The contract's IMU columns: ``accel`` (M, 3) m/s^2, no rotation, no orientation."""
+    n = t_ns.size
+    cols: dict[str, pa.Array] = {"t_ns": pa.array(t_ns, pa.int64())}
+    for k, a in enumerate("xyz"):
+        cols[f"accel_{a}"] = pa.array(accel[:, k], pa.float64())
+    for a in "xyz":
+        cols[f"gyro_{a}"] = pa.array(np.zeros(n), pa.float64())
+    for a in "xyzw":
+        cols[f"orientation_{a}"] = pa.nulls(n, pa.float64())
+    cols["orientation_covariance"] = pa.nulls(n, pa.list_(pa.float64()))
+    return pa.table(cols)
+
+
+def pose_table(t_ns: np.ndarray, x: np.ndarray, speed: np.ndarray) -> pa.Table:
+    """A straight drive east along y = 0 at the given speeds."""
+    zero = np.zeros(t_ns.size)
+    cols = {"t_ns": pa.array(t_ns, pa.int64()), "x": x, "y": zero, "z": zero}
+    for c in ("roll", "pitch", "yaw", "vy", "vz", "roll_rate", "pitch_rate", "yaw_rate"):
+        cols[c] = zero
+    cols["vx"] = speed
+    cols["speed"] = speed
+    return pa.table({k: pa.array(v) if not isinstance(v, pa.Array) else v for k, v in cols.items()})
+
+
+def crafted_log(
+    root: Path,
+    imu_t_ns: np.ndarray,
+    accel: np.ndarray,
+    pose_t_ns: np.ndarray,
+    x: np.ndarray,
+    speed: np.ndarray,
+    imu_rpy: tuple[float, float, float] | None = (0.0, 0.0, 0.0),
+) -> Workspace:
+    """A workspace with one log whose ingest and pose records name these tables."""
+    ws = Workspace(root)
+    ws.create()
+    ws.write_config(default_config())
+    with ws.change_log(LOG_ID) as gen:
+        d = gen.path
+        kw = {"source_sha256": "0" * 64, "config_hash": "crafted"}
+        write_table(d / "imu.parquet", imu_table(imu_t_ns, accel), "imu", **kw)
+        write_table(d / "pose.parquet", pose_table(pose_t_ns, x, speed), "pose", **kw)
+        ingested = ["imu.parquet"]
+        if imu_rpy is not None:
+            from scipy.spatial.transform import Rotation
+
+            roll, pitch, yaw = imu_rpy
+            q = Rotation.from_euler("ZYX", [yaw, pitch, roll]).as_quat()
+            tf = {
+                "transforms": [
+                    {
+                        "parent_frame": "base_link",
+                        "child_frame": "imu_link",
+                        "translation_m": [0.0, 0.0, 0.9],
+                        "rotation_xyzw": q.tolist(),
+                        "t_ns": int(imu_t_ns[0]),
+                    }
+                ]
+            }
+            (d / "tf_static.json").write_text(json.dumps(tf), encoding="utf-8")
+            ingested.append("tf_static.json")
+        m = Manifest(d / "manifest.json")
+        m.record_stage(
+            "ingest",
+            StageRecord(
+                inputs={"log": "0" * 64},
+                config_hash="crafted",
+                outputs=tuple(ingested),
+                output_files=digest_files(d, ingested),
+            ),
+        )
+        m.record_stage(
+            "pose",
+            StageRecord(
+                inputs={"imu": file_sha256(d / "imu.parquet")},
+                config_hash="crafted",
+                outputs=("pose.parquet",),
+                output_files=digest_files(d, ["pose.parquet"]),
+            ),
+        )
+        gen.commit()
+    return ws
+
+
+def burst(t_ns: np.ndarray, centre_ns: int, amplitude_g: float) -> np.ndarray:
+    """A 25 Hz cosine burst under a 40 ms Gaussian, peak ``amplitude_g`` G, in m/s^2."""
+    u = (t_ns - centre_ns) * 1e-9
+    return np.asarray(amplitude_g * G * np.exp(-0.5 * (u / 0.04) ** 2) * np.cos(2 * np.pi * 25 * u))
+
+
+SPEED_MPS = 10.0
+EVENT_S = 0.14  # 1.4 m at 10 m/s
+PERIOD_NS = 10_000_000
+
+
+@pytest.fixture(scope="module")
+def bump_log(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, LabelResult]:
+    """20 s straight at 10 m/s; the IMU reads g except two 0.5 G bursts, centred in events
+    50 and 100 (7.07 s and 14.07 s: 3 ms off the sample grid)."""
+    t = T0_NS + np.arange(2000, dtype=np.int64) * PERIOD_NS
+    az = np.full(t.size, G)
+    for k in (50, 100):
+        az += burst(t, T0_NS + int(round((k + 0.5) * EVENT_S * 1e9)) + 3_000_000, 0.5)
+    accel = np.stack([np.zeros(t.size), np.zeros(t.size), az], axis=1)
+    x = SPEED_MPS * (t - T0_NS) * 1e-9
+    ws = crafted_log(tmp_path_factory.mktemp("bump"), t, accel, t, x, np.full(t.size, SPEED_MPS))
+    return ws, run_label(ws, LOG_ID, default_config())
+
+
+def test_bump_lands_in_its_event(bump_log: tuple[Workspace, LabelResult]) -> None:
+    ws, result = bump_log
+    ev = read_table(ws.log_table(LOG_ID, "events"), "events").to_pydict()
+    ids = np.array(ev["event_id"])
+    shock = np.array(ev["shock_g"])
+    # 199.9 m of path: 142 whole events; the filter's first output is 19.5 samples after the
+    # IMU's start and its last 19.5 before its end, so events 0, 1 and 141 are not covered.
+    assert result.events == 139 and result.rejects == {"too_slow": 0, "no_imu": 3}
+    assert ids.tolist() == list(range(2, 141))
+    for k in (50, 100):
+        near = (ids >= k - 3) & (ids <= k + 3)
+        assert ids[near][np.argmax(shock[near])] == k
+        # The sine-burst it leaves the filter as peaks a quarter cycle off the centre, on the
+        # envelope there: 0.97 x 0.5 G, within the filter's 1.2 % ripple.
+        assert shock[ids == k][0] == pytest.approx(0.5 * np.exp(-0.5 * 0.25**2), rel=0.02)
+        centre = T0_NS + (k + 0.5) * EVENT_S * 1e9 + 3e6
+        assert abs(np.array(ev["shock_t_ns"])[ids == k][0] - centre) < 11e6
+    quiet = np.ones(ids.size, dtype=bool)
+    for k in (50, 100):
+        quiet &= np.abs(ids - k) > 3
+    assert shock[quiet].max() < 1e-9  # gravity leaves nothing: zero gain at DC
+    np.testing.assert_allclose(ev["speed_mph"], SPEED_MPS / 0.44704, rtol=1e-8)
+    np.testing.assert_allclose(ev["ruggedness"], shock / (SPEED_MPS / 0.44704), rtol=1e-12)
+    assert np.array(ev["rough"]).tolist() == (np.array(ev["ruggedness"]) >= 0.02).tolist()
+    assert np.array(ev["rough"]).sum() == 2  # 0.48 G / 22.4 mph = 0.022 G/mph
+    np.testing.assert_allclose(np.array(ev["s_start_m"]), ids * 1.4, atol=1e-9)
+    np.testing.assert_array_equal(ev["imu_samples"], 14)
+    assert all(k is None for k in ev["truth_feature_kind"])  # not a simulated log
+    header = ws.manifest(LOG_ID).read()["label"]
+    assert len(header["fir"]["taps"]) == 40 and header["imu_rate_hz"] == pytest.approx(100.0)
+    assert header["fir"]["stopband_max_db"] <= -30.0
+    summary = result.summary()
+    assert "\n" not in summary and "139 events, 2 rough (1.44 %)" in summary
+
+
+def test_rerun_is_up_to_date_and_overwrite_is_deterministic(
+    bump_log: tuple[Workspace, LabelResult],
+) -> None:
+    ws, first = bump_log
+    path = ws.log_table(LOG_ID, "events")
+    sha = file_sha256(path)
+    record = ws.manifest(LOG_ID).stage("label")
+    assert record is not None
+    again = run_label(ws, LOG_ID, default_config())
+    assert again.status == "up_to_date"
+    assert (again.events, again.rough, again.rejects) == (first.events, first.rough, first.rejects)
+    assert ws.manifest(LOG_ID).stage("label") == record  # nothing rewritten
+    assert file_sha256(path) == sha
+    redone = run_label(ws, LOG_ID, default_config(), overwrite=True)
+    assert redone.status == "labelled"
+    assert file_sha256(ws.log_table(LOG_ID, "events")) == sha  # same bytes
+
+
+def test_a_rotated_imu_is_read_through_its_mount(
+    bump_log: tuple[Workspace, LabelResult], tmp_path: Path
+) -> None:
+    """The IMU rolled +90 deg: its y axis is base_link's z, so the shock is read from accel_y,
+    and the events are those of the upright IMU."""
+    ws0, _ = bump_log
+    imu = read_table(ws0.log_table(LOG_ID, "imu"), "imu")
+    t = np.asarray(imu.column("t_ns").to_numpy())
+    az = np.asarray(imu.column("accel_z").to_numpy())
+    accel = np.stack([np.zeros(t.size), az, np.zeros(t.size)], axis=1)  # z_base = y_imu
+    x = SPEED_MPS * (t - T0_NS) * 1e-9
+    ws = crafted_log(
+        tmp_path, t, accel, t, x, np.full(t.size, SPEED_MPS), imu_rpy=(np.pi / 2, 0.0, 0.0)
+    )
+    result = run_label(ws, LOG_ID, default_config())
+    assert not result.warnings
+    a = read_table(ws0.log_table(LOG_ID, "events"), "events").to_pydict()
+    b = read_table(ws.log_table(LOG_ID, "events"), "events").to_pydict()
+    assert a["event_id"] == b["event_id"]
+    np.testing.assert_allclose(b["shock_g"], a["shock_g"], atol=1e-12)
+
+
+def test_a_stop_makes_no_event_and_divides_by_nothing(tmp_path: Path) -> None:
+    """10 m/s, brake to a 5 s standstill, drive on: the events around the stop are too slow
+    and rejected, and no event spans it."""
+    dt = 0.01
+    n = 2400
+    tt = np.arange(n) * dt
+    speed = np.interp(tt, [0, 5, 7, 12, 14, 24], [10, 10, 0, 0, 10, 10])
+    x = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * dt)])
+    t = T0_NS + np.arange(n, dtype=np.int64) * PERIOD_NS
+    rng = np.random.default_rng(7)
+    az = G + 0.05 * rng.standard_normal(n)  # road noise, quiet
+    accel = np.stack([np.zeros(n), np.zeros(n), az], axis=1)
+    ws = crafted_log(tmp_path, t, accel, t, x, speed)
+    result = run_label(ws, LOG_ID, default_config())
+    ev = read_table(ws.log_table(LOG_ID, "events"), "events").to_pydict()
+    t0, t1 = np.array(ev["t_start_ns"]), np.array(ev["t_end_ns"])
+    stop_lo, stop_hi = T0_NS + 7_000_000_000, T0_NS + 12_000_000_000
+    assert not np.any((t0 < stop_hi) & (t1 > stop_lo))
+    # Braking at 5 m/s^2 keeps every whole event before the stop above 2 m/s on average
+    # (the last starts at sqrt(2 * 5 * 1.4) = 3.7 m/s): only the one holding the stop is slow.
+    assert result.rejects == {"too_slow": 1, "no_imu": result.rejects["no_imu"]}
+    ids = np.array(ev["event_id"])
+    (hole,) = np.flatnonzero(np.diff(ids) == 2)
+    assert t1[hole] < stop_lo and t0[hole + 1] > stop_hi  # the missing event held the stop
+    total = int(np.floor(x[-1] / 1.4))
+    assert result.events + sum(result.rejects.values()) == total
+    assert min(ev["speed_mph"]) >= 2.0 / 0.44704
+    assert np.all(np.isfinite(ev["ruggedness"])) and not any(ev["rough"])
+    record = ws.manifest(LOG_ID).stage("label")
+    assert record is not None and record.rejects["too_slow"] == result.rejects["too_slow"]
+    assert record.row_counts["events"] == len(ev["event_id"]) == result.events > 100
+
+
+def test_an_imu_too_slow_for_the_band_fails_with_one_line(tmp_path: Path) -> None:
+    t = T0_NS + np.arange(500, dtype=np.int64) * 40_000_000  # 25 Hz
+    accel = np.stack([np.zeros(500), np.zeros(500), np.full(500, G)], axis=1)
+    x = SPEED_MPS * (t - T0_NS) * 1e-9
+    ws = crafted_log(tmp_path, t, accel, t, x, np.full(500, SPEED_MPS))
+    with pytest.raises(StageError) as info:
+        run_label(ws, LOG_ID, default_config())
+    text = str(info.value)
+    assert "\n" not in text and "IMU rate 25 Hz" in text and "imu.parquet" in text
+    assert ".gen" not in text  # named by the log's public directory
+    assert not ws.log_table(LOG_ID, "events").exists()
+    assert ws.manifest(LOG_ID).stage("label") is None
+
+
+def test_label_needs_a_finished_pose(tmp_path: Path) -> None:
+    t = T0_NS + np.arange(300, dtype=np.int64) * PERIOD_NS
+    accel = np.stack([np.zeros(300), np.zeros(300), np.full(300, G)], axis=1)
+    ws = crafted_log(tmp_path, t, accel, t, np.zeros(300), np.zeros(300))
+    (ws.log_dir(LOG_ID) / "pose.parquet").unlink()
+    with pytest.raises(StageError, match="run `terrain pose` first"):
+        run_label(ws, LOG_ID, default_config())
+
+
+def test_path_events_times() -> None:
+    t = T0_NS + np.arange(11, dtype=np.int64) * 100_000_000
+    x = np.array([0, 1, 2, 3, 3, 3, 4, 5, 6, 7, 8.5])  # standstill from 0.3 to 0.5 s
+    bounds, s = path_events(t, x, np.zeros(11), 1.4)
+    assert s.tolist() == pytest.approx([0, 1.4, 2.8, 4.2, 5.6, 7.0, 8.4])
+    expected = [0.0, 0.14, 0.28, 0.62, 0.76, 0.9, 0.9 + 1.4 / 1.5 * 0.1]
+    np.testing.assert_allclose((bounds - T0_NS) * 1e-9, expected, atol=1e-9)
+    empty, _ = path_events(t[:1], x[:1], np.zeros(1), 1.4)
+    assert empty.size == 0
+
+
+# --------------------------------------------------------------------------------------
+# The sample log against its truth
+
+
+@pytest.fixture(scope="module")
+def sample_label(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, LabelResult]:
+    ws = Workspace(tmp_path_factory.mktemp("label_sample") / "ws")
+    ingested = ingest_log(SAMPLE_LOG, ws, default_config())
+    run_pose(ws, ingested.log_id, default_config())
+    return ws, run_label(ws, ingested.log_id, default_config())
+
+
+def test_sample_rough_events_are_true_features(
+    sample_label: tuple[Workspace, LabelResult],
+) -> None:
+    """Events whose truth puts a feature under a rear tyre against events with none: every
+    rough event has one, the featureless road stays far below the threshold, and the tall
+    features (>= 8 cm) read above nearly all of the featureless road."""
+    ws, result = sample_label
+    ev = read_table(ws.log_table(result.log_id, "events"), "events").to_pydict()
+    h = np.array(ev["truth_feature_height_m"], dtype=np.float64)
+    r = np.array(ev["ruggedness"])
+    rough = np.array(ev["rough"])
+    none, some, tall = h == 0, h > 0, h >= 0.08
+    print(
+        f"\n{result.summary()}\nfeatureless: {none.sum()} events, ruggedness median "
+        f"{np.median(r[none]):.4f} p95 {np.percentile(r[none], 95):.4f} max {r[none].max():.4f}; "
+        f"with a feature: {some.sum()} events, {rough[some].sum()} rough, median "
+        f"{np.median(r[some]):.4f}; tall: {tall.sum()} events, median {np.median(r[tall]):.4f}"
+    )
+    assert result.events == pytest.approx(440 / 1.4, rel=0.05)  # the sample drives ~440 m
+    assert result.rejects == {"too_slow": 0, "no_imu": result.rejects["no_imu"]}
+    assert result.rejects["no_imu"] <= 6  # filter start-up and the end only
+    assert rough.sum() >= 10  # as the reference labeller finds on this log
+    assert not rough[none].any()
+    assert r[none].max() < 0.5 * 0.02
+    assert rough[some].mean() >= 0.1
+    assert tall.sum() >= 5 and np.median(r[tall]) > np.percentile(r[none], 95)
+    kinds = {k for k, rr in zip(ev["truth_feature_kind"], rough, strict=True) if rr}
+    assert kinds and None not in kinds
+    assert result.truth == {
+        "with_feature": int(some.sum()),
+        "rough_with_feature": int(rough[some].sum()),
+        "without_feature": int(none.sum()),
+        "rough_without_feature": 0,
+    }
+
+
+# --------------------------------------------------------------------------------------
+# Fig. 5 on a calibration log
+
+
+@pytest.fixture(scope="module")
+def calibration_label(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, LabelResult]:
+    """The calibration profile cut to 800 m: its first three ridges, at 5, 7.5, 10 m/s (the
+    drive ends some 75 m before the route does)."""
+    from toolkit.sim.simulate import simulate
+
+    root = tmp_path_factory.mktemp("label_calibration")
+    log = root / "calibration.mcap"
+    simulate(log, profile="calibration", distance_m=800.0, seed=1)
+    ws = Workspace(root / "ws")
+    ingested = ingest_log(log, ws, default_config())
+    run_pose(ws, ingested.log_id, default_config())
+    return ws, run_label(ws, ingested.log_id, default_config())
+
+
+def test_calibration_log_gives_fig5(calibration_label: tuple[Workspace, LabelResult]) -> None:
+    ws, result = calibration_label
+    fig5 = result.fig5
+    print(f"\n{result.summary()}")
+    assert fig5 is not None and fig5["passes"] == 3
+    assert fig5["slope_g_per_mph"] > 0 and fig5["r2"] >= 0.9
+    log_dir = ws.log_dir(result.log_id)
+    rows = (log_dir / FIG5_CSV).read_text(encoding="utf-8").splitlines()
+    assert rows[0] == "s_m,speed_mph,peak_g,fitted_g" and len(rows) == 4
+    speeds = [float(r.split(",")[1]) for r in rows[1:]]
+    np.testing.assert_allclose(speeds, np.array([5.0, 7.5, 10.0]) / 0.44704, rtol=0.02)
+    assert (log_dir / FIG5_PNG).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    record = ws.manifest(result.log_id).stage("label")
+    assert record is not None and set(record.outputs) == {"events.parquet", FIG5_CSV, FIG5_PNG}
+    assert ws.manifest(result.log_id).read()["label"]["fig5"] == fig5

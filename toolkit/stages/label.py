@@ -1,0 +1,489 @@
+"""Label stage: the IMU's shock along the posed path -> ``events.parquet`` (sect. 5).
+
+Inputs ``WS/logs/<id>/{imu,pose}.parquet``, ``tf_static.json`` (the IMU's mount) and, on
+simulated logs, the truth ingest wrote. Output ``events.parquet`` (schema ``events``):
+
+* **Events** (:func:`path_events`): the rear-axle path (pose x, y; base_link is on the
+  ground below the rear-axle centre) cut by distance ``s`` into consecutive stretches of
+  ``label.event_length_m``; event ``k`` is ``s`` in ``[k L, (k+1) L)``, entered and left at the
+  times the path reaches those distances (linear between pose samples). Its ``event_id`` is
+  ``k``: rejected events leave gaps.
+* **Speed**: the mean speed over the event, ``L / (t_end - t_start)`` (the time mean of the
+  path speed), in mph (1 mph = 0.44704 m/s exactly). Events slower than
+  ``label.min_speed_mps`` are rejected (``too_slow``) before anything is divided by their
+  speed; a stop lies inside one long slow event, so it makes none.
+* **Shock** (:mod:`toolkit.analysis.shock`): the z axis of the IMU's specific force turned
+  into base_link by the mount (``a_z = R[2, :] a_imu``), filtered by the type-IV FIR designed
+  for the IMU's measured rate, each output stamped at its window's centre (the 19.5-sample
+  delay compensated exactly); ``shock_g`` = the ``label.shock_statistic`` over the event's
+  time span (``max_abs``: the band-limited peak) / ``label.gravity_mps2``. An event the
+  filtered IMU does not cover (before the filter has 40 inputs, after the IMU ends, across an
+  IMU gap of more than 1.5 periods) is rejected (``no_imu``).
+* **Ruggedness** ``shock_g / speed_mph`` (sect. 5.2); ``rough`` when it reaches
+  ``label.rough_threshold_g_per_mph`` (sect. 7: 0.02 G/mph).
+* Simulated logs: the tallest true feature under a rear tyre (:mod:`toolkit.stages.label_truth`);
+  on a ``calibration`` log also the paper's Fig. 5 (:mod:`toolkit.analysis.fig5`):
+  ``fig5_shock_speed.csv`` and ``.png`` beside the events, the fit in the manifest.
+
+Manifest: record ``label`` (inputs, config hash, rows, rejects by reason, timings, warnings)
+and a header section ``label`` with the IMU rate, the filter's taps and measured response,
+the counts, and the truth and Fig. 5 summaries. Idempotent: an up-to-date label is not
+recomputed. Memory: the IMU is streamed in batches of :data:`BATCH_ROWS` and only the
+filtered samples of the event being labelled (plus the interpolation margin) are kept; the
+pose (100 Hz, four columns) and the events are held whole.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+from numpy.typing import NDArray
+
+from toolkit.analysis.fig5 import LineFit, fit_line, obstacle_passes, write_fig5
+from toolkit.analysis.shock import (
+    INTERP_MARGIN,
+    MPS_PER_MPH,
+    ShockFir,
+    design_shock_fir,
+    event_shock,
+    filter_stream,
+)
+from toolkit.config import PipelineConfig, config_hash
+from toolkit.errors import StageError
+from toolkit.mounts import sensor_mounts
+from toolkit.stages.label_truth import truth_under_events
+from toolkit.tableio import TableWriter, iter_table_batches, read_table
+from toolkit.workspace import (
+    Manifest,
+    StageRecord,
+    Workspace,
+    check_up_to_date,
+    digest_files,
+    file_sha256,
+    require_finished,
+)
+
+_log = logging.getLogger(__name__)
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+STAGE = "label"
+#: Configuration sections label reads: its own, and the vehicle (IMU mount, track, wheelbase).
+CONFIG_SECTIONS = ("label", "vehicle")
+OUTPUT = "events.parquet"
+FIG5_CSV = "fig5_shock_speed.csv"
+FIG5_PNG = "fig5_shock_speed.png"
+#: Rows per IMU read batch.
+BATCH_ROWS = 4_096
+IMU_COLUMNS = ["t_ns", "accel_x", "accel_y", "accel_z"]
+#: A step between IMU stamps longer than this many nominal periods is a gap (as pose).
+GAP_PERIODS = 1.5
+#: Files ingest writes that label reads when present (besides imu.parquet).
+INGEST_EXTRAS = (
+    "tf_static.json",
+    "mcap_metadata.json",
+    "truth_pose.parquet",
+    "truth_features.parquet",
+)
+REJECT_REASONS = ("too_slow", "no_imu")
+
+
+@dataclass(frozen=True)
+class LabelResult:
+    """What :func:`run_label` did for one log."""
+
+    log_id: str
+    status: str  # "labelled" or "up_to_date"
+    events: int
+    rough: int
+    rejects: dict[str, int]
+    imu_rate_hz: float
+    seconds: float
+    warnings: tuple[str, ...] = ()
+    #: Simulated logs: events / rough events with a true feature under a rear tyre and without.
+    truth: dict[str, int] | None = None
+    #: Calibration logs: Fig. 5's fit (slope_g_per_mph, intercept_g, r2, passes).
+    fig5: dict[str, Any] | None = None
+    outputs: tuple[str, ...] = field(default=(OUTPUT,))
+
+    @property
+    def rough_rate(self) -> float:
+        """Rough events per labelled event (0 with none)."""
+        return self.rough / self.events if self.events else 0.0
+
+    def summary(self) -> str:
+        """One line for people: events, rough count and rate, rejects, IMU rate, and on
+        simulated logs what the truth says, on calibration logs Fig. 5's r^2."""
+        parts = [
+            f"{self.events} events, {self.rough} rough ({100 * self.rough_rate:.2f} %)",
+            f"rejected {self.rejects.get('too_slow', 0)} too slow, "
+            f"{self.rejects.get('no_imu', 0)} without IMU",
+        ]
+        if self.imu_rate_hz:
+            parts.append(f"IMU {self.imu_rate_hz:.2f} Hz")
+        if self.truth:
+            t = self.truth
+            parts.append(
+                f"truth: rough {t['rough_with_feature']}/{t['with_feature']} with a feature "
+                f"under a tyre, {t['rough_without_feature']}/{t['without_feature']} without"
+            )
+        if self.fig5:
+            f = self.fig5
+            parts.append(
+                f"Fig. 5: {f['slope_g_per_mph']:.4f} G/mph, r^2 {f['r2']:.3f} over "
+                f"{f['passes']} passes"
+            )
+        if self.warnings:
+            parts.append(f"{len(self.warnings)} warning(s)")
+        return f"{self.log_id}: label {self.status.replace('_', ' ')} ({'; '.join(parts)})"
+
+
+def stage_config_hash(config: PipelineConfig) -> str:
+    return config_hash(config, sections=CONFIG_SECTIONS)
+
+
+def path_events(
+    t_ns: IntArray, x: FloatArray, y: FloatArray, length_m: float
+) -> tuple[IntArray, FloatArray]:
+    """Event boundaries along a path: (times (E + 1,) ns, distances (E + 1,) m) where the
+    path ``(t_ns, x, y)`` (K,) reaches ``s = k * length_m``, k = 0..E, E the whole events
+    it holds. Between samples the time is linear in s; where s stands still (a stop) the
+    boundary is the first time it is reached."""
+    if t_ns.size < 2:
+        return np.zeros(0, np.int64), np.zeros(0)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(y)))])
+    n_events = int(np.floor(s[-1] / length_m))
+    if n_events < 1:
+        return np.zeros(0, np.int64), np.zeros(0)
+    s_b = np.arange(n_events + 1) * length_m
+    i = np.clip(np.searchsorted(s, s_b, side="left"), 1, s.size - 1)  # s[i-1] < s_b <= s[i]
+    ds = s[i] - s[i - 1]
+    frac = np.where(ds > 0, (s_b - s[i - 1]) / np.where(ds > 0, ds, 1.0), 1.0)
+    t0 = t_ns[0]
+    rel = (t_ns - t0).astype(np.float64)
+    t_b = t0 + np.round(rel[i - 1] + frac * (rel[i] - rel[i - 1])).astype(np.int64)
+    t_b[0] = t_ns[0]
+    return np.asarray(t_b, np.int64), np.asarray(s_b, np.float64)
+
+
+def _imu_period_ns(imu_path: Path) -> int:
+    """The IMU's nominal sampling period (ns): the mean step of the first batch, over the
+    steps within 1.5 x of their median (gaps and duplicates left out). The mean, not the
+    median: stamps jitter, so steps are spread, but their mean is the clock's period."""
+    first = next(iter_table_batches(imu_path, "imu", columns=["t_ns"], batch_rows=BATCH_ROWS), None)
+    t = np.asarray(first.column(0).to_numpy(), np.int64) if first is not None else np.zeros(0)
+    dt = np.diff(t)
+    dt = dt[dt > 0]
+    if dt.size < 1:
+        raise StageError(f"the IMU has {t.size} usable row(s): no rate to filter at", path=imu_path)
+    med = float(np.median(dt))
+    regular = dt[(dt > med / GAP_PERIODS) & (dt < med * GAP_PERIODS)]
+    return int(round(float(regular.mean())))
+
+
+def _vertical_accel(imu_path: Path, row_z: FloatArray) -> Iterator[tuple[IntArray, FloatArray]]:
+    """(t_ns (M,), base_link z specific force (M,) m/s^2) batch by batch: ``row_z`` (3,) is
+    the mount rotation's last row, so ``a_z = row_z . a_imu``."""
+    for b in iter_table_batches(imu_path, "imu", columns=IMU_COLUMNS, batch_rows=BATCH_ROWS):
+        t = np.asarray(b.column(0).to_numpy(), np.int64)
+        a = [np.asarray(b.column(i).to_numpy(zero_copy_only=False), np.float64) for i in (1, 2, 3)]
+        yield t, row_z[0] * a[0] + row_z[1] * a[1] + row_z[2] * a[2]
+
+
+@dataclass(frozen=True)
+class _Shocks:
+    """Per event (E,): shock (m/s^2, NaN when not computed), its time, samples; and the
+    number of IMU runs the filter saw."""
+
+    shock_mps2: FloatArray
+    shock_t_ns: IntArray
+    samples: IntArray
+    runs: int
+
+
+def _event_shocks(
+    imu_path: Path,
+    row_z: FloatArray,
+    fir: ShockFir,
+    period_ns: int,
+    bounds_ns: IntArray,
+    wanted: NDArray[np.bool_],
+    statistic: str,
+) -> _Shocks:
+    """Stream the IMU through the filter and take each wanted event's shock as soon as the
+    filtered samples past its end (plus the interpolation margin) have arrived, keeping only
+    the samples the next wanted event can still need."""
+    n_events = wanted.size
+    shock = np.full(n_events, np.nan)
+    when = np.zeros(n_events, np.int64)
+    samples = np.zeros(n_events, np.int64)
+    max_gap_ns = int(GAP_PERIODS * period_ns)
+    margin_ns = (INTERP_MARGIN + 1) * period_ns
+    todo = np.flatnonzero(wanted)
+    k = 0  # next index into todo
+    buf_t = np.zeros(0, np.int64)
+    buf_v = np.zeros(0)
+    buf_r = np.zeros(0, np.int64)
+    runs = 0
+
+    def take(e: int) -> None:
+        got = event_shock(
+            buf_t, buf_v, buf_r, int(bounds_ns[e]), int(bounds_ns[e + 1]), statistic, max_gap_ns
+        )
+        if got is not None:
+            shock[e], when[e], samples[e] = got.shock_mps2, got.peak_t_ns, got.samples
+
+    for chunk in filter_stream(_vertical_accel(imu_path, row_z), fir.taps, max_gap_ns):
+        buf_t = np.concatenate([buf_t, chunk.t_ns])
+        buf_v = np.concatenate([buf_v, chunk.value])
+        buf_r = np.concatenate([buf_r, chunk.run])
+        runs = int(chunk.run[-1]) + 1
+        latest = int(buf_t[-1])
+        while k < todo.size and int(bounds_ns[todo[k] + 1]) + margin_ns <= latest:
+            take(int(todo[k]))
+            k += 1
+        keep_from = (
+            int(np.searchsorted(buf_t, int(bounds_ns[todo[k]]) - margin_ns))
+            if k < todo.size
+            else buf_t.size
+        )
+        buf_t, buf_v, buf_r = buf_t[keep_from:], buf_v[keep_from:], buf_r[keep_from:]
+    for e in todo[k:].tolist():  # the last events, with what the IMU had
+        take(int(e))
+    return _Shocks(shock, when, samples, runs)
+
+
+def run_label(
+    workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
+) -> LabelResult:
+    """Label one posed log (see the module docstring)."""
+    start = time.perf_counter()
+    if not workspace.log_dir(log_id).is_dir():
+        raise StageError(
+            "no such log in the workspace; run `terrain ingest` first",
+            path=workspace.log_dir(log_id),
+        )
+    # Read and written in a new generation of the log's directory, published in one atomic
+    # switch (toolkit.generations): killed at any moment, the log is as before or as after.
+    with workspace.change_log(log_id) as gen:
+        result = _label_in(gen.path, log_id, config, overwrite=overwrite, start=start)
+        if result.status != "up_to_date":
+            gen.commit()
+    for warning in result.warnings:  # said on the terminal, not only in the manifest
+        _log.warning("%s: %s", log_id, warning)
+    return result
+
+
+def _inputs(log_dir: Path, manifest: Manifest) -> dict[str, str]:
+    """Input name -> sha256, after checking each is what the stage that wrote it recorded."""
+    imu_path, pose_path = log_dir / "imu.parquet", log_dir / "pose.parquet"
+    if not imu_path.is_file():
+        raise StageError("input table missing; run `terrain ingest` first", path=imu_path)
+    if not pose_path.is_file():
+        raise StageError("input table missing; run `terrain pose` first", path=pose_path)
+    from_ingest = {imu_path.name: file_sha256(imu_path)}
+    for name in INGEST_EXTRAS:
+        if (log_dir / name).is_file():
+            from_ingest[name] = file_sha256(log_dir / name)
+    require_finished(manifest.stage("ingest"), "ingest", from_ingest, log_dir)
+    pose_sha = file_sha256(pose_path)
+    require_finished(manifest.stage("pose"), "pose", {pose_path.name: pose_sha}, log_dir)
+    return {Path(n).stem: sha for n, sha in {**from_ingest, pose_path.name: pose_sha}.items()}
+
+
+def _sim_profile(log_dir: Path) -> str | None:
+    """The simulator profile the log says it was made with, or None (a real log)."""
+    path = log_dir / "mcap_metadata.json"
+    if not path.is_file():
+        return None
+    try:
+        sim = json.loads(path.read_text(encoding="utf-8")).get("terrain_sim") or {}
+        profile = sim.get("profile")
+    except (ValueError, AttributeError) as exc:
+        raise StageError(f"unreadable MCAP metadata: {exc}", path=path) from exc
+    return str(profile) if profile is not None else None
+
+
+def _label_in(
+    log_dir: Path, log_id: str, config: PipelineConfig, *, overwrite: bool, start: float
+) -> LabelResult:
+    """:func:`run_label` inside an open generation ``log_dir`` (not committed here)."""
+    manifest = Manifest(log_dir / Workspace.MANIFEST_NAME)
+    inputs = _inputs(log_dir, manifest)
+    cfg = config.label
+    cfg_hash = stage_config_hash(config)
+    out_path = log_dir / OUTPUT
+    record = manifest.stage(STAGE)
+    if not overwrite and record is not None:
+        written = [log_dir / o for o in record.outputs] or [out_path]
+        if check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=written):
+            header = manifest.read().get("label") or {}
+            return LabelResult(
+                log_id,
+                "up_to_date",
+                int(record.row_counts.get("events", 0)),
+                int(header.get("rough", 0)),
+                dict(record.rejects),
+                float(header.get("imu_rate_hz", 0.0)),
+                time.perf_counter() - start,
+                truth=header.get("truth"),
+                fig5=header.get("fig5"),
+                outputs=tuple(record.outputs),
+            )
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+    imu_path = log_dir / "imu.parquet"
+    mounts = sensor_mounts(log_dir / "tf_static.json", config.vehicle, gps=False)
+    warnings = list(mounts.warnings)
+    row_z = np.asarray(mounts.imu.rotation[2], np.float64)
+    period_ns = _imu_period_ns(imu_path)
+    rate_hz = 1e9 / period_ns
+    fir = design_shock_fir(rate_hz, cfg.fir_taps, cfg.fir_stop_hz, cfg.fir_pass_hz, where=imu_path)
+    pose = read_table(log_dir / "pose.parquet", "pose", columns=["t_ns", "x", "y"])
+    pose_t = np.asarray(pose.column("t_ns").to_numpy(), np.int64)
+    px, py = (np.asarray(pose.column(c).to_numpy(zero_copy_only=False), np.float64) for c in "xy")
+    del pose
+    bounds_ns, s_b = path_events(pose_t, px, py, cfg.event_length_m)
+    n_events = max(bounds_ns.size - 1, 0)
+    duration_s = np.diff(bounds_ns) * 1e-9
+    # Every event has a positive duration (s rises through each boundary); a zero one (two
+    # boundaries inside one nanosecond) is treated as infinitely slow rather than divided by.
+    speed_mps = np.where(
+        duration_s > 0, cfg.event_length_m / np.where(duration_s > 0, duration_s, 1.0), 0.0
+    )
+    fast = speed_mps >= cfg.min_speed_mps if cfg.min_speed_mps > 0 else speed_mps > 0
+    timings["read"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    shocks = _event_shocks(imu_path, row_z, fir, period_ns, bounds_ns, fast, cfg.shock_statistic)
+    timings["filter"] = time.perf_counter() - t
+    covered = fast & np.isfinite(shocks.shock_mps2)
+    rejects = {"too_slow": int((~fast).sum()), "no_imu": int((fast & ~covered).sum())}
+    if shocks.runs > 1:
+        warnings.append(
+            f"the IMU has {shocks.runs - 1} gap(s) longer than {GAP_PERIODS} periods: the "
+            f"shock filter restarted after each"
+        )
+    if n_events == 0:
+        warnings.append(
+            f"the posed path is shorter than one event ({cfg.event_length_m} m): no events"
+        )
+
+    t = time.perf_counter()
+    keep = np.flatnonzero(covered)
+    speed_mph = speed_mps[keep] / MPS_PER_MPH
+    shock_g = shocks.shock_mps2[keep] / cfg.gravity_mps2
+    ruggedness = shock_g / speed_mph
+    rough = ruggedness >= cfg.rough_threshold_g_per_mph
+    truth, truth_warning = truth_under_events(log_dir, bounds_ns, config.vehicle.track_m)
+    if truth_warning:
+        warnings.append(truth_warning)
+    columns: dict[str, pa.Array] = {
+        "event_id": pa.array(keep, pa.int64()),
+        "t_start_ns": pa.array(bounds_ns[keep], pa.int64()),
+        "t_end_ns": pa.array(bounds_ns[keep + 1], pa.int64()),
+        "s_start_m": pa.array(s_b[keep], pa.float64()),
+        "s_end_m": pa.array(s_b[keep + 1], pa.float64()),
+        "speed_mph": pa.array(speed_mph, pa.float64()),
+        "shock_g": pa.array(shock_g, pa.float64()),
+        "ruggedness": pa.array(ruggedness, pa.float64()),
+        "rough": pa.array(rough, pa.bool_()),
+        "shock_t_ns": pa.array(shocks.shock_t_ns[keep], pa.int64()),
+        "imu_samples": pa.array(shocks.samples[keep], pa.int32()),
+    }
+    truth_summary: dict[str, int] | None = None
+    if truth is not None:
+        height = truth.height_m[keep]
+        kinds = [truth.kind[i] for i in keep.tolist()]
+        columns["truth_feature_height_m"] = pa.array(height, pa.float64())
+        columns["truth_feature_kind"] = pa.array(kinds, pa.string())
+        under = height > 0
+        truth_summary = {
+            "with_feature": int(under.sum()),
+            "rough_with_feature": int((rough & under).sum()),
+            "without_feature": int((~under).sum()),
+            "rough_without_feature": int((rough & ~under).sum()),
+        }
+    else:
+        columns["truth_feature_height_m"] = pa.nulls(keep.size, pa.float64())
+        columns["truth_feature_kind"] = pa.nulls(keep.size, pa.string())
+    sha = str((manifest.read().get("source") or {}).get("sha256", ""))
+    with TableWriter(out_path, "events", source_sha256=sha, config_hash=cfg_hash) as writer:
+        writer.write(pa.table(columns))
+    outputs = [OUTPUT]
+    fig5: LineFit | None = None
+    if _sim_profile(log_dir) == "calibration" and truth is not None:
+        passes = obstacle_passes(
+            s_b[keep],
+            s_b[keep + 1],
+            speed_mph,
+            shock_g,
+            [truth.kind[i] for i in keep.tolist()],
+            config.vehicle.wheelbase_m,
+        )
+        if len({round(p.speed_mph, 1) for p in passes}) >= 2:
+            fig5 = fit_line(
+                np.array([p.speed_mph for p in passes]), np.array([p.peak_g for p in passes])
+            )
+            write_fig5(log_dir / FIG5_CSV, log_dir / FIG5_PNG, passes, fig5, f"{log_id}: Fig. 5")
+            outputs += [FIG5_CSV, FIG5_PNG]
+        else:
+            warnings.append(
+                f"calibration log with {len(passes)} obstacle pass(es) at distinct speeds: "
+                "no Fig. 5 (needs two)"
+            )
+    for stale in {FIG5_CSV, FIG5_PNG} - set(outputs):  # from an earlier run's generation
+        (log_dir / stale).unlink(missing_ok=True)
+    timings["write"] = time.perf_counter() - t
+    timings["total"] = time.perf_counter() - start
+    n_rough = int(rough.sum())
+    detail: dict[str, Any] = {
+        "imu_rate_hz": round(rate_hz, 6),
+        "fir": fir.to_json(),
+        "imu_runs": shocks.runs,
+        "events": int(keep.size),
+        "rough": n_rough,
+        "rough_rate": round(n_rough / keep.size, 6) if keep.size else 0.0,
+        "rejects": rejects,
+        "truth": truth_summary,
+        "fig5": fig5.to_json() if fig5 is not None else None,
+    }
+    manifest.set_header(label=detail)
+    manifest.record_stage(
+        STAGE,
+        StageRecord(
+            inputs=inputs,
+            config_hash=cfg_hash,
+            outputs=tuple(outputs),
+            row_counts={"events": int(keep.size)},
+            rejects=rejects,
+            timings_s={k: round(v, 6) for k, v in sorted(timings.items())},
+            warnings=tuple(warnings),
+            output_files=digest_files(log_dir, outputs),
+        ),
+    )
+    return LabelResult(
+        log_id,
+        "labelled",
+        int(keep.size),
+        n_rough,
+        rejects,
+        rate_hz,
+        time.perf_counter() - start,
+        warnings=tuple(warnings),
+        truth=truth_summary,
+        fig5=detail["fig5"],
+        outputs=tuple(outputs),
+    )
+
+
+__all__ = ["STAGE", "LabelResult", "path_events", "run_label", "stage_config_hash"]

@@ -1,0 +1,170 @@
+"""What the simulator's truth says lies under the rear tyres during each event.
+
+Simulated logs only (``truth_pose.parquet``, ``truth_features.parquet`` and the
+``terrain_sim`` record in ``mcap_metadata.json``, all written by ingest). The features are
+published in route coordinates ``(s, d)`` (distance along the route's centreline, lateral
+offset left positive; :mod:`toolkit.sim.world`), so the true rear-tyre positions are put in
+the same coordinates:
+
+* the truth pose (base_link, on the ground below the rear-axle centre) is moved from the
+  pose's frame back to the simulator's (through geodetic coordinates, the inverse of
+  :func:`toolkit.stages.truth.truth_to_pose_frame`);
+* the tyres sit ``+-track_m / 2`` along base_link's y axis (rotated by the true yaw);
+* the route is rebuilt from the world parameters and seed the metadata records
+  (:func:`toolkit.sim.world.make_world`, bit for bit the simulator's) and each tyre point
+  projected onto it (:meth:`~toolkit.sim.world.Route.to_route`). The rebuilt route is checked
+  against the features' published centres (within :data:`ROUTE_CHECK_M`); a mismatch (a log
+  from another simulator version) leaves the truth out with a warning.
+
+A feature lies under a tyre when the tyre's centre point is inside its footprint
+``[s_start, s_end] x [d_center -+ width / 2]`` at a truth sample inside the event's time
+span; the event carries the tallest such feature (``height_m``: the simulator's height,
+depth or peak-to-peak of the kind) or none (height 0).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow.parquet as pq
+from numpy.typing import NDArray
+
+from toolkit.errors import StageError
+from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.sim.world import Route, WorldParams, make_world
+from toolkit.stages.truth import SIM_RECORD, sim_origin
+from toolkit.tableio import read_table, read_table_metadata
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Largest distance (m) between a feature's published centre and the rebuilt route's point
+#: at its (s, d): the simulator writes both from one route, so only another route differs.
+ROUTE_CHECK_M = 0.01
+#: Truth samples projected onto the route per step of the running guess.
+_CHUNK = 256
+FEATURE_COLUMNS = ("kind", "s_start_m", "s_end_m", "d_center_m", "width_m", "height_m")
+
+
+@dataclass(frozen=True)
+class TruthUnder:
+    """Per event (E,): the tallest true feature under a rear tyre, height 0 and kind None
+    when there is none."""
+
+    height_m: FloatArray
+    kind: list[str | None]
+
+
+def _tuples(value: Any) -> Any:
+    """JSON lists back to the tuples a frozen dataclass field holds."""
+    return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
+
+
+def _route_coords(route: Route, x: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """Route (s, d) of a path's points (K,), in path order: the first from the nearest
+    centreline sample, later ones by Newton steps from the previous s plus the distance
+    driven since (within a chunk that is within a few metres, where 3 steps reach mm)."""
+    s_out = np.empty(x.size)
+    d_out = np.empty(x.size)
+    if x.size == 0:
+        return s_out, d_out
+    s_prev = float(route.s_m[int(np.argmin(np.hypot(route.x_m - x[0], route.y_m - y[0])))])
+    x_prev, y_prev = float(x[0]), float(y[0])
+    for lo in range(0, x.size, _CHUNK):
+        xs, ys = x[lo : lo + _CHUNK], y[lo : lo + _CHUNK]
+        step = np.hypot(np.diff(np.r_[x_prev, xs]), np.diff(np.r_[y_prev, ys]))
+        s, d = route.to_route(xs, ys, s_prev + np.cumsum(step))
+        s_out[lo : lo + xs.size], d_out[lo : lo + xs.size] = s, d
+        s_prev, x_prev, y_prev = float(s[-1]), float(xs[-1]), float(ys[-1])
+    return s_out, d_out
+
+
+def _origin(text: str | None) -> GeodeticOrigin | None:
+    if text is None:
+        return None
+    o = json.loads(text)
+    return GeodeticOrigin(
+        float(o["latitude_deg"]), float(o["longitude_deg"]), float(o["altitude_m"])
+    )
+
+
+def truth_under_events(
+    log_dir: Path, bounds_ns: IntArray, track_m: float
+) -> tuple[TruthUnder | None, str | None]:
+    """(what lies under the rear tyres in each event ``[bounds[k], bounds[k+1])``, a warning)
+    for a simulated log; (None, None) for a real one; (None, warning) when the truth cannot be
+    placed. ``bounds_ns`` (E + 1,) increasing."""
+    meta_path = log_dir / "mcap_metadata.json"
+    truth_path = log_dir / "truth_pose.parquet"
+    feat_path = log_dir / "truth_features.parquet"
+    if not (meta_path.is_file() and truth_path.is_file() and feat_path.is_file()):
+        return None, None
+    try:
+        records = json.loads(meta_path.read_text(encoding="utf-8"))
+        sim = records.get(SIM_RECORD)
+        if not sim or "world" not in sim:
+            return None, None
+        params = WorldParams(**{k: _tuples(v) for k, v in json.loads(sim["world"]).items()})
+        seed = int(sim["seed"])
+    except (ValueError, KeyError, TypeError, AttributeError) as exc:
+        raise StageError(
+            f"not the simulator metadata ingest writes ({type(exc).__name__}: {exc}); "
+            "run `terrain ingest --overwrite` on its log",
+            path=meta_path,
+        ) from exc
+    route = make_world(params, seed).route
+    # truth_features has no contract schema (ingest writes the simulator's message as is),
+    # so tableio's schema-checked reader does not apply; read it plainly.
+    feats = pq.read_table(feat_path, columns=[*FEATURE_COLUMNS, "x_m", "y_m"]).to_pydict()
+    n_feat = len(feats["kind"])
+    if n_feat:
+        sc = 0.5 * (np.asarray(feats["s_start_m"]) + np.asarray(feats["s_end_m"]))
+        cx, cy = route.to_world(sc, np.asarray(feats["d_center_m"], np.float64))
+        miss = float(np.max(np.hypot(cx - np.asarray(feats["x_m"]), cy - np.asarray(feats["y_m"]))))
+        if miss > ROUTE_CHECK_M:
+            return None, (
+                f"truth features lie up to {miss:.2f} m from the route rebuilt from the log's "
+                "metadata (another simulator version?); events carry no truth"
+            )
+    truth = read_table(truth_path, "truth_pose", columns=["t_ns", "x", "y", "z", "yaw"])
+    t = np.asarray(truth.column("t_ns").to_numpy(), np.int64)
+    xyz = np.stack([truth.column(c).to_numpy(zero_copy_only=False) for c in "xyz"], 1)
+    yaw = np.asarray(truth.column("yaw").to_numpy(zero_copy_only=False), np.float64)
+    frame_origin = _origin(read_table_metadata(truth_path).get("enu_origin"))
+    sim_o = sim_origin(records)
+    if frame_origin is not None and sim_o is not None and frame_origin != sim_o:
+        lat, lon, alt = enu_to_geodetic(xyz, frame_origin)
+        xyz = np.asarray(geodetic_to_enu(lat, lon, alt, sim_o), np.float64)
+    n_events = bounds_ns.size - 1
+    height = np.zeros(max(n_events, 0))
+    kind: list[str | None] = [None] * max(n_events, 0)
+    ev = np.searchsorted(bounds_ns, t, side="right") - 1
+    keep = (ev >= 0) & (ev < n_events)
+    if n_events <= 0 or not keep.any() or n_feat == 0:
+        return TruthUnder(height, kind), None
+    ev, xyz, yaw = ev[keep], xyz[keep], yaw[keep]
+    left = np.stack([-np.sin(yaw), np.cos(yaw)], 1) * (track_m / 2.0)  # base_link +y in ENU
+    s_lo = np.asarray(feats["s_start_m"], np.float64)
+    s_hi = np.asarray(feats["s_end_m"], np.float64)
+    d_c = np.asarray(feats["d_center_m"], np.float64)
+    half_w = np.asarray(feats["width_m"], np.float64) / 2.0
+    h = np.asarray(feats["height_m"], np.float64)
+    for sign in (1.0, -1.0):
+        s, d = _route_coords(route, xyz[:, 0] + sign * left[:, 0], xyz[:, 1] + sign * left[:, 1])
+        order = np.argsort(s, kind="stable")
+        s_sorted = s[order]
+        for f in range(n_feat):
+            a, b = np.searchsorted(s_sorted, [s_lo[f], s_hi[f]], side="left")
+            rows = order[a:b]
+            rows = rows[np.abs(d[rows] - d_c[f]) <= half_w[f]]
+            for e in np.unique(ev[rows]).tolist():
+                if h[f] > height[e]:
+                    height[e], kind[e] = float(h[f]), str(feats["kind"][f])
+    return TruthUnder(height, kind), None
+
+
+__all__ = ["ROUTE_CHECK_M", "TruthUnder", "truth_under_events"]
