@@ -443,6 +443,21 @@ def project(workspace: Path, log_id: str | None, overwrite: bool) -> None:
 
 
 @main.command()
+@_per_log_options("labels")
+def label(workspace: Path, log_id: str | None, overwrite: bool) -> None:
+    """IMU shock -> WS/logs/<id>/events.parquet with ruggedness labels (sect. 5)."""
+    from toolkit.stages.label import run_label
+
+    _each_log(
+        workspace,
+        log_id,
+        "label",
+        "label",
+        lambda ws, one, cfg: run_label(ws, one, cfg, overwrite=overwrite),
+    )
+
+
+@main.command()
 @click.option(
     "-w",
     "--workspace",
