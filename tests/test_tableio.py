@@ -241,6 +241,7 @@ def test_allowed_values(tmp_path: Path) -> None:
         "event_id": pa.array([0, 0], pa.int64()),
         "wheel": pa.array(["left", "right"]),
         "laser": pa.array(["/l", "/l"]),
+        "t_ns": pa.array([0, 1], pa.int64()),
         **{
             k: pa.array([0.0, 1.0], pa.float64())
             for k in ("x", "y", "z", "tau", "roll_rate", "pitch_rate")
