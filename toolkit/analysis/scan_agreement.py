@@ -55,10 +55,13 @@ at a scan's ends or next to a dropped return (flatness unknown) are left out.
 mean ``dz`` (a bias: the ground rising or sinking with time) and RMS ``dz``. Medians and
 percentiles come from a fixed histogram of ``|dz|`` (``dz_resolution_m`` bins up to
 ``dz_max_m``, then one overflow bin), so memory is fixed and they are exact to the bin,
-linearly interpolated within it. The figure's fit is ordinary least squares of the bin medians
-against the bins' mean ``dt`` (bins of at least ``min_bin_pairs`` pairs, each bin one point:
-robust to the obstacles that slip through, and not dominated by the many short-``dt`` pairs).
-The least squares of all pairs' ``|dz|`` against ``dt`` is reported too (from running sums).
+linearly interpolated within it. The figure's fit is weighted least squares of the bin medians
+against the bins' mean ``dt`` (bins of at least ``min_bin_pairs`` pairs, each weighted by its
+pairs): the median makes it robust to the obstacles that slip through the flatness test, the
+weights keep every pair's say equal so the few pairs of the long-``dt`` bins (which come from
+unusual stretches: slow driving, turns) do not carry the line. The unweighted fit of the
+medians and the least squares of all pairs' ``|dz|`` against ``dt`` (from running sums) are
+reported too.
 All of it per laser pair class: the same laser, different lasers, and all pairs.
 
 Streaming and memory
@@ -191,8 +194,11 @@ class Fig4Bins:
     p90_abs_dz_m: FloatArray
     mean_dz_m: FloatArray
     rms_dz_m: FloatArray
-    #: The figure's fit: bin medians (bins of >= min_bin_pairs pairs) against mean dt.
+    #: The figure's fit: bin medians (bins of >= min_bin_pairs pairs) against mean dt, each
+    #: bin weighted by its pairs.
     fit_medians: LinearFit
+    #: The same with every bin weighing the same (the sparse long-dt bins count fully).
+    fit_medians_unweighted: LinearFit
     #: All pairs' |dz| against dt.
     fit_pairs: LinearFit
 
@@ -548,7 +554,9 @@ class ScanAgreement:
         p90 = np.array([_hist_quantile(hist[b], 0.9, c.dz_resolution_m) for b in nz])
         mean_dt = s["dt"][nz] / n
         fit_ok = count[nz] >= c.min_bin_pairs
-        fit_medians = _ols(mean_dt[fit_ok], median[fit_ok])
+        weights = count[nz][fit_ok].astype(np.float64)
+        fit_medians = _ols(mean_dt[fit_ok], median[fit_ok], weights)
+        fit_medians_unweighted = _ols(mean_dt[fit_ok], median[fit_ok])
         fit_pairs = _ols_from_sums(
             float(count.sum()),
             float(s["dt"].sum()),
@@ -569,6 +577,7 @@ class ScanAgreement:
             mean_dz_m=s["dz"][nz] / n,
             rms_dz_m=np.sqrt(s["dz2"][nz] / n),
             fit_medians=fit_medians,
+            fit_medians_unweighted=fit_medians_unweighted,
             fit_pairs=fit_pairs,
         )
 
@@ -692,18 +701,21 @@ def _hist_quantile(hist: IntArray, q: float, width: float) -> float:
     return float((k + frac) * width)
 
 
-def _ols(x: FloatArray, y: FloatArray) -> LinearFit:
-    """Least squares line through points (x, y)."""
+def _ols(x: FloatArray, y: FloatArray, w: FloatArray | None = None) -> LinearFit:
+    """Least squares line through points (x, y), each of weight ``w`` (default 1); the
+    fit's ``n`` is the number of points."""
     if x.size < 2 or np.ptp(x) == 0:
         return LinearFit(math.nan, math.nan, math.nan, int(x.size))
-    return _ols_from_sums(
-        float(x.size),
-        float(x.sum()),
-        float((x * x).sum()),
-        float(y.sum()),
-        float((x * y).sum()),
-        float((y * y).sum()),
+    w = np.ones_like(x) if w is None else np.asarray(w, np.float64)
+    fit = _ols_from_sums(
+        float(w.sum()),
+        float((w * x).sum()),
+        float((w * x * x).sum()),
+        float((w * y).sum()),
+        float((w * x * y).sum()),
+        float((w * y * y).sum()),
     )
+    return LinearFit(fit.slope_m_per_s, fit.intercept_m, fit.r2, int(x.size))
 
 
 def _ols_from_sums(n: float, sx: float, sxx: float, sy: float, sxy: float, syy: float) -> LinearFit:
