@@ -24,7 +24,7 @@ slow vehicle) therefore weighs as one observation, and no pair is ever made with
 two points of one sweep share their pose error, which is not what Fig. 4 measures.
 
 *Pairs.* An observation is paired with earlier observations (earlier scans in stream order) of
-the same cell whose scan stamps are at most ``max_dt_s`` (default 10 s) older. Scans of any
+the same cell whose scan stamps are less than ``max_dt_s`` (default 10 s) older. Scans of any
 two lasers count (Stanley's five lasers look 6-25 m ahead, so the same ground is seen by the
 far laser first and the near ones up to a few seconds later; the same laser's consecutive
 scans give the short separations). A pair's time is the difference of the two observations'
@@ -218,8 +218,8 @@ class ScanAgreementResult:
     flat_points: int
     observations: int
     pairs: int
-    #: Pairs whose beam times were ``max_dt_s`` or more apart (windowed by scan stamps,
-    #: a few ms shorter than beam times can be); not binned.
+    #: Pairs whose beam times were ``max_dt_s`` or more apart (pairs are windowed by scan
+    #: stamps, and beam times can be a few ms farther apart); not binned.
     pairs_beyond_max_dt: int
     #: Most observations held at once (the bounded memory).
     max_live_observations: int
@@ -492,12 +492,12 @@ class ScanAgreement:
         self.max_live_observations = max(self.max_live_observations, both.size)
 
         # For each new observation at position p: the first position lo of its cell whose
-        # scan is at most max_dt older. Sorted by (key, seq), stamps are non-decreasing
+        # scan is less than max_dt older. Sorted by (key, seq), stamps are non-decreasing
         # within a cell, so its candidates are exactly positions lo..p-1.
         p = np.flatnonzero(is_new)
-        lo = _lower_bound(
-            both.key, both.scan_t_ns, both.key[p], both.scan_t_ns[p] - self._max_dt_ns
-        )
+        # Strictly less (the bins cover [0, max_dt)).
+        q = both.scan_t_ns[p] - self._max_dt_ns + 1
+        lo = _lower_bound(both.key, both.scan_t_ns, both.key[p], q)
         n = p - lo
         m = np.minimum(n, c.pairs_per_observation)
         total = int(m.sum())
