@@ -828,7 +828,7 @@ def write_fig4(result: ScanAgreementResult, out_dir: Path, log_id: str) -> tuple
             "-",
             color="black",
             lw=1.2,
-            label="least-squares fit of the medians",
+            label="least-squares fit of the medians, bins weighted by pairs",
         )
     ax.set_xlabel("time between the two scans, dt (s)")
     ax.set_ylabel("z-difference of the same ground cell, |dz| (m)")
