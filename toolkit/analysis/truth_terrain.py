@@ -1,0 +1,461 @@
+"""How far projected points lie from the true ground, for simulated logs.
+
+A simulated log carries what it was made from: the ``terrain_sim`` metadata record (in the
+log directory's ``mcap_metadata.json``) holds the world's parameters (``world``, WorldParams as
+JSON), its ``seed`` and the simulator frame's geodetic ``origin``;
+:func:`toolkit.sim.world.make_world` rebuilds that world bit for bit. The height error of a
+point is then its z minus the true terrain height under it::
+
+    p_sim      = geodetic_to_enu(enu_to_geodetic(p, pose_origin), sim_origin)   (exact)
+    (s, d)     = route.to_route(p_sim.x, p_sim.y, s_guess)        (route coordinates)
+    z_error    = p_sim.z - terrain.height(s, d)
+
+``pose_origin`` is the pose frame's origin (the pose table's ``enu_origin`` metadata, the
+log's agreeing GPS fix); ``s_guess`` the nearest route sample, 0.5 m apart, from a k-d tree,
+from which three Newton steps of ``to_route`` reach millimetres. Points beyond the terrain the
+simulator models (farther than its coarse grid's half width from the centreline, or off the
+ends of the route) have no true height: their error is NaN.
+
+This is the one place outside the command line that imports :mod:`toolkit.sim`: the ground
+truth a simulated log was made from lives only there.
+
+:class:`ZErrorAccumulator` streams the errors into statistics by laser and by range bin:
+count, mean, RMS, median, median and 90th percentile of ``|error|``; the quantiles from a
+fixed histogram (``resolution_m`` bins within ``+-limit_m``, one open bin each side), so
+memory is fixed however many points pass. :func:`write_z_error` writes them as CSV and PNG.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+from numpy.typing import ArrayLike, NDArray
+from scipy.spatial import cKDTree
+
+from toolkit.analysis.figures import new_figure, save_png_atomic, write_csv_atomic
+from toolkit.errors import ConfigError, StageError, ToolkitError
+from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.tableio import iter_table_batches, read_table_metadata
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+METADATA_FILE = "mcap_metadata.json"
+SIM_RECORD = "terrain_sim"
+#: Spacing of the route samples the first guess of a point's route position comes from, m.
+ROUTE_GUESS_SPACING_M = 0.5
+#: Columns of points.parquet the streaming driver reads.
+COLUMNS = ("laser", "range", "x", "y", "z")
+BATCH_ROWS = 1_048_576
+CSV_NAME = "z_error_by_laser_and_range.csv"
+PNG_NAME = "z_error_by_laser_and_range.png"
+#: ``laser`` of the rows over every laser.
+ALL_LASERS = "all"
+
+
+class TrueGround:
+    """The z error of pose-frame points against the simulator's terrain: call with
+    ``xyz_m`` (N, 3) in the pose frame, get ``z_error_m`` (N,) (NaN off the modelled
+    terrain). Build with :func:`true_ground`."""
+
+    def __init__(self, world: Any, sim_origin: GeodeticOrigin, pose_origin: GeodeticOrigin):
+        self.world = world
+        self.sim_origin = sim_origin
+        self.pose_origin = pose_origin
+        route = world.route
+        self._s_grid = np.arange(0.0, route.length_m, ROUTE_GUESS_SPACING_M)
+        cx, cy, _ = route.sample(self._s_grid)
+        self._tree = cKDTree(np.c_[cx, cy])
+        self._max_d_m = float(world.terrain.coarse_half_width_m)
+
+    def to_sim(self, xyz_m: ArrayLike) -> FloatArray:
+        """Pose-frame points (N, 3) -> the simulator's frame (N, 3), through geodetic."""
+        lat, lon, alt = enu_to_geodetic(np.asarray(xyz_m, np.float64), self.pose_origin)
+        return np.asarray(geodetic_to_enu(lat, lon, alt, self.sim_origin)).reshape(-1, 3)
+
+    def height_m(self, xyz_m: ArrayLike) -> tuple[FloatArray, FloatArray]:
+        """True terrain height (N,) under pose-frame points (N, 3) and the points' own
+        height (N,), both in the simulator's frame; the terrain NaN where not modelled."""
+        xs = self.to_sim(xyz_m)
+        if xs.shape[0] == 0:
+            return np.zeros(0), np.zeros(0)
+        _, j = self._tree.query(xs[:, :2])
+        s, d = self.world.route.to_route(xs[:, 0], xs[:, 1], self._s_grid[j])
+        h = np.asarray(self.world.terrain.height(s, d), np.float64)
+        off = (np.abs(d) > self._max_d_m) | (s < 0.0) | (s > self.world.route.length_m)
+        h[off] = np.nan
+        return h, xs[:, 2]
+
+    def __call__(self, xyz_m: ArrayLike) -> FloatArray:
+        """``z_error_m`` (N,): point height minus true terrain height, m."""
+        h, z = self.height_m(xyz_m)
+        return z - h
+
+
+def true_ground(log_dir: Path) -> Callable[[ArrayLike], FloatArray] | None:
+    """The :class:`TrueGround` of a simulated log's directory (a workspace's
+    ``logs/<id>/``), or None for a log that is not simulated (no ``terrain_sim`` record).
+
+    StageError when the log is simulated but its truth cannot be rebuilt: the record is
+    malformed, or the pose table is missing or has no geodetic ``enu_origin`` (a log posed
+    without GPS is in a frame of its own, which the simulator's cannot be mapped onto).
+    """
+    from toolkit.sim.world import WorldParams, make_world
+    from toolkit.stages.truth import sim_origin
+
+    log_dir = Path(log_dir)
+    meta_path = log_dir / METADATA_FILE
+    if not meta_path.is_file():
+        return None
+    try:
+        meta = json.loads(meta_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise StageError(f"unreadable log metadata: {exc}", path=meta_path) from exc
+    sim = meta.get(SIM_RECORD) if isinstance(meta, dict) else None
+    if sim is None:
+        return None
+    origin_sim = sim_origin(meta)
+    try:
+        params: dict[str, Any] = {
+            k: tuple(_tuples(v)) if isinstance(v, list) else v
+            for k, v in json.loads(sim["world"]).items()
+        }
+        world = make_world(WorldParams(**params), int(sim["seed"]))
+    except (KeyError, TypeError, ValueError, ToolkitError) as exc:
+        raise StageError(
+            f"record {SIM_RECORD!r}: cannot rebuild the simulated world: {exc}", path=meta_path
+        ) from exc
+    if origin_sim is None:
+        raise StageError(f"record {SIM_RECORD!r} has no readable origin", path=meta_path)
+    pose_path = log_dir / "pose.parquet"
+    if not pose_path.is_file():
+        raise StageError("no pose; run `terrain pose` first", path=pose_path)
+    origin_text = read_table_metadata(pose_path).get("enu_origin")
+    if origin_text is None:
+        raise StageError(
+            "the pose frame has no geodetic origin (posed without GPS), so the simulator's "
+            "terrain cannot be placed in it",
+            path=pose_path,
+        )
+    try:
+        pose_origin = GeodeticOrigin(**json.loads(origin_text))
+    except (TypeError, ValueError) as exc:
+        raise StageError(f"unreadable enu_origin {origin_text!r}", path=pose_path) from exc
+    return TrueGround(world, origin_sim, pose_origin)
+
+
+def _tuples(v: list[Any]) -> list[Any]:
+    """JSON lists nested in a list -> tuples (WorldParams' fixed_features are tuples)."""
+    return [tuple(_tuples(x)) if isinstance(x, list) else x for x in v]
+
+
+# --------------------------------------------------------------------------------------
+# Statistics of the error by laser and range
+# --------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ZErrorConfig:
+    """Range bins of ``range_bin_m`` up to ``max_range_m`` (farther points in the last
+    bin); error histogram of ``resolution_m`` bins within ``+-limit_m``."""
+
+    range_bin_m: float = 5.0
+    max_range_m: float = 80.0
+    resolution_m: float = 0.001
+    limit_m: float = 1.0
+
+    def __post_init__(self) -> None:
+        for name in ("range_bin_m", "max_range_m", "resolution_m", "limit_m"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"z error statistics: {name} must be positive, got {value!r}")
+
+    @property
+    def n_range_bins(self) -> int:
+        return max(1, math.ceil(self.max_range_m / self.range_bin_m - 1e-9))
+
+    @property
+    def half_bins(self) -> int:
+        """Histogram bins on each side of zero, within the limit."""
+        return max(1, math.ceil(self.limit_m / self.resolution_m - 1e-9))
+
+
+@dataclass(frozen=True)
+class ZErrorRow:
+    """Error statistics of one laser (or :data:`ALL_LASERS`) over one range bin
+    (``range_hi_m`` inf for the row over all ranges, and for the last bin)."""
+
+    laser: str
+    range_lo_m: float
+    range_hi_m: float
+    count: int
+    mean_m: float
+    rms_m: float
+    median_m: float
+    median_abs_m: float
+    p90_abs_m: float
+
+
+@dataclass(frozen=True)
+class ZErrorResult:
+    """Rows per laser: first over all ranges, then per non-empty range bin; then the same
+    over all lasers. ``off_terrain``: points with no true height (not in the rows)."""
+
+    config: ZErrorConfig
+    rows: tuple[ZErrorRow, ...]
+    points: int
+    off_terrain: int
+    seconds: float
+
+    def overall(self, laser: str = ALL_LASERS) -> ZErrorRow:
+        """The row of ``laser`` over all ranges."""
+        for row in self.rows:
+            if row.laser == laser and row.range_lo_m == 0.0 and math.isinf(row.range_hi_m):
+                return row
+        raise KeyError(laser)
+
+    @property
+    def lasers(self) -> tuple[str, ...]:
+        return tuple(dict.fromkeys(r.laser for r in self.rows if r.laser != ALL_LASERS))
+
+
+class ZErrorAccumulator:
+    """Streaming z-error statistics by laser and range bin: :meth:`feed`, then
+    :meth:`result`. Memory: per laser, one histogram per range bin (16 x 2002 int64 with the
+    defaults, 256 kB)."""
+
+    def __init__(self, config: ZErrorConfig | None = None) -> None:
+        self.config = config or ZErrorConfig()
+        self._hist: dict[str, NDArray[np.int64]] = {}
+        self._sums: dict[str, FloatArray] = {}  # (3, R): count, sum e, sum e^2
+        self.points = 0
+        self.off_terrain = 0
+        self._seconds = 0.0
+
+    def feed(
+        self,
+        laser: ArrayLike | pa.Array | pa.ChunkedArray,
+        range_m: ArrayLike,
+        z_error_m: ArrayLike,
+    ) -> None:
+        """Add points: laser names (N,), range (N,) m, z error (N,) m (NaN: off terrain)."""
+        start = time.perf_counter()
+        c = self.config
+        if isinstance(laser, pa.Array | pa.ChunkedArray):
+            laser = laser.to_numpy(zero_copy_only=False)
+        names_all = np.asarray(laser).astype(str)
+        r = np.asarray(range_m, np.float64)
+        e = np.asarray(z_error_m, np.float64)
+        if not (names_all.shape == r.shape == e.shape) or e.ndim != 1:
+            raise StageError(
+                "z error statistics: laser, range and error must be 1-D arrays of one length, "
+                f"got shapes {names_all.shape}, {r.shape}, {e.shape}"
+            )
+        self.points += e.size
+        ok = np.isfinite(e)
+        self.off_terrain += int((~ok).sum())
+        names_all, r, e = names_all[ok], r[ok], e[ok]
+        rb = np.clip(np.floor(r / c.range_bin_m), 0, c.n_range_bins - 1).astype(np.int64)
+        h = c.half_bins
+        # Bin 0: below -limit; 1..2h: [(-h + k - 1) res, (-h + k) res); 2h + 1: >= limit.
+        eb = np.clip(np.floor(e / c.resolution_m) + h + 1, 0, 2 * h + 1).astype(np.int64)
+        n_e = 2 * h + 2
+        names, inverse = np.unique(names_all, return_inverse=True)
+        inverse = inverse.ravel()
+        for k, name in enumerate(names):  # per laser, not per point
+            sel = inverse == k
+            if name not in self._hist:
+                self._hist[name] = np.zeros((c.n_range_bins, n_e), np.int64)
+                self._sums[name] = np.zeros((3, c.n_range_bins))
+            rs, es = rb[sel], e[sel]
+            self._hist[name].ravel()[:] += np.bincount(
+                rs * n_e + eb[sel], minlength=self._hist[name].size
+            )
+            s = self._sums[name]
+            s[0] += np.bincount(rs, minlength=c.n_range_bins)
+            s[1] += np.bincount(rs, weights=es, minlength=c.n_range_bins)
+            s[2] += np.bincount(rs, weights=es * es, minlength=c.n_range_bins)
+        self._seconds += time.perf_counter() - start
+
+    def result(self) -> ZErrorResult:
+        c = self.config
+        rows: list[ZErrorRow] = []
+        lasers = sorted(self._hist)
+        groups: list[tuple[str, NDArray[np.int64], FloatArray]] = [
+            (n, self._hist[n], self._sums[n]) for n in lasers
+        ]
+        if lasers:
+            groups.append(
+                (
+                    ALL_LASERS,
+                    np.sum([self._hist[n] for n in lasers], axis=0),
+                    np.sum([self._sums[n] for n in lasers], axis=0),
+                )
+            )
+        for name, hist, sums in groups:
+            rows.append(self._row(name, 0.0, math.inf, hist.sum(axis=0), sums.sum(axis=1)))
+            for b in np.flatnonzero(sums[0]):
+                lo = float(b * c.range_bin_m)
+                hi = math.inf if b == c.n_range_bins - 1 else float((b + 1) * c.range_bin_m)
+                rows.append(self._row(name, lo, hi, hist[b], sums[:, b]))
+        return ZErrorResult(c, tuple(rows), self.points, self.off_terrain, self._seconds)
+
+    def _row(
+        self, laser: str, lo: float, hi: float, hist: NDArray[np.int64], sums: FloatArray
+    ) -> ZErrorRow:
+        c = self.config
+        n = int(hist.sum())
+        h = c.half_bins
+        # |e| histogram: bins [k res, (k + 1) res) for k < h, then everything beyond.
+        folded = hist[h + 1 : 2 * h + 1] + hist[h:0:-1]
+        folded = np.append(folded, hist[0] + hist[2 * h + 1])
+        mean = sums[1] / n if n else math.nan
+        return ZErrorRow(
+            laser=laser,
+            range_lo_m=lo,
+            range_hi_m=hi,
+            count=n,
+            mean_m=float(mean),
+            rms_m=float(math.sqrt(sums[2] / n)) if n else math.nan,
+            median_m=histogram_quantile(hist, 0.5, -(h + 1) * c.resolution_m, c.resolution_m),
+            median_abs_m=histogram_quantile(folded, 0.5, 0.0, c.resolution_m, open_low=False),
+            p90_abs_m=histogram_quantile(folded, 0.9, 0.0, c.resolution_m, open_low=False),
+        )
+
+
+def histogram_quantile(
+    hist: NDArray[np.int64],
+    q: float,
+    first_edge: float,
+    width: float,
+    *,
+    open_low: bool = True,
+    open_high: bool = True,
+) -> float:
+    """Quantile ``q`` of values counted in ``hist`` (K,), bin k covering
+    ``[first_edge + k width, first_edge + (k + 1) width)``, linear within a bin. An open end
+    bin (everything below / above) reports its inner edge: the quantile is known only to lie
+    beyond it. NaN for an empty histogram."""
+    total = int(hist.sum())
+    if total == 0:
+        return math.nan
+    target = q * total
+    cum = np.cumsum(hist)
+    k = min(int(np.searchsorted(cum, target, side="left")), hist.size - 1)
+    if open_high and k == hist.size - 1 and hist.size > 1:
+        return float(first_edge + k * width)
+    if open_low and k == 0 and hist.size > 1:
+        return float(first_edge + width)
+    prev = int(cum[k - 1]) if k else 0
+    frac = (target - prev) / hist[k] if hist[k] else 0.0
+    return float(first_edge + (k + frac) * width)
+
+
+# --------------------------------------------------------------------------------------
+# A log, and the outputs
+# --------------------------------------------------------------------------------------
+
+
+def z_error_of(
+    log_dir: Path,
+    points_path: Path | None = None,
+    config: ZErrorConfig | None = None,
+    *,
+    batch_rows: int = BATCH_ROWS,
+) -> ZErrorResult | None:
+    """The z-error statistics of a simulated log's projected points (``points_path``,
+    default ``log_dir/points.parquet``), streamed; None when the log is not simulated."""
+    ground = true_ground(log_dir)
+    if ground is None:
+        return None
+    path = Path(points_path) if points_path is not None else Path(log_dir) / "points.parquet"
+    acc = ZErrorAccumulator(config)
+    for batch in iter_table_batches(path, "points", columns=COLUMNS, batch_rows=batch_rows):
+        xyz = np.stack([batch.column(c).to_numpy() for c in "xyz"], axis=1)
+        acc.feed(batch.column("laser"), batch.column("range").to_numpy(), ground(xyz))
+    return acc.result()
+
+
+CSV_HEADER = (
+    "laser",
+    "range_lo_m",
+    "range_hi_m",
+    "count",
+    "mean_m",
+    "rms_m",
+    "median_m",
+    "median_abs_m",
+    "p90_abs_m",
+)
+
+
+def write_z_error(result: ZErrorResult, out_dir: Path, title: str = "") -> tuple[Path, Path]:
+    """Write :data:`CSV_NAME` (one row per :class:`ZErrorRow`) and :data:`PNG_NAME` (median
+    and 90th percentile of ``|z error|`` against range, one colour per laser) into
+    ``out_dir``, atomically. Returns the two paths."""
+    out_dir = Path(out_dir)
+    rows = [tuple(getattr(r, f) for f in CSV_HEADER) for r in result.rows]
+    csv_path = write_csv_atomic(out_dir / CSV_NAME, CSV_HEADER, rows)
+
+    fig = new_figure()
+    ax = fig.add_subplot(1, 1, 1)
+    step = result.config.range_bin_m
+    by_laser: Mapping[str, list[ZErrorRow]] = {
+        name: [r for r in result.rows if r.laser == name and not _is_overall(r)]
+        for name in result.lasers
+    }
+    colours = [f"C{k % 10}" for k in range(len(by_laser))]
+    for colour, (name, mine) in zip(colours, by_laser.items(), strict=True):
+        x = np.array([r.range_lo_m + step / 2 for r in mine])
+        ax.plot(x, [r.median_abs_m for r in mine], "o-", ms=3, color=colour, label=f"{name} median")
+        ax.plot(
+            x, [r.p90_abs_m for r in mine], "--", lw=0.8, color=colour, label=f"{name} 90th pct"
+        )
+    ax.set_xlabel(f"range ({step:g} m bins, centres) (m)")
+    ax.set_ylabel("|z error| against the true terrain (m)")
+    ax.set_xlim(left=0.0)
+    ax.set_ylim(bottom=0.0)
+    ax.grid(True, lw=0.3)
+    ax.legend(loc="upper left", fontsize=6, ncol=2)
+    overall = [r for r in result.rows if r.laser == ALL_LASERS and _is_overall(r)]
+    summary = (
+        f"all lasers: median |e| {overall[0].median_abs_m * 1000:.1f} mm, "
+        f"p90 {overall[0].p90_abs_m * 1000:.1f} mm, {overall[0].count} points"
+        if overall
+        else "no points"
+    )
+    ax.set_title(
+        f"{title + ': ' if title else ''}point height error by range\n{summary}", fontsize=9
+    )
+    fig.tight_layout()
+    png_path = save_png_atomic(fig, out_dir / PNG_NAME)
+    return csv_path, png_path
+
+
+def _is_overall(row: ZErrorRow) -> bool:
+    return row.range_lo_m == 0.0 and math.isinf(row.range_hi_m)
+
+
+__all__ = [
+    "ALL_LASERS",
+    "CSV_HEADER",
+    "CSV_NAME",
+    "PNG_NAME",
+    "TrueGround",
+    "ZErrorAccumulator",
+    "ZErrorConfig",
+    "ZErrorResult",
+    "ZErrorRow",
+    "histogram_quantile",
+    "true_ground",
+    "write_z_error",
+    "z_error_of",
+]
