@@ -32,3 +32,25 @@ def conformance_files() -> list[Path]:
             f"expected {CONFORMANCE_LOG_COUNT}"
         )
     return files
+
+
+#: The simulated log bundled with the repository (61 s, five lasers).
+SAMPLE_LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "sample.mcap"
+
+
+@pytest.fixture(scope="session")
+def sample_projected(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """The sample log ingested, posed and projected once for the whole session: (workspace
+    root, log id). Read-only: a test that changes it copies it first
+    (``shutil.copytree(root, dst, symlinks=True)``)."""
+    from toolkit.config import default_config
+    from toolkit.stages.ingest import ingest_log
+    from toolkit.stages.pose import run_pose
+    from toolkit.stages.project import run_project
+    from toolkit.workspace import Workspace
+
+    ws = Workspace(tmp_path_factory.mktemp("sample_projected") / "ws")
+    log_id = ingest_log(SAMPLE_LOG, ws, default_config()).log_id
+    run_pose(ws, log_id, default_config())
+    run_project(ws, log_id, default_config())
+    return ws.root, log_id

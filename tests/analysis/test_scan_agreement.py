@@ -21,11 +21,7 @@ from toolkit.analysis.scan_agreement import (
     scan_agreement_of,
     write_fig4,
 )
-from toolkit.config import default_config
 from toolkit.errors import ConfigError, StageError
-from toolkit.stages.ingest import ingest_log
-from toolkit.stages.pose import run_pose
-from toolkit.stages.project import run_project
 from toolkit.workspace import Workspace
 
 SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
@@ -224,13 +220,10 @@ def test_the_files_are_written_atomically_and_reproducibly(tmp_path: Path) -> No
 
 
 @pytest.fixture(scope="module")
-def sample_points(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The sample log ingested, posed and projected: its points.parquet."""
-    ws = Workspace(tmp_path_factory.mktemp("fig4") / "ws")
-    log_id = ingest_log(SAMPLE_LOG, ws, default_config()).log_id
-    run_pose(ws, log_id, default_config())
-    run_project(ws, log_id, default_config())
-    return ws.log_table(log_id, "points")
+def sample_points(sample_projected: tuple[Path, str]) -> Path:
+    """The sample log's points.parquet (shared, read-only)."""
+    root, log_id = sample_projected
+    return Workspace(root).log_table(log_id, "points")
 
 
 def test_fig4_of_the_sample_log(sample_points: Path, tmp_path: Path) -> None:

@@ -24,18 +24,14 @@ from toolkit.analysis.truth_terrain import (
     write_z_error,
     z_error_of,
 )
-from toolkit.config import default_config
 from toolkit.errors import ConfigError, StageError
 from toolkit.mounts import frame_mounts
-from toolkit.stages.ingest import ingest_log
-from toolkit.stages.pose import run_pose
 from toolkit.stages.project import (
     LASER_COLUMNS,
     Counts,
     PoseStream,
     ScanBatch,
     project_batch,
-    run_project,
 )
 from toolkit.tableio import iter_table_batches
 from toolkit.workspace import Workspace
@@ -117,13 +113,10 @@ def test_the_files_are_written(tmp_path: Path) -> None:
 
 
 @pytest.fixture(scope="module")
-def projected(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The sample log ingested, posed and projected: its log directory."""
-    ws = Workspace(tmp_path_factory.mktemp("truth") / "ws")
-    log_id = ingest_log(SAMPLE_LOG, ws, default_config()).log_id
-    run_pose(ws, log_id, default_config())
-    run_project(ws, log_id, default_config())
-    return ws.log_dir(log_id)
+def projected(sample_projected: tuple[Path, str]) -> Path:
+    """The sample log ingested, posed and projected (shared, read-only): its log directory."""
+    root, log_id = sample_projected
+    return Workspace(root).log_dir(log_id)
 
 
 def _errors_with_the_true_pose(log_dir: Path, ground: TrueGround) -> ZErrorResult:

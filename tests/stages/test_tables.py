@@ -6,6 +6,7 @@ shock) so this test depends only on projection; the label stage has its own test
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -16,8 +17,6 @@ from tests.stages.crafted import record_stage_outputs
 from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.pose import run_pose
-from toolkit.stages.project import run_project
 from toolkit.stages.tables import TablesResult, run_tables, tyre_paths
 from toolkit.tableio import read_table, write_table
 from toolkit.workspace import Workspace
@@ -56,6 +55,10 @@ def craft_events(ws: Workspace, log_id: str) -> pa.Table:
             "shock_g": pa.array(shock),
             "ruggedness": pa.array(rugged),
             "rough": pa.array(rugged >= 0.02),
+            "shock_t_ns": pa.array((t_edges[:-1] + t_edges[1:]) // 2, pa.int64()),
+            "imu_samples": pa.array(np.full(n, 14, np.int32), pa.int32()),
+            "truth_feature_height_m": pa.array(np.zeros(n)),
+            "truth_feature_kind": pa.array([None] * n, pa.string()),
         }
     )
     log_dir = ws.log_dir(log_id)
@@ -68,15 +71,13 @@ def craft_events(ws: Workspace, log_id: str) -> pa.Table:
 
 @pytest.fixture(scope="module")
 def tabled(
-    tmp_path_factory: pytest.TempPathFactory,
+    sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
 ) -> tuple[Workspace, str, pa.Table, TablesResult]:
+    root, log_id = sample_projected
     ws = Workspace(tmp_path_factory.mktemp("tables") / "ws")
-    cfg = default_config()
-    log_id = ingest_log(SAMPLE_LOG, ws, cfg).log_id
-    run_pose(ws, log_id, cfg)
-    run_project(ws, log_id, cfg)
+    shutil.copytree(root, ws.root, symlinks=True)
     events = craft_events(ws, log_id)
-    return ws, log_id, events, run_tables(ws, cfg)
+    return ws, log_id, events, run_tables(ws, default_config())
 
 
 def _polyline_distance(p: np.ndarray, line: np.ndarray) -> np.ndarray:
