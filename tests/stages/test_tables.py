@@ -214,3 +214,34 @@ def test_without_labelled_logs_tables_refuses_in_one_line(tmp_path: Path) -> Non
     with pytest.raises(StageError, match="run `terrain label`"):
         run_tables(ws, default_config())
     assert not ws.events_table.exists()
+
+
+def test_matching_equals_brute_force_also_where_samples_crowd() -> None:
+    """_match_batch against brute force: two events' tyre paths, one sampled every 1 mm (a
+    crawl: hundreds of samples within the radius, more than the fixed-k query asks for), the
+    other every 5 cm; random points around them, some seen after an event started."""
+    from toolkit.stages.tables import NEIGHBOURS, TyrePaths, _match_batch
+
+    rng = np.random.default_rng(7)
+    crawl = np.c_[np.arange(0.0, 1.4, 0.001), np.zeros(1400)]
+    cruise = np.c_[np.arange(1.4, 2.8, 0.05), np.full(28, 0.1)]
+    xy = np.concatenate([crawl, crawl + [0, -1.65], cruise, cruise + [0, -1.65]])
+    event = np.concatenate([np.zeros(2800, np.int64), np.ones(56, np.int64)])
+    wheel = np.concatenate([np.repeat([0, 1], 1400), np.repeat([0, 1], 28)]).astype(np.int64)
+    paths = TyrePaths(xy, event, wheel)
+    n = 5000
+    pts = np.c_[rng.uniform(-0.5, 3.3, n), rng.uniform(-2.2, 0.6, n)]
+    t = rng.integers(0, 2_000_000_000, n).astype(np.int64)
+    t_start = np.array([1_500_000_000, 1_800_000_000], dtype=np.int64)
+    batch = pa.RecordBatch.from_pydict({"t_ns": t, "x": pts[:, 0], "y": pts[:, 1]})
+    point, ev, wh = _match_batch(batch, t_start, paths, 0.3, 60_000_000_000)
+    got = set(zip(point.tolist(), ev.tolist(), wh.tolist(), strict=True))
+    want = set()
+    for k in range(n):
+        d = np.hypot(*(xy - pts[k]).T)
+        for e, w in set(zip(event[d <= 0.3].tolist(), wheel[d <= 0.3].tolist(), strict=True)):
+            if 0 < t_start[e] - t[k] <= 60_000_000_000:
+                want.add((k, e, w))
+    assert got == want
+    crowded = [(k, e) for k, e, _ in want if e == 0]
+    assert len(crowded) > 100 and NEIGHBOURS < 600  # the crawl saturates the fixed-k query
