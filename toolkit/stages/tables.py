@@ -75,7 +75,7 @@ POINT_BATCH = 262_144
 WHEELS = ("left", "right")
 #: Samples asked for per point near a tyre path (at 5 cm spacing a 30 cm radius holds ~13
 #: of one event's path; a point near two events' ends, or a slow stretch, holds more).
-NEIGHBOURS = 48
+NEIGHBOURS = 24
 POINT_COLUMNS = ("t_ns", "laser", "x", "y", "z", "roll_rate", "pitch_rate")
 EVENT_COLUMNS = (
     "event_id",
@@ -242,14 +242,16 @@ def _match_batch(
         return empty
     sample_xy, sample_event, sample_wheel = paths.xy[sel], paths.event[sel], paths.wheel[sel]
     x, y = batch.column("x").to_numpy(), batch.column("y").to_numpy()
-    # Sieve 1: grid cells of side 2r; a point within r of a sample lies in the sample's cell
-    # or one of its 8 neighbours.
-    cell = 2.0 * radius_m
+    # Sieve 1: grid cells of side r; a point within r of a sample lies in the sample's cell
+    # or one of its 8 neighbours (sorted keys, looked up by binary search).
+    cell = radius_m
     sx, sy = np.floor(sample_xy[:, 0] / cell), np.floor(sample_xy[:, 1] / cell)
     around = np.unique(
         np.concatenate([_cell_key(sx + dx, sy + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
     )
-    candidate = np.flatnonzero(np.isin(_cell_key(np.floor(x / cell), np.floor(y / cell)), around))
+    keys = _cell_key(np.floor(x / cell), np.floor(y / cell))
+    at = np.minimum(np.searchsorted(around, keys), around.size - 1)
+    candidate = np.flatnonzero(around[at] == keys)
     if candidate.size == 0:
         return empty
     # Sieve 2: the nearest sample within the radius.
