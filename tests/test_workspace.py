@@ -383,3 +383,41 @@ def test_require_finished_refuses_what_the_producer_did_not_write(tmp_path: Path
     changed = {"imu.parquet": file_sha256(tmp_path / "imu.parquet")}
     with pytest.raises(WorkspaceError, match="imu.parquet: not the file the last finished"):
         require_finished(rec, "ingest", changed, tmp_path)
+
+
+def test_an_output_of_an_older_table_schema_is_not_up_to_date(tmp_path: Path) -> None:
+    """A table written for an older version of its schema (which every reader refuses) makes
+    its stage run again, even with inputs, config and bytes unchanged."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from toolkit.tableio import load_table_schema, write_table
+    from toolkit.workspace import FileDigest, StageRecord, check_up_to_date
+
+    path = tmp_path / "heading.parquet"
+    write_table(
+        path,
+        pa.table({"t_ns": [1, 2], "yaw": [0.0, 0.1], "yaw_std": [0.01, 0.01]}),
+        "heading",
+        source_sha256="0" * 64,
+        config_hash="c",
+    )
+    record = StageRecord(
+        inputs={},
+        config_hash="c",
+        outputs=(path.name,),
+        output_files={path.name: FileDigest.of(path)},
+    )
+    assert check_up_to_date(record, inputs={}, config_hash="c", outputs=[path])
+    table = pq.read_table(path)
+    meta = dict(table.schema.metadata)
+    meta[b"schema_version"] = str(load_table_schema("heading").version - 1).encode()
+    pq.write_table(table.replace_schema_metadata(meta), path)
+    record = StageRecord(
+        inputs={},
+        config_hash="c",
+        outputs=(path.name,),
+        output_files={path.name: FileDigest.of(path)},
+    )
+    fresh = check_up_to_date(record, inputs={}, config_hash="c", outputs=[path])
+    assert not fresh and "written for schema heading v0" in fresh.reason

@@ -414,7 +414,34 @@ def check_up_to_date(
             return Freshness(False, f"no record of what was written to {path.name}")
         if path.stat().st_size != written.size_bytes or file_sha256(path) != written.sha256:
             return Freshness(False, f"output changed since it was written: {path.name}")
+        stale = _older_table_schema(path)
+        if stale:
+            return Freshness(False, stale)
     return Freshness(True, "up to date")
+
+
+def _older_table_schema(path: Path) -> str:
+    """Why a Parquet output is out of date for this toolkit (written for an older version of
+    its table schema, which every reader refuses), or "" when it is not."""
+    if path.suffix != ".parquet":
+        return ""
+    # tableio imports this module; here it is needed only for outputs that are tables.
+    from toolkit.errors import SchemaError
+    from toolkit.tableio import load_table_schema, read_table_metadata
+
+    try:
+        meta = read_table_metadata(path)
+        name, version = meta.get("schema_name"), meta.get("schema_version")
+        if not name or version is None:
+            return ""
+        current = load_table_schema(name).version
+    except (SchemaError, WorkspaceError, OSError, ValueError):
+        return ""  # not one of ours: its hash is what counts
+    if str(version) != str(current):
+        return (
+            f"{path.name} was written for schema {name} v{version}, this toolkit writes v{current}"
+        )
+    return ""
 
 
 def require_finished(

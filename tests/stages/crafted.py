@@ -39,14 +39,17 @@ def write_table(path: str | Path, table: pa.Table, schema_name: str, **kwargs: A
     adopt_edits(Path(path).parent)
 
 
-def record_stage_outputs(log_dir: Path, stage: str, outputs: list[str]) -> None:
-    """Record ``outputs`` (as they are now) as what a finished ``stage`` wrote in this log, as
-    a real run of that stage would have: for tests that craft a stage's outputs by hand."""
+def record_stage_outputs(
+    log_dir: Path, stage: str, outputs: list[str], inputs: dict[str, str] | None = None
+) -> None:
+    """Record ``outputs`` (as they are now) as what a finished ``stage`` wrote in this log
+    from ``inputs`` (name -> sha256), as a real run of that stage would have: for tests that
+    craft a stage's outputs by hand."""
     manifest = Manifest(log_dir / "manifest.json")
     manifest.record_stage(
         stage,
         StageRecord(
-            inputs={},
+            inputs=dict(inputs or {}),
             config_hash="crafted",
             outputs=tuple(outputs),
             output_files=digest_files(log_dir, outputs),

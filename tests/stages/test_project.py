@@ -236,3 +236,21 @@ def test_the_papers_fig4_and_the_z_error_come_with_the_points(projected) -> None
     assert len(rows) == 6  # five lasers and "all"
     for r in rows:
         assert 0.01 < float(r["median_abs_m"]) < 0.2, r
+
+
+def test_a_scan_with_nan_geometry_places_nothing(posed_copy: tuple[Workspace, str]) -> None:
+    """NaN angles or time increment: every return of that scan is a counted bad_scan, never
+    a NaN point written as a good one."""
+    ws, log_id = posed_copy
+    path = ws.log_table(log_id, "laser")
+    laser = read_table(path, "laser").slice(0, 30)
+    for k, column in enumerate(("angle_min", "angle_increment", "time_increment")):
+        values = laser.column(column).to_numpy().copy()
+        values[10 * k : 10 * k + 3] = np.nan
+        laser = laser.set_column(laser.schema.get_field_index(column), column, pa.array(values))
+    write_table(path, laser, "laser", **_laser_meta(ws, log_id))
+    result = run_project(ws, log_id, default_config())
+    assert result.rejects["bad_scan"] == 9 * 181
+    points = read_table(ws.log_table(log_id, "points"), "points")
+    assert np.isfinite(np.stack([points.column(c).to_numpy() for c in "xyz"])).all()
+    assert result.points + sum(result.rejects.values()) == 30 * 181

@@ -19,7 +19,7 @@ from toolkit.errors import StageError
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.tables import TablesResult, run_tables, tyre_paths
 from toolkit.tableio import read_table, write_table
-from toolkit.workspace import Workspace
+from toolkit.workspace import Workspace, file_sha256
 
 SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
 EVENT_LENGTH_M = 1.4
@@ -65,7 +65,9 @@ def craft_events(ws: Workspace, log_id: str) -> pa.Table:
     write_table(
         log_dir / "events.parquet", events, "events", source_sha256="crafted", config_hash="crafted"
     )
-    record_stage_outputs(log_dir, "label", ["events.parquet"])
+    record_stage_outputs(
+        log_dir, "label", ["events.parquet"], {"pose": file_sha256(log_dir / "pose.parquet")}
+    )
     return events
 
 
@@ -187,6 +189,36 @@ def test_a_second_run_is_up_to_date(tabled) -> None:  # type: ignore[no-untyped-
     assert again.splits == result.splits
 
 
+def test_the_left_tyre_is_on_the_left_whichever_way_the_vehicle_heads() -> None:
+    """Heading north (yaw = pi/2, ENU): the left tyre is to the west (x < 0), the right to
+    the east."""
+    t = np.arange(0, 1_000_000_000, 10_000_000, dtype=np.int64)
+    y = 5.0 * t * 1e-9
+    paths = tyre_paths(
+        t, np.c_[np.zeros_like(y), y], np.full(t.size, np.pi / 2), t[10:11], t[50:51], 1.65
+    )
+    np.testing.assert_allclose(paths.xy[paths.wheel == 0][:, 0], -0.825, atol=1e-12)
+    np.testing.assert_allclose(paths.xy[paths.wheel == 1][:, 0], 0.825, atol=1e-12)
+
+
+def test_events_and_points_of_an_earlier_pose_are_refused(tabled, tmp_path: Path) -> None:  # type: ignore[no-untyped-def]
+    """After pose is re-run, tables must not match new tyre paths against points and events
+    made from the old pose: one line naming the stage to run again."""
+    ws, log_id, _, _ = tabled
+    copy = Workspace(tmp_path / "ws")
+    shutil.copytree(ws.root, copy.root, symlinks=True)
+    log_dir = copy.log_dir(log_id)
+    pose = read_table(log_dir / "pose.parquet", "pose")
+    x = pose.column("x").to_numpy() + 5.0
+    pose = pose.set_column(pose.schema.get_field_index("x"), "x", pa.array(x))
+    write_table(
+        log_dir / "pose.parquet", pose, "pose", source_sha256="crafted", config_hash="crafted"
+    )
+    record_stage_outputs(log_dir, "pose", ["pose.parquet"])
+    with pytest.raises(StageError, match="made from an earlier pose; run `terrain label"):
+        run_tables(copy, default_config(), overwrite=True)
+
+
 def test_tyre_paths_are_dense_and_beside_the_axle() -> None:
     """A straight drive east at 10 m/s: the left tyre 0.825 m north, the right south,
     samples at most 5 cm apart."""
@@ -225,10 +257,13 @@ def test_matching_equals_brute_force_also_where_samples_crowd() -> None:
     rng = np.random.default_rng(7)
     crawl = np.c_[np.arange(0.0, 1.4, 0.001), np.zeros(1400)]
     cruise = np.c_[np.arange(1.4, 2.8, 0.05), np.full(28, 0.1)]
-    xy = np.concatenate([crawl, crawl + [0, -1.65], cruise, cruise + [0, -1.65]])
-    event = np.concatenate([np.zeros(2800, np.int64), np.ones(56, np.int64)])
-    wheel = np.concatenate([np.repeat([0, 1], 1400), np.repeat([0, 1], 28)]).astype(np.int64)
-    paths = TyrePaths(xy, event, wheel)
+    # Wheel-major, events in order within each wheel, as tyre_paths lays them out.
+    xy = np.concatenate([crawl, cruise, crawl + [0, -1.65], cruise + [0, -1.65]])
+    one_wheel = np.concatenate([np.zeros(1400, np.int64), np.ones(28, np.int64)])
+    event = np.concatenate([one_wheel, one_wheel])
+    wheel = np.repeat(np.array([0, 1], np.int64), 1428)
+    first = np.array([0, 1400, 1428], np.int64)
+    paths = TyrePaths(xy, event, wheel, (first, first + 1428))
     n = 5000
     pts = np.c_[rng.uniform(-0.5, 3.3, n), rng.uniform(-2.2, 0.6, n)]
     t = rng.integers(0, 2_000_000_000, n).astype(np.int64)

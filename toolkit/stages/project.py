@@ -19,7 +19,8 @@ laser, beam, range, scan time (``scan_t_ns``) and the time since that laser's pr
 paper's gamma and psi features, eq. 1; its tau is ``t_ns``).
 
 Dropped and counted by reason (manifest ``rejects``; a warning on the terminal when any
-are): ``no_return`` (NaN/inf range), ``out_of_range`` (outside the scan's ``[range_min,
+are): ``bad_scan`` (every return of a scan whose angles or ``time_increment`` are not
+finite), ``no_return`` (NaN/inf range), ``out_of_range`` (outside the scan's ``[range_min,
 range_max]``), ``no_pose`` (before the first or after the last pose row, or inside a gap of
 the pose longer than :data:`MAX_POSE_GAP_S`: no estimate to place it with) and ``no_mount``
 (a laser whose frame the log's static transforms do not place on the vehicle).
@@ -89,7 +90,7 @@ FIG4_SECONDS = 120.0
 #: same per-laser medians as all of them to within a millimetre.
 Z_ERROR_STRIDE = 64
 #: Reasons a return is dropped, in the order they are checked.
-REJECT_REASONS = ("no_return", "out_of_range", "no_mount", "no_pose")
+REJECT_REASONS = ("bad_scan", "no_return", "out_of_range", "no_mount", "no_pose")
 POSE_COLUMNS = ("t_ns", "x", "y", "z", "roll", "pitch", "yaw", "roll_rate", "pitch_rate")
 LASER_COLUMNS = (
     "t_ns",
@@ -162,8 +163,11 @@ class PoseWindow:
             return np.zeros(t_ns.size, np.int64), np.zeros(t_ns.size), np.zeros(t_ns.size, bool)
         i = np.clip(np.searchsorted(t, t_ns, side="right") - 1, 0, t.size - 2)
         inside = (t_ns >= t[0]) & (t_ns <= t[-1])
-        ok = inside & ((t[i + 1] - t[i]) <= int(MAX_POSE_GAP_S * 1e9))
-        frac = np.clip((t_ns - t[i]) / (t[i + 1] - t[i]).astype(np.float64), 0.0, 1.0)
+        step = t[i + 1] - t[i]
+        ok = inside & (step > 0) & (step <= int(MAX_POSE_GAP_S * 1e9))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            frac = np.clip((t_ns - t[i]) / step.astype(np.float64), 0.0, 1.0)
+        frac[~ok] = 0.0
         return i, frac, ok
 
     def transform(
@@ -357,8 +361,16 @@ def project_batch(
         previous_scan_ns[name] = int(scans.t_ns[k])
 
     s, b, r = scans.scan, scans.beam, scans.range_m
-    finite = np.isfinite(r)
-    counts.rejects["no_return"] += int((~finite).sum())
+    # A scan whose geometry or timing is not finite places none of its returns.
+    good_scan = (
+        np.isfinite(scans.angle_min)
+        & np.isfinite(scans.angle_increment)
+        & np.isfinite(scans.time_increment)
+    )
+    usable = np.take(good_scan, s)
+    counts.rejects["bad_scan"] += int((~usable).sum())
+    finite = np.isfinite(r) & usable
+    counts.rejects["no_return"] += int((usable & ~np.isfinite(r)).sum())
     with np.errstate(invalid="ignore"):
         in_range = finite & (r >= np.take(scans.range_min, s)) & (r <= np.take(scans.range_max, s))
     counts.rejects["out_of_range"] += int((finite & ~in_range).sum())
@@ -383,6 +395,7 @@ def project_batch(
     if t_ns.size:
         window = poses.window(int(t_ns.min()), int(t_ns.max()))
         p_world, rates, ok = window.transform(t_ns, p_base)
+        ok &= np.isfinite(p_world).all(axis=0)  # never a NaN point written as a good one
     else:
         p_world, rates, ok = np.zeros((3, 0)), np.zeros((2, 0)), np.zeros(0, bool)
     counts.rejects["no_pose"] += int((~ok).sum())
@@ -563,10 +576,10 @@ def _project_in(
     fit = fig4.fit
     manifest.set_header(
         project={
-            "fig4": {
-                "slope_m_per_s": fit.slope_m_per_s,
-                "intercept_m": fit.intercept_m,
-                "r2": fit.r2,
+            "fig4": {  # NaN (too few pairs for a line) is written as null
+                "slope_m_per_s": _finite_or_none(fit.slope_m_per_s),
+                "intercept_m": _finite_or_none(fit.intercept_m),
+                "r2": _finite_or_none(fit.r2),
                 "pairs": fig4.pairs,
                 "flat_points": fig4.flat_points,
                 "files": figure_files,
@@ -606,6 +619,10 @@ def _project_in(
         points_per_s=counts.points / max(timings["project"], 1e-9),
         fig4=f"Fig. 4 {fit.describe()}",
     )
+
+
+def _finite_or_none(value: float) -> float | None:
+    return float(value) if np.isfinite(value) else None
 
 
 def _laser_frames(laser_path: Path) -> list[str]:
