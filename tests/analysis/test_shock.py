@@ -229,3 +229,26 @@ def test_fit_line() -> None:
     assert 0.9 < noisy.r2 < 1.0
     with pytest.raises(ValueError):
         fit_line(np.array([1.0, 1.0]), np.array([0.0, 1.0]))
+
+
+def test_a_repeated_stamp_is_dropped_not_taken_for_a_gap() -> None:
+    """Five repeated stamps in 30 s of 100 Hz: one run, the same outputs as without them."""
+    from toolkit.analysis.shock import design_shock_fir, filter_stream
+
+    fir = design_shock_fir(100.0, 40, 10.0, 15.0)
+    rng = np.random.default_rng(3)
+    t = np.arange(3000, dtype=np.int64) * 10_000_000
+    x = rng.normal(size=t.size)
+    dup = np.sort(rng.choice(np.arange(100, 2900), 5, replace=False))
+    t_bad = np.insert(t, dup + 1, t[dup])
+    x_bad = np.insert(x, dup + 1, 99.0)  # the repeat carries a wild value: it must not count
+    clean = list(filter_stream([(t, x)], fir.taps, 15_000_000))
+    bad = list(
+        filter_stream(
+            [(t_bad[:1500], x_bad[:1500]), (t_bad[1500:], x_bad[1500:])], fir.taps, 15_000_000
+        )
+    )
+    cat = lambda chunks, f: np.concatenate([getattr(c, f) for c in chunks])  # noqa: E731
+    np.testing.assert_array_equal(cat(bad, "t_ns"), cat(clean, "t_ns"))
+    np.testing.assert_allclose(cat(bad, "value"), cat(clean, "value"))
+    assert set(cat(bad, "run").tolist()) == {0}

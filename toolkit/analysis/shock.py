@@ -231,7 +231,8 @@ def filter_stream(
     Overlapping windows: the last ``N - 1`` inputs of a piece are prepended to the next, and
     ``np.convolve(..., "valid")`` gives exactly the outputs whose whole window of N inputs is
     known, so the start-up transient is never emitted. A step between stamps longer than
-    ``max_gap_ns`` (or not forward) ends a run: the next run starts the filter afresh.
+    ``max_gap_ns`` ends a run: the next run starts the filter afresh. A sample whose stamp
+    does not advance past every earlier one is dropped.
     Output ``j`` is stamped with the mean of its window's N input stamps (module docstring).
     """
     n = int(taps.size)
@@ -243,8 +244,14 @@ def filter_stream(
             continue
         t = np.concatenate([t_tail, np.asarray(t_new, np.int64)])
         x = np.concatenate([x_tail, np.asarray(x_new, np.float64)])
+        # A sample whose stamp does not advance (a repeated or backward stamp) is dropped, not
+        # taken as a gap: restarting the filter would lose 39 samples for one bad stamp.
+        advancing = np.ones(t.size, dtype=bool)
+        advancing[1:] = t[1:] > np.maximum.accumulate(t)[:-1]
+        if not advancing.all():
+            t, x = t[advancing], x[advancing]
         dt = np.diff(t)
-        breaks = np.flatnonzero((dt > max_gap_ns) | (dt <= 0)) + 1
+        breaks = np.flatnonzero(dt > max_gap_ns) + 1
         edges = [0, *breaks.tolist(), t.size]
         outs: list[FilteredChunk] = []
         for k in range(len(edges) - 1):
