@@ -177,8 +177,11 @@ def path_events(
 
 def _imu_period_ns(imu_path: Path) -> int:
     """The IMU's nominal sampling period (ns): the mean step of the first batch, over the
-    steps within 1.5 x of their median (gaps and duplicates left out). The mean, not the
-    median: stamps jitter, so steps are spread, but their mean is the clock's period."""
+    steps within half a median of the median (gaps and duplicates left out). The mean, not
+    the median: stamps jitter, so steps are spread, but their mean is the clock's period. The
+    window is symmetric so that trimming does not bias it (a window of [median / 1.5,
+    median x 1.5] cut jittered short steps but not long ones: 99.35 Hz for a 100 Hz IMU
+    with +-2 ms jitter)."""
     first = next(iter_table_batches(imu_path, "imu", columns=["t_ns"], batch_rows=BATCH_ROWS), None)
     t = np.asarray(first.column(0).to_numpy(), np.int64) if first is not None else np.zeros(0)
     dt = np.diff(t)
@@ -186,7 +189,7 @@ def _imu_period_ns(imu_path: Path) -> int:
     if dt.size < 1:
         raise StageError(f"the IMU has {t.size} usable row(s): no rate to filter at", path=imu_path)
     med = float(np.median(dt))
-    regular = dt[(dt > med / GAP_PERIODS) & (dt < med * GAP_PERIODS)]
+    regular = dt[np.abs(dt - med) < 0.5 * med]
     return int(round(float(regular.mean())))
 
 
