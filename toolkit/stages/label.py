@@ -60,6 +60,7 @@ from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.mounts import sensor_mounts
 from toolkit.stages.label_truth import truth_under_events
+from toolkit.stages.per_log import run_on_log
 from toolkit.tableio import TableWriter, iter_table_batches, read_table
 from toolkit.workspace import (
     Manifest,
@@ -269,21 +270,12 @@ def run_label(
     workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
 ) -> LabelResult:
     """Label one posed log (see the module docstring)."""
-    start = time.perf_counter()
-    if not workspace.log_dir(log_id).is_dir():
-        raise StageError(
-            "no such log in the workspace; run `terrain ingest` first",
-            path=workspace.log_dir(log_id),
-        )
-    # Read and written in a new generation of the log's directory, published in one atomic
-    # switch (toolkit.generations): killed at any moment, the log is as before or as after.
-    with workspace.change_log(log_id) as gen:
-        result = _label_in(gen.path, log_id, config, overwrite=overwrite, start=start)
-        if result.status != "up_to_date":
-            gen.commit()
-    for warning in result.warnings:  # said on the terminal, not only in the manifest
-        _log.warning("%s: %s", log_id, warning)
-    return result
+    return run_on_log(
+        workspace,
+        log_id,
+        lambda log_dir, start: _label_in(log_dir, log_id, config, overwrite=overwrite, start=start),
+        _log,
+    )
 
 
 def _inputs(log_dir: Path, manifest: Manifest) -> dict[str, str]:

@@ -51,6 +51,7 @@ from toolkit.fusion.rotations import FloatArray, rot_to_euler, wrap_angle
 from toolkit.fusion.ukf import NoiseModel
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.mounts import Mount, sensor_mounts
+from toolkit.stages.per_log import run_on_log
 from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
 from toolkit.workspace import (
     Manifest,
@@ -554,21 +555,12 @@ def run_pose(
     workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
 ) -> PoseResult:
     """Estimate the pose of one ingested log (see the module docstring)."""
-    start = time.perf_counter()
-    if not workspace.log_dir(log_id).is_dir():
-        raise StageError(
-            "no such log in the workspace; run `terrain ingest` first",
-            path=workspace.log_dir(log_id),
-        )
-    # Read and written in a new generation of the log's directory, published in one atomic
-    # switch (toolkit.generations): killed at any moment, the log is as before or as after.
-    with workspace.change_log(log_id) as gen:
-        result = _pose_in(gen.path, log_id, config, overwrite=overwrite, start=start)
-        if result.status != "up_to_date":
-            gen.commit()
-    for warning in result.warnings:  # said on the terminal, not only in the manifest
-        _log.warning("%s: %s", log_id, warning)
-    return result
+    return run_on_log(
+        workspace,
+        log_id,
+        lambda log_dir, start: _pose_in(log_dir, log_id, config, overwrite=overwrite, start=start),
+        _log,
+    )
 
 
 def _pose_in(

@@ -52,6 +52,7 @@ from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.fusion.rotations import euler_to_rot
 from toolkit.mounts import Mount, frame_mounts
+from toolkit.stages.per_log import run_on_log
 from toolkit.tableio import TableWriter, iter_table_batches, read_table_metadata
 from toolkit.workspace import (
     Manifest,
@@ -461,19 +462,14 @@ def run_project(
     workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
 ) -> ProjectResult:
     """Project one log's scans into the world (see the module docstring)."""
-    start = time.perf_counter()
-    if not workspace.log_dir(log_id).is_dir():
-        raise StageError(
-            "no such log in the workspace; run `terrain ingest` first",
-            path=workspace.log_dir(log_id),
-        )
-    with workspace.change_log(log_id) as gen:
-        result = _project_in(gen.path, log_id, config, overwrite=overwrite, start=start)
-        if result.status != "up_to_date":
-            gen.commit()
-    for warning in result.warnings:
-        _log.warning("%s: %s", log_id, warning)
-    return result
+    return run_on_log(
+        workspace,
+        log_id,
+        lambda log_dir, start: _project_in(
+            log_dir, log_id, config, overwrite=overwrite, start=start
+        ),
+        _log,
+    )
 
 
 def _project_in(
