@@ -17,6 +17,7 @@ from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.fusion.rotations import euler_to_rot
 from toolkit.stages.project import (
+    PoseStream,
     PoseWindow,
     run_project,
 )
@@ -254,3 +255,27 @@ def test_a_scan_with_nan_geometry_places_nothing(posed_copy: tuple[Workspace, st
     points = read_table(ws.log_table(log_id, "points"), "points")
     assert np.isfinite(np.stack([points.column(c).to_numpy() for c in "xyz"])).all()
     assert result.points + sum(result.rejects.values()) == 30 * 181
+
+
+def test_the_pose_stream_serves_requests_that_reach_back_a_little() -> None:
+    """Windows asked in time order may start up to 1 s before the previous one (beam times of
+    a scan with a negative time_increment): the rows are still there; further back is an
+    out-of-order log, one line."""
+    import tempfile
+
+    from toolkit.tableio import load_table_schema
+    from toolkit.tableio import write_table as write
+
+    t = np.arange(0, 5_000_000_000, 10_000_000, dtype=np.int64)
+    cols = {c.name: pa.array(np.zeros(t.size)) for c in load_table_schema("pose").columns}
+    cols["t_ns"] = pa.array(t)
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "pose.parquet"
+        write(path, pa.table(cols), "pose", source_sha256="0" * 64, config_hash="c")
+        stream = PoseStream(path)
+        first = stream.window(2_000_000_000, 2_100_000_000)
+        assert first.t_ns[0] <= 2_000_000_000 and first.t_ns[-1] >= 2_100_000_000
+        back = stream.window(1_500_000_000, 1_600_000_000)
+        assert back.t_ns[0] <= 1_500_000_000 and back.t_ns[-1] >= 1_600_000_000
+        with pytest.raises(StageError, match="not in time order"):
+            stream.window(500_000_000, 600_000_000)

@@ -90,6 +90,9 @@ FIG4_SECONDS = 120.0
 #: truth lookup costs ~3 us per point, and 1/64 of the sample log's points (65 k) gives the
 #: same per-laser medians as all of them to within a millimetre.
 Z_ERROR_STRIDE = 64
+#: How far behind the latest request the pose stream keeps rows, and how far a request may
+#: reach back before the scans count as out of order, ns.
+KEEP_BEHIND_NS = 1_000_000_000
 #: Reasons a return is dropped, in the order they are checked.
 REJECT_REASONS = ("bad_scan", "no_return", "out_of_range", "no_mount", "no_pose")
 POSE_COLUMNS = ("t_ns", "x", "y", "z", "roll", "pitch", "yaw", "roll_rate", "pitch_rate")
@@ -229,6 +232,7 @@ class PoseStream:
     """
 
     def __init__(self, path: Path, schema_name: str = "pose") -> None:
+        """Stream ``path`` (a ``pose`` or ``truth_pose`` table)."""
         self._path = path
         # truth_pose has the pose's columns and frame: a check can project with the truth.
         self._batches: Iterator[pa.RecordBatch] = iter_table_batches(
@@ -252,17 +256,20 @@ class PoseStream:
     def window(self, t_lo_ns: int, t_hi_ns: int) -> PoseWindow:
         """Pose rows from the last one at or before ``t_lo_ns`` to the first at or after
         ``t_hi_ns`` (fewer at the ends of the table)."""
-        if self._last_lo is not None and t_lo_ns < self._last_lo:
+        if self._last_lo is not None and t_lo_ns < self._last_lo - KEEP_BEHIND_NS:
             raise StageError(
                 "scans are not in time order (the laser table ingest writes is); "
                 "run `terrain ingest --overwrite`",
                 path=self._path,
             )
-        self._last_lo = t_lo_ns
+        self._last_lo = t_lo_ns if self._last_lo is None else max(self._last_lo, t_lo_ns)
         while not self._done and (self._cols["t_ns"].size == 0 or self._cols["t_ns"][-1] < t_hi_ns):
             self._pull()
         t = self._cols["t_ns"]
-        first = max(int(np.searchsorted(t, t_lo_ns, side="right")) - 1, 0)
+        # Rows are let go only KEEP_BEHIND_NS behind the request: beam times of the next
+        # batch may start a little before this one's (a negative time_increment, lasers
+        # whose stamps are not quite in order).
+        first = max(int(np.searchsorted(t, t_lo_ns - KEEP_BEHIND_NS, side="right")) - 1, 0)
         if first:
             self._cols = {c: v[first:] for c, v in self._cols.items()}
             t = self._cols["t_ns"]
