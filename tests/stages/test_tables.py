@@ -133,9 +133,15 @@ def test_points_are_those_near_each_tyre_before_it_got_there(tabled) -> None:  #
                     pa.compute.equal(table.column("wheel"), wheel),
                 )
             )
-            got = set(mine.column("t_ns").to_pylist())
-            inner = set(pt[d <= 0.299].tolist())
-            outer = set(pt[d <= 0.301].tolist())
+            # A point is its time and position (two lasers may fire in the same nanosecond).
+            got = set(
+                zip(mine.column("t_ns").to_pylist(), mine.column("x").to_pylist(), strict=True)
+            )
+
+            def ident(mask: np.ndarray) -> set[tuple[int, float]]:
+                return set(zip(pt[mask].tolist(), pxy[mask, 0].tolist(), strict=True))
+
+            inner, outer = ident(d <= 0.299), ident(d <= 0.301)
             assert inner <= got <= outer, (e, wheel)
             assert len(got) >= 2
             checked += 1
