@@ -23,7 +23,7 @@ from toolkit.cli import main
 from toolkit.errors import LogReadError, SimulationError
 from toolkit.workspace import Workspace
 
-VERBS = ["sim", "info", "ingest"]
+VERBS = ["sim", "info", "ingest", "pose", "project", "label", "tables"]
 
 
 @pytest.fixture
@@ -391,3 +391,26 @@ def test_pose_carries_on_past_a_failing_log_and_exits_1(runner: CliRunner, tmp_p
     assert f"{logs[0].name}: " in result.stderr and "imu.parquet" in result.stderr
     assert (logs[1] / "pose.parquet").is_file()  # the other log was still posed
     assert "pose: 2 logs: 1 estimated, 1 failed" in result.stdout
+
+
+# -- the point stages on a vehicle without lasers -----------------------------------------
+
+
+def test_point_stages_on_a_log_without_lasers_say_why_in_one_line(
+    runner: CliRunner, tmp_path: Path
+) -> None:
+    """The Husky has no lasers: project names the missing role, label the missing pose,
+    tables what it needs; each exits 1 with one line, never a traceback."""
+    data = Path(__file__).resolve().parent / "data" / "real-logs" / "husky-gps-imu-odom.mcap"
+    config = Path(__file__).resolve().parents[1] / "pipelines" / "husky.toml"
+    ws = str(tmp_path / "ws")
+    assert runner.invoke(main, ["ingest", str(data), "-w", ws, "-c", str(config)]).exit_code == 0
+    project = runner.invoke(main, ["project", "-w", ws])
+    assert project.exit_code == 1
+    assert "projection needs the lasers role" in assert_one_error_line(project.stderr)
+    label = runner.invoke(main, ["label", "-w", ws])
+    assert label.exit_code == 1
+    assert "run `terrain pose` first" in assert_one_error_line(label.stderr)
+    tables = runner.invoke(main, ["tables", "-w", ws])
+    assert tables.exit_code == 1
+    assert "run `terrain label`" in assert_one_error_line(tables.stderr)
