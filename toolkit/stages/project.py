@@ -297,7 +297,11 @@ class ScanBatch:
 
     t_ns: IntArray
     laser: pa.Array
-    frame_id: list[str]
+    #: Each scan's laser and frame as a code (S,) into the distinct names of the batch.
+    laser_code: IntArray
+    laser_names: list[str]
+    frame_code: IntArray
+    frame_names: list[str]
     angle_min: FloatArray
     angle_increment: FloatArray
     time_increment: FloatArray
@@ -319,6 +323,15 @@ class ScanBatch:
         beam = np.arange(scan.size, dtype=np.int64) - np.repeat(offsets[:-1], lengths)
         values = pc.list_flatten(ranges).to_numpy(zero_copy_only=False).astype(np.float32)
 
+        def codes(name: str) -> tuple[IntArray, list[str]]:
+            """A string column as codes into its distinct values (a null is "")."""
+            encoded = pc.dictionary_encode(pc.fill_null(batch.column(name), ""))
+            names = [str(v) for v in encoded.dictionary.to_pylist()]
+            return np.asarray(encoded.indices.to_numpy(zero_copy_only=False), np.int64), names
+
+        laser_code, laser_names = codes("laser")
+        frame_code, frame_names = codes("frame_id")
+
         def f64(name: str, fill: float) -> FloatArray:
             col = batch.column(name)
             return np.asarray(pc.fill_null(col, fill).to_numpy(zero_copy_only=False), np.float64)
@@ -326,7 +339,10 @@ class ScanBatch:
         return cls(
             t_ns=np.asarray(batch.column("t_ns").to_numpy(), dtype=np.int64),
             laser=batch.column("laser"),
-            frame_id=[str(f or "") for f in batch.column("frame_id").to_pylist()],
+            laser_code=laser_code,
+            laser_names=laser_names,
+            frame_code=frame_code,
+            frame_names=frame_names,
             angle_min=f64("angle_min", np.nan),
             angle_increment=f64("angle_increment", np.nan),
             time_increment=f64("time_increment", 0.0),
@@ -360,13 +376,17 @@ def project_batch(
     n_scans = scans.t_ns.size
     counts.scans += n_scans
     # Time since each laser's previous scan, carried across batches.
-    laser_names = scans.laser.to_pylist()
     scan_dt = np.full(n_scans, np.nan)
-    for k, name in enumerate(laser_names):  # per scan, not per point
-        prev = previous_scan_ns.get(name)
-        if prev is not None:
-            scan_dt[k] = (scans.t_ns[k] - prev) * 1e-9
-        previous_scan_ns[name] = int(scans.t_ns[k])
+    for code, name in enumerate(scans.laser_names):  # per laser, not per scan or point
+        rows = np.flatnonzero(scans.laser_code == code)
+        if rows.size == 0:
+            continue
+        stamps = scans.t_ns[rows]
+        # Differences in integer ns (stamps near 1e18 ns lose 256 ns as float64).
+        scan_dt[rows[1:]] = np.diff(stamps) * 1e-9
+        if name in previous_scan_ns:
+            scan_dt[rows[0]] = (int(stamps[0]) - previous_scan_ns[name]) * 1e-9
+        previous_scan_ns[name] = int(stamps[-1])
 
     s, b, r = scans.scan, scans.beam, scans.range_m
     # A scan whose geometry or timing is not finite places none of its returns.
@@ -385,7 +405,8 @@ def project_batch(
     # Each scan's laser mount as a small integer code (-1: none).
     mount_list = list(mounts.values())
     code_of = {m.frame: k for k, m in enumerate(mount_list)}
-    scan_mount = np.array([code_of.get(f, -1) for f in scans.frame_id], dtype=np.int64)
+    frame_mount = np.array([code_of.get(f, -1) for f in scans.frame_names], dtype=np.int64)
+    scan_mount = frame_mount[scans.frame_code]
     mounted = in_range & (np.take(scan_mount, s) >= 0)
     counts.rejects["no_mount"] += int((in_range & ~mounted).sum())
     keep = np.flatnonzero(mounted)
