@@ -61,6 +61,8 @@ def test_fir_at_100_hz_numbers() -> None:
     [
         (25.0, 40, ["IMU rate 25 Hz", "Nyquist frequency 12.5 Hz", "fir_pass_hz"]),
         (30.0, 40, ["IMU rate 30 Hz", "Nyquist frequency 15 Hz"]),
+        # The Husky's IMU: Nyquist 0.005 Hz above the pass edge is no band at all.
+        (30.01, 40, ["IMU rate 30.01 Hz", "at least 5 Hz above"]),
         (200.0, 40, ["IMU rate 200 Hz", "40 taps", "label.fir_taps >= 48"]),
         (100.0, 41, ["label.fir_taps = 41", "even"]),
     ],

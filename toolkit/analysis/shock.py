@@ -71,6 +71,10 @@ IntArray = NDArray[np.int64]
 STOPBAND_DB = -30.0
 #: Largest deviation of the gain from 1 on [pass_hz, Nyquist]: shocks read within 5 %.
 PASSBAND_RIPPLE = 0.05
+#: Narrowest passband (pass edge to Nyquist) a rate must leave, Hz: as wide as the default
+#: transition band. A shock lasting tens of ms spreads its energy over tens of Hz; a 30.01 Hz
+#: IMU left 0.005 Hz above a 15 Hz pass edge and "labelled" with it, which measures nothing.
+MIN_PASSBAND_HZ = 5.0
 #: Frequency grid of the check (points on [0, fs/2]).
 RESPONSE_POINTS = 8192
 #: Upsampling factor of the peak interpolation: a 25 Hz tone at 1.6 kHz is read within
@@ -182,11 +186,12 @@ def design_shock_fir(
             f"label.fir_stop_hz = {stop_hz} must be below label.fir_pass_hz = {pass_hz}",
             path=where,
         )
-    if not (np.isfinite(rate_hz) and nyquist > pass_hz):
+    if not (np.isfinite(rate_hz) and nyquist >= pass_hz + MIN_PASSBAND_HZ):
         raise StageError(
             f"IMU rate {rate_hz:.6g} Hz cannot carry the shock band: its Nyquist frequency "
-            f"{nyquist:.6g} Hz is not above label.fir_pass_hz = {pass_hz} Hz (the filter "
-            f"removes 0-{stop_hz} Hz and must pass what is above)",
+            f"{nyquist:.6g} Hz is not at least {MIN_PASSBAND_HZ:g} Hz above "
+            f"label.fir_pass_hz = {pass_hz} Hz (the filter removes 0-{stop_hz} Hz and must "
+            "pass a band above it)",
             path=where,
         )
     h = _remez(taps, rate_hz, stop_hz, pass_hz)
