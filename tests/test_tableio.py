@@ -436,3 +436,51 @@ def test_rewrite_streams_a_finished_table_into_a_new_one(tmp_path: Path) -> None
     meta = read_table_metadata(path)
     assert meta["frame_id"] == "new" and meta["kept"] == "yes"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["heading.parquet"]
+
+
+def test_strings_read_as_dictionaries_come_in_whole_batches(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``as_dictionary`` reads a string column as the dictionary the writer stored; the
+    batches (which parquet ends at every row group) are gathered back to ``batch_rows``
+    rows, each with one dictionary, and hold exactly the rows a plain read gives."""
+    from toolkit.tableio import iter_table_batches
+
+    monkeypatch.setattr(tableio, "ROW_GROUP_ROWS", 10)
+    n = 95
+    lasers = [f"laser_{k % 3 if k < 50 else 3 + k % 2}" for k in range(n)]  # dictionaries differ
+    table = pa.table(
+        {
+            "log_id": ["a"] * n,
+            "event_id": list(range(n)),
+            "wheel": ["left", "right"] * (n // 2) + ["left"],
+            **{c: [float(k) for k in range(n)] for c in ("x", "y", "z", "tau")},
+            **{c: [0.0] * n for c in ("roll_rate", "pitch_rate")},
+            "laser": lasers,
+            "t_ns": list(range(n)),
+        }
+    )
+    path = tmp_path / "event_points.parquet"
+    write_table(path, table, "event_points", source_sha256=SHA, config_hash=CFG)
+    assert pq.ParquetFile(path).metadata.num_row_groups == 10
+    batches = list(
+        iter_table_batches(
+            path, "event_points", columns=["t_ns", "laser"], batch_rows=25, as_dictionary=["laser"]
+        )
+    )
+    assert all(b.num_rows >= 25 for b in batches[:-1]) and sum(b.num_rows for b in batches) == n
+    assert all(pa.types.is_dictionary(b.schema.field("laser").type) for b in batches)
+    got = pa.Table.from_batches(batches)
+    assert got.column("laser").cast(pa.string()).to_pylist() == lasers
+    assert got.column("t_ns").to_pylist() == list(range(n))
+    # Where parquet ends a batch at a row group, the pieces become one batch with one
+    # dictionary holding both pieces' values.
+    first, second = (
+        pa.record_batch({"laser": pa.array(names).dictionary_encode()})
+        for names in (["laser_1", "laser_2"], ["laser_3", "laser_1"])
+    )
+    one = tableio._one_batch([first, second])
+    assert one.num_rows == 4 and pa.types.is_dictionary(one.schema.field("laser").type)
+    assert one.column("laser").cast(pa.string()).to_pylist() == [
+        "laser_1", "laser_2", "laser_3", "laser_1"
+    ]  # fmt: skip

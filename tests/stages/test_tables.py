@@ -254,11 +254,19 @@ def test_without_labelled_logs_tables_refuses_in_one_line(tmp_path: Path) -> Non
     assert not ws.events_table.exists()
 
 
-def test_matching_equals_brute_force_also_where_samples_crowd() -> None:
+@pytest.mark.parametrize("bitmap", [True, False], ids=["bitmap_sieve", "sorted_key_sieve"])
+def test_matching_equals_brute_force_also_where_samples_crowd(
+    bitmap: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """_match_batch against brute force: two events' tyre paths, one sampled every 1 mm (a
     crawl: hundreds of samples within the radius, more than the fixed-k query asks for), the
-    other every 5 cm; random points around them, some seen after an event started."""
+    other every 5 cm; random points around them, some seen after an event started. Both
+    ways of the first sieve (a bitmap of cells, sorted cell keys for huge areas)."""
+    from toolkit.stages import tables
     from toolkit.stages.tables import NEIGHBOURS, TyrePaths, _match_batch
+
+    if not bitmap:
+        monkeypatch.setattr(tables, "MAX_BITMAP_CELLS", 0)
 
     rng = np.random.default_rng(7)
     crawl = np.c_[np.arange(0.0, 1.4, 0.001), np.zeros(1400)]
