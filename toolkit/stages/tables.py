@@ -286,32 +286,23 @@ def _match_batch(
     if near_rows.size == 0:
         return empty
     near, xy, dist, idx = candidate[near_rows], xy[near_rows], dist[near_rows], idx[near_rows]
-    # One row per (point, event, wheel), as one int64 key point * 2E + (2 event + wheel):
-    # each point's samples turned into (event, wheel) codes, sorted within the row and kept
-    # once (a row-wise unique; ~3x faster than one np.unique over all the pairs, measured).
-    n_ev = np.int64(events_t_start.size)
-    code = sample_event * 2 + sample_wheel  # (M,) per open sample
-    missing = np.int64(2 * n_ev)  # sorts after every real code
     inside = np.isfinite(dist)
-    codes = np.sort(np.where(inside, code[np.minimum(idx, code.size - 1)], missing), axis=1)
-    first = (codes != missing) & np.concatenate(
-        [np.ones((codes.shape[0], 1), bool), codes[:, 1:] != codes[:, :-1]], axis=1
-    )
-    key = np.repeat(near, first.sum(axis=1)) * (2 * n_ev) + codes[first]
+    point = np.repeat(near, inside.sum(axis=1))
+    samples = idx[inside]
     full = np.flatnonzero(inside[:, -1])
-    if full.size:  # saturated: every sample within the radius, asked with no limit
+    if full.size:
         hits = tree.query_ball_point(xy[full], r=radius_m)
         lengths = np.array([len(h) for h in hits], dtype=np.int64)  # per saturated point
         extra = np.concatenate([np.asarray(h, dtype=np.int64) for h in hits])
-        key = np.unique(
-            np.concatenate(
-                [
-                    key[~np.isin(key // (2 * n_ev), near[full])],
-                    np.repeat(near[full], lengths) * (2 * n_ev) + code[extra],
-                ]
-            )
-        )
-    # Only points seen before the event, and not too long before.
+        keep = ~np.isin(point, near[full])
+        point = np.concatenate([point[keep], np.repeat(near[full], lengths)])
+        samples = np.concatenate([samples[keep], extra])
+    # One row per (point, event, wheel), as one int64 key; only points seen before the
+    # event, and not too long before.
+    n_ev = np.int64(events_t_start.size)
+    key = np.unique(
+        (point.astype(np.int64) * n_ev + sample_event[samples]) * 2 + sample_wheel[samples]
+    )
     wheel = key % 2
     event = (key // 2) % n_ev
     point = key // 2 // n_ev
