@@ -313,3 +313,30 @@ def test_threads_write_what_one_batch_after_another_would(
     want = pa.concat_tables(tables).select(got.column_names)
     assert got.num_rows == want.num_rows == counts.points
     assert got.cast(want.schema).equals(want)
+
+
+def test_a_failing_worker_leaves_the_last_cloud_as_it_was(
+    posed_copy: tuple[Workspace, str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """An error while a thread projects a batch reaches the caller as itself, and neither
+    a partial points.parquet nor a scratch file is left: the last finished cloud stays."""
+    ws, log_id = posed_copy
+    run_project(ws, log_id, default_config())
+    points = ws.log_dir(log_id) / "points.parquet"
+    before = file_sha256(points)
+    monkeypatch.setattr(project_module, "SCAN_BATCH", 500)
+    real = project_module.project_prepared
+    calls = {"n": 0}
+
+    def fails_on_the_fourth(batch: project_module.PreparedBatch) -> object:
+        calls["n"] += 1
+        if calls["n"] == 4:
+            raise StageError("injected", path=points)
+        return real(batch)
+
+    monkeypatch.setattr(project_module, "project_prepared", fails_on_the_fourth)
+    with pytest.raises(StageError, match="injected"):
+        run_project(ws, log_id, default_config(), overwrite=True)
+    assert file_sha256(points) == before
+    leftovers = [p.name for p in ws.log_dir(log_id).iterdir() if p.name.startswith(".")]
+    assert leftovers == []

@@ -294,3 +294,28 @@ def test_matching_equals_brute_force_also_where_samples_crowd(
     assert got == want
     crowded = [(k, e) for k, e, _ in want if e == 0]
     assert len(crowded) > 100 and NEIGHBOURS < 600  # the crawl saturates the fixed-k query
+
+
+def test_a_failing_matcher_leaves_the_last_tables_as_they_were(
+    tabled, monkeypatch: pytest.MonkeyPatch
+) -> None:  # type: ignore[no-untyped-def]
+    """An error while a thread matches a batch reaches the caller as itself; the tables
+    published before stay as they were and nothing half-written is left beside them."""
+    from toolkit.stages import tables
+
+    ws = tabled[0]
+    before = {p.name: file_sha256(p) for p in ws.tables_dir.iterdir()}
+    monkeypatch.setattr(tables, "POINT_BATCH", 50_000)
+    real = tables._match_batch
+    calls = {"n": 0}
+
+    def fails_on_the_third(*args):  # type: ignore[no-untyped-def]
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise StageError("injected", path=ws.event_points_table)
+        return real(*args)
+
+    monkeypatch.setattr(tables, "_match_batch", fails_on_the_third)
+    with pytest.raises(StageError, match="injected"):
+        run_tables(ws, default_config(), overwrite=True)
+    assert {p.name: file_sha256(p) for p in ws.tables_dir.iterdir()} == before
