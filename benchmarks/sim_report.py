@@ -13,9 +13,11 @@ project, label) and writes into ``--out``:
   stage wrote.
 - ``positives.csv``: every rough event with what the truth says lies under a rear tyre (kind,
   height), and the counts by kind (background roughness when none).
-- ``fig5_shock_speed.png`` when the log is a ``calibration`` one (the label stage's figure).
+- ``fig5_shock_speed.png`` / ``.csv``: the paper's Fig. 5 (peak shock against speed over the
+  obstacles of a ``calibration`` log, with its line and r^2: the label stage's figure), from
+  ``--calibration CAL.mcap`` (or from LOG itself when it is a calibration log).
 
-Usage: python benchmarks/sim_report.py LOG.mcap --out DIR
+Usage: python benchmarks/sim_report.py LOG.mcap --out DIR [--calibration CAL.mcap]
 """
 
 from __future__ import annotations
@@ -164,6 +166,7 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("log", type=Path)
     ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--calibration", type=Path, default=None, help="a calibration log for Fig. 5")
     args = ap.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="sim_report_") as tmp:
@@ -182,6 +185,13 @@ def main() -> None:
             if (log_dir / name).is_file():
                 shutil.copy(log_dir / name, args.out / name)
         kinds = positives(log_dir, args.out)
+        fig5 = labelled.fig5
+        if args.calibration is not None:
+            cal_id = ingest_log(args.calibration, ws, cfg).log_id
+            run_pose(ws, cal_id, cfg)
+            fig5 = run_label(ws, cal_id, cfg).fig5
+            for name in ("fig5_shock_speed.png", "fig5_shock_speed.csv"):
+                shutil.copy(ws.log_dir(cal_id) / name, args.out / name)
     summary = {
         "log": str(args.log),
         "events": labelled.events,
@@ -193,7 +203,8 @@ def main() -> None:
         "positives_by_feature": dict(kinds),
         "fig4_estimated_pose": estimated.fig4,
         "fig4_true_pose": truth_fit,
-        "fig5": labelled.fig5,
+        "fig5": fig5,
+        "calibration_log": str(args.calibration) if args.calibration else None,
     }
     (args.out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     print(json.dumps(summary, indent=2))

@@ -200,7 +200,20 @@ def _require_file(path: Path, error: type[ToolkitError] = ToolkitError) -> None:
     help="Processes casting laser rays (default: 1 on a multi-core machine, else 0). "
     "The log is the same whatever the number.",
 )
-def sim(out: Path, profile: str, distance_m: float | None, seed: int, workers: int | None) -> None:
+@click.option(
+    "--no-lasers",
+    is_flag=True,
+    help="Leave the laser scans out: a fast log of the same drive and IMU, for judging "
+    "the vehicle's physics and the shock labels.",
+)
+def sim(
+    out: Path,
+    profile: str,
+    distance_m: float | None,
+    seed: int,
+    workers: int | None,
+    no_lasers: bool,
+) -> None:
     """Write a synthetic race log with ground truth to OUT.mcap."""
     if not out.parent.is_dir():
         raise ToolkitError("output directory does not exist", path=out.parent)
@@ -213,6 +226,7 @@ def sim(out: Path, profile: str, distance_m: float | None, seed: int, workers: i
         seed=seed,
         show_progress=progress_enabled(),
         workers=workers,
+        lasers=not no_lasers,
     )
     click.echo(result.summary())
 

@@ -3,8 +3,10 @@
 The vehicle's rear axle follows a *driven path*: the route's centreline shifted sideways by
 a slow lane wander ``w(s)``. Its longitudinal speed comes from the reactive speed controller;
 its vertical motion and attitude from the full-car suspension model driven by the terrain
-under its four tyres. Each call of :meth:`Driver.step` advances one block (0.1 s) at the
-dynamics rate (1 kHz) and returns the true state at every dynamics sample.
+under its four tyres (each tyre's footprint made one effective road height,
+:class:`~toolkit.sim.vehicle.TyreFootprint`). Each call of :meth:`Driver.step` advances one
+block (0.1 s) at the dynamics rate (1 kHz) and returns the true state at every dynamics
+sample.
 """
 
 from __future__ import annotations
@@ -14,13 +16,19 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.signal import butter, sosfilt, sosfilt_zi
 from scipy.spatial.transform import Rotation
 
 from toolkit.sim.vehicle import (
-    ModalSuspension,
+    INPUT_ACCEL_X,
+    INPUT_ACCEL_Y,
+    INPUT_ONE,
+    INPUT_ROAD,
+    INPUT_ROAD_RATE,
+    N_INPUTS,
     ReactiveSpeedController,
     ReactiveSpeedParams,
+    Suspension,
+    TyreFootprint,
     VehicleParams,
     safe_speed_profile,
 )
@@ -29,8 +37,6 @@ from toolkit.sim.world import Route, Terrain, WindowCache
 FloatArray = NDArray[np.floating[Any]]
 
 GRAVITY_MPS2 = 9.80665
-# A tyre of 0.38 m radius envelops short bumps: average the road over its contact length.
-TYRE_CONTACT_OFFSETS_M = np.array([-0.15, -0.075, 0.0, 0.075, 0.15])
 
 
 @dataclass(frozen=True)
@@ -100,7 +106,11 @@ class TrueBlock:
     Position is that of ``base_link`` (ENU, m); attitude roll/pitch/yaw (rad, Z-Y-X);
     ``omega_body_radps`` body angular rates; ``specific_force_body_mps2`` what a perfect
     accelerometer at the IMU would read (gravity included); ``wheel_speed_mps`` (n, 4) in
-    the order FL, FR, RL, RR.
+    the order FL, FR, RL, RR. ``tyre_road_m`` (n, 4) is each tyre's effective road height
+    (ENU z, m), ``tyre_force_n`` (n, 4) the force it pushes its wheel up with (N, zero while
+    the wheel is off the ground), ``wheel_height_m`` and ``wheel_rate_mps`` (n, 4) the wheels'
+    (unsprung masses') heights and vertical speeds, ENU, at static equilibrium on flat ground
+    level with the road.
     """
 
     t_ns: NDArray[np.int64]
@@ -120,6 +130,10 @@ class TrueBlock:
     omega_body_radps: FloatArray
     specific_force_body_mps2: FloatArray
     wheel_speed_mps: FloatArray
+    tyre_road_m: FloatArray
+    tyre_force_n: FloatArray
+    wheel_height_m: FloatArray
+    wheel_rate_mps: FloatArray
 
     def world_from_base(self) -> Rotation:
         """Attitude of ``base_link`` at every sample (computed once, then cached)."""
@@ -138,8 +152,8 @@ class TrueBlock:
 class Driver:
     """Advances the vehicle through the world one block at a time.
 
-    Holds the only mutable simulation state: distance, speed, the suspension state, the
-    controller's speed cap and its shock filter.
+    Holds the only mutable simulation state: distance, speed, the suspension state and the
+    controller's speed cap (which the simulation loop lowers after a shock the IMU felt).
     """
 
     def __init__(
@@ -161,7 +175,8 @@ class Driver:
         self.vehicle = vehicle
         self.dt_ns = dt_ns
         self.dt_s = dt_ns * 1e-9
-        self.suspension = ModalSuspension.build(vehicle, self.dt_s)
+        self.suspension = Suspension.build(vehicle, self.dt_s)
+        self.footprint = TyreFootprint.build(vehicle)
         self.controller = ReactiveSpeedController(controller)
         if speed_schedule:
             limits = np.full(route.s_m.size, speed_schedule[0][1])
@@ -177,9 +192,7 @@ class Driver:
         self.sigma_m = 2.0
         self.speed_mps = initial_speed_mps
         self.state: FloatArray | None = None
-        # The controller's shock meter: 10 Hz high-pass of the vertical specific force.
-        self._shock_sos = butter(2, 10.0, "highpass", fs=1.0 / self.dt_s, output="sos")
-        self._shock_zi = sosfilt_zi(self._shock_sos) * GRAVITY_MPS2
+        self._road_last: FloatArray | None = None  # (4,) effective heights, last sample
         self.windows = WindowCache(terrain)
 
     @property
@@ -207,32 +220,25 @@ class Driver:
         kappa = kin["curvature_per_m"]
         ch, sh = np.cos(heading), np.sin(heading)
 
-        # Road heights under each tyre, averaged over its contact patch.
-        half = p.track_m / 2
-        lateral = np.array([half, -half, half, -half])
-        forward = np.array([p.wheelbase_m, p.wheelbase_m, 0.0, 0.0])
-        fwd = forward[None, :, None] + TYRE_CONTACT_OFFSETS_M[None, None, :]
-        wx = (
-            kin["x_m"][:, None, None]
-            + fwd * ch[:, None, None]
-            - lateral[None, :, None] * sh[:, None, None]
-        )
-        wy = (
-            kin["y_m"][:, None, None]
-            + fwd * sh[:, None, None]
-            + lateral[None, :, None] * ch[:, None, None]
-        )
-        guess = kin["s_m"][:, None, None] + fwd + 0.0 * wx
-        ws, wd = self.route.to_route(wx.ravel(), wy.ravel(), guess.ravel())
-        win = self.windows.covering(float(ws.min()), float(ws.max()) + 100.0)
-        road = win.height(ws, wd).reshape(wx.shape).mean(axis=2)  # (n, 4)
+        # The road under each tyre's footprint, made one effective height per tyre.
+        road = self._tyre_road(kin, heading)  # (n, 4)
+        prev = road[0] if self._road_last is None else self._road_last
+        road_rate = np.diff(road, axis=0, prepend=prev[None, :]) / self.dt_s
+        self._road_last = road[-1]
 
         a_lat = v**2 * kappa
-        u = np.concatenate([road, a_eff[:, None], a_lat[:, None]], axis=1)
+        u = np.empty((n, N_INPUTS))
+        u[:, INPUT_ROAD] = road
+        u[:, INPUT_ROAD_RATE] = road_rate
+        u[:, INPUT_ACCEL_X] = a_eff
+        u[:, INPUT_ACCEL_Y] = a_lat
+        u[:, INPUT_ONE] = 1.0
         if self.state is None:
             self.state = self.suspension.equilibrium(u[0])
-        states, self.state = self.suspension.step_block(self.state, u)
-        acc = self.suspension.accelerations(states, u)
+        sus = self.suspension.step_block(self.state, u)
+        self.state = sus.end
+        states = sus.states
+        acc = self.suspension.accelerations(sus, u)
 
         b = p.cg_from_rear_m
         pitch, roll = states[:, 1], states[:, 2]
@@ -265,6 +271,7 @@ class Driver:
         f_body = rot.apply(a_imu, inverse=True)
 
         # Wheel speeds: each wheel's ground speed along its own heading.
+        half = p.track_m / 2
         front = v * np.sqrt(1.0 + (p.wheelbase_m * kappa) ** 2)
         wheel = np.stack(
             [
@@ -276,9 +283,8 @@ class Driver:
             axis=1,
         )
 
-        # The reactive controller reads the shock it just felt and slows down.
-        hp, self._shock_zi = sosfilt(self._shock_sos, f_body[:, 2], zi=self._shock_zi)
-        self.controller.on_shock(float(np.abs(hp).max()) / GRAVITY_MPS2, float(v[-1]))
+        # The reactive controller's shock comes from the IMU, after the block
+        # (toolkit.sim.shock_meter, called by the simulation loop); here it recovers.
         v_end = max(self.speed_mps + a * n * self.dt_s, 0.0)
         distance = float(sigma[-1] - self.sigma_m) + 0.5 * (v[-1] + v_end) * self.dt_s
         self.controller.recover(distance)
@@ -301,9 +307,43 @@ class Driver:
             omega_body_radps=omega,
             specific_force_body_mps2=f_body,
             wheel_speed_mps=wheel,
+            tyre_road_m=road,
+            tyre_force_n=sus.tyre_force_n,
+            wheel_height_m=states[:, 3:7],
+            wheel_rate_mps=states[:, 10:14],
         )
         block.__dict__["_world_from_base"] = rot
         self.t_ns += n * self.dt_ns
         self.sigma_m = float(sigma[-1]) + 0.5 * (v[-1] + v_end) * self.dt_s
         self.speed_mps = v_end
         return block
+
+    def _tyre_road(self, kin: dict[str, FloatArray], heading: FloatArray) -> FloatArray:
+        """Effective road height under each tyre, (n, 4), from the terrain under its footprint.
+
+        The four contact centres (ground level below the axles, at the track's half-width
+        from the vehicle's centreline) go to route coordinates; the footprint's cells are laid
+        out around each in the wheel's own heading, relative to the route's heading there, in
+        (s, d) directly: along the route a step ``a`` at offset ``d`` is ``a / (1 - kappa d)``
+        of ``s``, and across it the curve bends away by ``kappa a^2 / 2``, under 0.4 mm over
+        the footprint's 0.34 m at the route's tightest radius (180 m), which is left out.
+        """
+        p = self.vehicle
+        fp = self.footprint
+        half = p.track_m / 2
+        lateral = np.array([half, -half, half, -half])
+        forward = np.array([p.wheelbase_m, p.wheelbase_m, 0.0, 0.0])
+        ch, sh = np.cos(heading)[:, None], np.sin(heading)[:, None]
+        wx = kin["x_m"][:, None] + forward * ch - lateral * sh  # (n, 4)
+        wy = kin["y_m"][:, None] + forward * sh + lateral * ch
+        guess = kin["s_m"][:, None] + forward + 0.0 * wx
+        ws, wd = self.route.to_route(wx.ravel(), wy.ravel(), guess.ravel())
+        route_heading = self.route.sample(ws)[2]
+        stretch = 1.0 / (1.0 - np.interp(ws, self.route.s_m, self.route.curvature_per_m) * wd)
+        rel = heading.repeat(4) - route_heading  # (n * 4,)
+        cr, sr = np.cos(rel)[:, None], np.sin(rel)[:, None]
+        cs = ws[:, None] + (fp.forward_m * cr - fp.lateral_m * sr) * stretch[:, None]  # (n*4, m)
+        cd = wd[:, None] + fp.forward_m * sr + fp.lateral_m * cr
+        win = self.windows.covering(float(cs.min()), float(cs.max()) + 100.0)
+        heights = win.height(cs.ravel(), cd.ravel()).reshape(heading.size, 4, fp.cells)
+        return fp.effective_height(heights)

@@ -42,13 +42,22 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 import toolkit
+from toolkit.config import default_config
 from toolkit.geodesy import enu_to_geodetic
 from toolkit.mcapio.cdr_encode import Column, encode_batch, encode_message
 from toolkit.mcapio.writer import LogWriter
 from toolkit.progress import progress
-from toolkit.sim.drive import Driver, TrueBlock, make_driven_path
+from toolkit.sim.drive import GRAVITY_MPS2, Driver, TrueBlock, make_driven_path
 from toolkit.sim.profiles import SimProfile, make_profile
-from toolkit.sim.sensors import LaserParams, Mount, RayCaster, SensorParams, gauss_markov
+from toolkit.sim.sensors import (
+    LaserParams,
+    Mount,
+    RayCaster,
+    SensorParams,
+    draw_laser_truth,
+    gauss_markov,
+)
+from toolkit.sim.shock_meter import ShockMeter
 from toolkit.sim.world import WindowCache, World, WorldParams, make_world
 
 FloatArray = NDArray[np.floating[Any]]
@@ -127,11 +136,12 @@ def wrap_angle(a: FloatArray) -> FloatArray:
 @dataclass(frozen=True)
 class LaserRays:
     """One block's laser rays: ``origin`` and unit ``direction`` (n_scans * beams, 3) in ENU,
-    with the scans' true start times and laser indices (n_scans,), and the stretch of route
-    (``s_lo_m`` .. ``s_hi_m``) the rays can reach."""
+    with the scans' true start times, laser indices and the vehicle's speed (n_scans,), and
+    the stretch of route (``s_lo_m`` .. ``s_hi_m``) the rays can reach."""
 
     starts_ns: NDArray[np.int64]
     laser_index: NDArray[np.intp]
+    speed_mps: FloatArray
     origin: FloatArray
     direction: FloatArray
     s_hint_m: float
@@ -154,6 +164,12 @@ class LaserCaster:
             world.terrain.crossfall,
             max_range_m=laser.range_max_m,
             min_range_m=laser.range_min_m,
+            divergence_rad=laser.beam_divergence_rad,
+            footprint_samples=laser.footprint_samples,
+            footprint_spacing_m=laser.footprint_spacing_m,
+            occluder_samples=laser.occluder_samples,
+            occluder_spacing_m=laser.occluder_spacing_m,
+            occluder_height_m=laser.occluder_height_m,
         )
 
     def __call__(self, rays: LaserRays) -> FloatArray:
@@ -239,6 +255,16 @@ class _Outbox:
         del self._pending[:cut]
 
 
+@dataclass(frozen=True)
+class ImuSamples:
+    """One block's IMU samples: true times ``t_true_ns`` (n,), specific force
+    ``accel_mps2`` (n, 3) and rates ``gyro_radps`` (n, 3) in the IMU frame, errors included."""
+
+    t_true_ns: NDArray[np.int64]
+    accel_mps2: FloatArray
+    gyro_radps: FloatArray
+
+
 class SensorSuite:
     """Samples every sensor from the true state, with the errors of :class:`SensorParams`."""
 
@@ -248,6 +274,7 @@ class SensorSuite:
         self.world = world
         self.start_ns = start_ns
         self.rng = np.random.default_rng([seed, 11])
+        self.imu_rng = np.random.default_rng([seed, 15])
         clock_rng = np.random.default_rng([seed, 12])
         c = self.p.clock
         self.clocks: dict[str, _Clock] = {}
@@ -271,7 +298,12 @@ class SensorSuite:
         beams = self.p.laser.beams
         angles = self.p.laser.angle_min_rad + np.arange(beams) * self.p.laser.angle_increment_rad
         dirs = np.stack([np.cos(angles), np.sin(angles), np.zeros(beams)])
-        self._beam_dirs_base = [m.rotation() @ dirs for m in self.p.laser.mounts]  # (3, beams)
+        # The lasers' true mounts (the published ones are miscalibrated) and range biases.
+        self.laser_truth = draw_laser_truth(self.p.laser, seed)
+        self._beam_dirs_base = [m.rotation() @ dirs for m in self.laser_truth.mounts]  # (3, beams)
+        self.laser_rng = np.random.default_rng([seed, 16])
+        self._dust_until_ns = np.full(len(self.p.laser.mounts), np.iinfo(np.int64).min)
+        self._dust_sector = np.zeros((len(self.p.laser.mounts), 2), dtype=np.intp)
 
     # -- schedules --------------------------------------------------------------------------
 
@@ -307,42 +339,56 @@ class SensorSuite:
 
     # -- sensors ----------------------------------------------------------------------------
 
-    def imu(self, ext: TrueBlock, first: int, out: _Outbox) -> None:
-        """100 Hz samples, each the mean over its 10 ms (what an integrating IMU reports)."""
+    def sample_imu(self, ext: TrueBlock, first: int) -> ImuSamples | None:
+        """The IMU's 100 Hz samples over the block that starts at ``first`` of ``ext``, each
+        the mean over its 10 ms (what an integrating IMU reports), with noise and bias.
+
+        Drawn when the block is driven, from a generator of the IMU's own, so the speed
+        controller can read them at once (:class:`~toolkit.sim.shock_meter.ShockMeter`)
+        whatever the order the other sensors' messages are made in."""
         p = self.p.imu
         cur_t = ext.t_ns[first:]
         ticks = self._ticks_of(cur_t, p.rate_hz) + first
         if ticks.size == 0:
-            return
+            return None
         per = int(round(1e9 / p.rate_hz / (ext.t_ns[1] - ext.t_ns[0])))
         idx = ticks[:, None] - np.arange(per)[None, ::-1]
         f = ext.specific_force_body_mps2[idx].mean(axis=1)
         w = ext.omega_body_radps[idx].mean(axis=1)
         n = ticks.size
         dt = 1.0 / p.rate_hz
+        rng = self.imu_rng
         a_walk = np.cumsum(
-            self.rng.normal(0, p.accel_bias_walk_mps2_per_sqrt_s * np.sqrt(dt), (n, 3)), 0
+            rng.normal(0, p.accel_bias_walk_mps2_per_sqrt_s * np.sqrt(dt), (n, 3)), 0
         )
         g_walk = np.cumsum(
-            self.rng.normal(0, p.gyro_bias_walk_radps_per_sqrt_s * np.sqrt(dt), (n, 3)), 0
+            rng.normal(0, p.gyro_bias_walk_radps_per_sqrt_s * np.sqrt(dt), (n, 3)), 0
         )
-        accel = f + self.accel_bias + a_walk + self.rng.normal(0, p.accel_noise_mps2, (n, 3))
-        gyro = w + self.gyro_bias + g_walk + self.rng.normal(0, p.gyro_noise_radps, (n, 3))
+        accel = f + self.accel_bias + a_walk + rng.normal(0, p.accel_noise_mps2, (n, 3))
+        gyro = w + self.gyro_bias + g_walk + rng.normal(0, p.gyro_noise_radps, (n, 3))
         self.accel_bias = self.accel_bias + a_walk[-1]
         self.gyro_bias = self.gyro_bias + g_walk[-1]
-        t_true = ext.t_ns[ticks]
+        return ImuSamples(ext.t_ns[ticks], accel, gyro)
+
+    def imu(self, samples: ImuSamples | None, out: _Outbox) -> None:
+        """The IMU's messages for samples drawn by :meth:`sample_imu`."""
+        if samples is None:
+            return
+        p = self.p.imu
         clock = self.clocks[TOPIC_IMU]
         cols: dict[str, Column] = {
-            **header_columns(clock.stamps(self.rng, t_true), p.mount.frame_id),
+            **header_columns(clock.stamps(self.rng, samples.t_true_ns), p.mount.frame_id),
             # No orientation estimate: covariance[0] = -1 by the sensor_msgs/Imu convention.
             "orientation_covariance": np.array([-1.0, 0, 0, 0, 0, 0, 0, 0, 0]),
-            **_vector_columns("angular_velocity", gyro),
+            **_vector_columns("angular_velocity", samples.gyro_radps),
             "angular_velocity_covariance": np.diag([p.gyro_noise_radps**2] * 3).ravel(),
-            **_vector_columns("linear_acceleration", accel),
+            **_vector_columns("linear_acceleration", samples.accel_mps2),
             "linear_acceleration_covariance": np.diag([p.accel_noise_mps2**2] * 3).ravel(),
         }
         out.add(
-            TOPIC_IMU, clock.log_times(self.rng, t_true), encode_batch("sensor_msgs/msg/Imu", cols)
+            TOPIC_IMU,
+            clock.log_times(self.rng, samples.t_true_ns),
+            encode_batch("sensor_msgs/msg/Imu", cols),
         )
 
     def _ticks_of(self, t_ns: NDArray[np.int64], rate_hz: float) -> NDArray[np.intp]:
@@ -455,7 +501,8 @@ class SensorSuite:
 
     def plan_lasers(self, ext: TrueBlock, first: int) -> LaserRays | None:
         """The rays of every scan that ends within this block, each beam cast from the
-        sensor's pose at the beam's own time."""
+        sensor's true pose at the beam's own time: the vehicle's true pose, the laser's true
+        (miscalibrated) mount, and the mount's flex under the body's specific force."""
         lp = self.p.laser
         period_ns = 1e9 / lp.rate_hz
         span_ns = (lp.beams - 1) * lp.time_increment_s * 1e9
@@ -481,11 +528,15 @@ class SensorSuite:
         t_end = t_start + span_ns
         rot0, pos0 = self._pose_at(ext, t_ext, t_start)
         rot1, pos1 = self._pose_at(ext, t_ext, t_end)
+        # The mounts flex: a pitch about base_link's y axis at the laser (so it turns the
+        # beams, not where they start), quasi-static in the specific force (LaserParams).
+        turn0 = rot0 @ self._flex_pitch(ext, t_ext, t_start)
+        turn1 = rot1 @ self._flex_pitch(ext, t_ext, t_end)
         # Beams sweep during the scan: interpolate the sensor's pose between the scan's
         # first and last beam (rotations of a few mrad, so linear is exact to 1e-5).
         origin = np.empty((len(scans), lp.beams, 3))
         direction = np.empty((len(scans), lp.beams, 3))
-        for i, mount in enumerate(lp.mounts):
+        for i, mount in enumerate(self.laser_truth.mounts):
             rows = np.flatnonzero(lasers_idx == i)
             if rows.size == 0:
                 continue
@@ -493,8 +544,8 @@ class SensorSuite:
             v = self._beam_dirs_base[i]  # (3, beams)
             o0 = pos0[rows] + rot0[rows] @ m
             o1 = pos1[rows] + rot1[rows] @ m
-            d0 = np.einsum("kij,jb->kbi", rot0[rows], v)
-            d1 = np.einsum("kij,jb->kbi", rot1[rows], v)
+            d0 = np.einsum("kij,jb->kbi", turn0[rows], v)
+            d1 = np.einsum("kij,jb->kbi", turn1[rows], v)
             origin[rows] = o0[:, None, :] + (o1 - o0)[:, None, :] * frac[None, :, None]
             direction[rows] = d0 + (d1 - d0) * frac[None, :, None]
         direction /= np.linalg.norm(direction, axis=2, keepdims=True)
@@ -502,6 +553,7 @@ class SensorSuite:
         return LaserRays(
             starts_ns=starts,
             laser_index=lasers_idx,
+            speed_mps=np.interp(t_start, t_ext, ext.speed_mps),
             origin=origin.reshape(-1, 3),
             direction=direction.reshape(-1, 3),
             s_hint_m=s_mid + 15.0,
@@ -510,17 +562,13 @@ class SensorSuite:
         )
 
     def finish_lasers(self, rays: LaserRays, ranges: FloatArray, out: _Outbox) -> None:
-        """Noise, dropouts and quantisation on the exact ranges; then encode the scans."""
+        """The scans' measured ranges (:meth:`measured_ranges`), their stamps (with the
+        host's jitter) and their encoding."""
         lp = self.p.laser
         span_ns = (lp.beams - 1) * lp.time_increment_s * 1e9
         starts, lasers_idx = rays.starts_ns, rays.laser_index
-        ranges = ranges + self.rng.normal(0, lp.range_noise_m, ranges.size)
-        ranges[self.rng.random(ranges.size) < lp.dropout_probability] = np.inf
-        ranges[(ranges < lp.range_min_m) | (ranges > lp.range_max_m)] = np.inf
-        # The scanner reports ranges in steps of range_resolution_m; a power-of-two step is
-        # exact in float32, which also lets the log's compression see the quantisation.
-        ranges = np.round(ranges / lp.range_resolution_m) * lp.range_resolution_m
-        ranges = ranges.astype(np.float32).reshape(starts.size, lp.beams)
+        ranges = self.measured_ranges(rays, ranges)
+        jitter_ns = lp.stamp_jitter_s * 1e9
         for i, mount in enumerate(lp.mounts):
             rows = np.flatnonzero(lasers_idx == i)
             if rows.size == 0:
@@ -528,8 +576,12 @@ class SensorSuite:
             topic = self.topics_laser[i]
             clock = self.clocks[topic]
             t_true = starts[rows]
+            host = np.clip(
+                self.laser_rng.normal(0.0, jitter_ns, rows.size), -3 * jitter_ns, 3 * jitter_ns
+            )
+            stamps = clock.stamps(self.rng, t_true) + np.round(host).astype(np.int64)
             cols = {
-                **header_columns(clock.stamps(self.rng, t_true), mount.frame_id),
+                **header_columns(stamps, mount.frame_id),
                 "angle_min": lp.angle_min_rad,
                 "angle_max": lp.angle_min_rad + (lp.beams - 1) * lp.angle_increment_rad,
                 "angle_increment": lp.angle_increment_rad,
@@ -545,6 +597,70 @@ class SensorSuite:
                 clock.log_times(self.rng, t_true + int(span_ns)),
                 encode_batch("sensor_msgs/msg/LaserScan", cols),
             )
+
+    def measured_ranges(self, rays: LaserRays, ranges: FloatArray) -> NDArray[np.float32]:
+        """What the scanners report (n_scans, beams) for the footprint ranges ``ranges``
+        (n_scans * beams,; inf: no return): plus each laser's constant bias and the
+        statistical noise, random dropouts (inf), out-of-range readings (inf), dust (NaN),
+        quantised to ``range_resolution_m``."""
+        lp = self.p.laser
+        n_scans = rays.starts_ns.size
+        bias = np.asarray(self.laser_truth.range_bias_m)[rays.laser_index]
+        ranges = ranges + np.repeat(bias, lp.beams)
+        ranges = ranges + self.rng.normal(0, lp.range_noise_m, ranges.size)
+        ranges[self.rng.random(ranges.size) < lp.dropout_probability] = np.inf
+        ranges[(ranges < lp.range_min_m) | (ranges > lp.range_max_m)] = np.inf
+        ranges = ranges.reshape(n_scans, lp.beams)
+        ranges[self._dust(rays)] = np.nan
+        # The scanner reports ranges in counts of range_resolution_m (NaN and inf stay).
+        ranges = np.round(ranges / lp.range_resolution_m) * lp.range_resolution_m
+        return ranges.astype(np.float32)
+
+    def _dust(self, rays: LaserRays) -> NDArray[np.bool_]:
+        """Beams (n_scans, beams) lost in dust. Per laser a dust episode starts at a rate
+        growing with speed, lasts an exponential time and hides one sector of beams in part
+        (LaserParams); the state carries over from block to block. One step per scan (not per
+        beam): an episode is a run of scans."""
+        lp = self.p.laser
+        lost = np.zeros((rays.starts_ns.size, lp.beams), dtype=bool)
+        if lp.dust_onset_per_s <= 0:
+            return lost
+        rng = self.laser_rng
+        period_s = 1.0 / lp.rate_hz
+        p_start = 1.0 - np.exp(-lp.dust_onset_per_s * rays.speed_mps / 10.0 * period_s)
+        draws = rng.random(rays.starts_ns.size)
+        beam = np.arange(lp.beams)
+        for row in np.argsort(rays.starts_ns, kind="stable"):
+            i = int(rays.laser_index[row])
+            start = int(rays.starts_ns[row])
+            if start >= self._dust_until_ns[i] and draws[row] < p_start[row]:
+                duration_ns = int(rng.exponential(lp.dust_duration_s) * 1e9)
+                self._dust_until_ns[i] = start + duration_ns
+                width = int(rng.integers(lp.dust_sector_beams[0], lp.dust_sector_beams[1] + 1))
+                first = int(rng.integers(0, lp.beams - width + 1))
+                self._dust_sector[i] = (first, first + width)
+            if start < self._dust_until_ns[i]:
+                lo, hi = self._dust_sector[i]
+                lost[row] = (beam >= lo) & (beam < hi)
+        dusty = lost.any(axis=1)
+        lost[dusty] &= rng.random((int(dusty.sum()), lp.beams)) < lp.dust_drop_probability
+        return lost
+
+    def _flex_pitch(self, ext: TrueBlock, t_ext: FloatArray, t: FloatArray) -> FloatArray:
+        """The mounts' flex at times ``t`` (k,): rotations (k, 3, 3) about base_link's y by
+        ``flex_pitch_rad_per_mps2 * ((f_z - g) - f_x)`` (positive pitch is nose-down)."""
+        f = ext.specific_force_body_mps2
+        fx = np.interp(t, t_ext, f[:, 0])
+        fz = np.interp(t, t_ext, f[:, 2])
+        pitch = self.p.laser.flex_pitch_rad_per_mps2 * ((fz - GRAVITY_MPS2) - fx)
+        c, s = np.cos(pitch), np.sin(pitch)
+        out = np.zeros((t.size, 3, 3))
+        out[:, 0, 0] = c
+        out[:, 0, 2] = s
+        out[:, 1, 1] = 1.0
+        out[:, 2, 0] = -s
+        out[:, 2, 2] = c
+        return out
 
     @staticmethod
     def _pose_at(ext: TrueBlock, t_ext: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -565,7 +681,8 @@ def _concat_blocks(a: TrueBlock, b: TrueBlock, tail: int) -> TrueBlock:
 
 
 def static_transforms(params: SensorParams, stamp_ns: int) -> dict[str, object]:
-    """``/tf_static``: ``base_link`` to every sensor frame."""
+    """``/tf_static``: ``base_link`` to every sensor frame, as published: the lasers' nominal
+    mounts, not their true (miscalibrated) ones, which only ``terrain_sim`` records."""
     mounts: list[Mount] = [*params.laser.mounts, params.imu.mount, params.gps.mount]
     transforms = []
     for m in mounts:
@@ -626,7 +743,14 @@ def _jsonable(obj: object) -> object:
 
 
 def sim_metadata(profile: SimProfile, seed: int, suite: SensorSuite) -> dict[str, str]:
-    """The ``terrain_sim`` metadata record: enough to rebuild the world and every truth."""
+    """The ``terrain_sim`` metadata record: enough to rebuild the world and every truth.
+
+    Besides the parameters (``sensors`` holds every :class:`LaserParams` field), the lasers'
+    draws: ``laser_true_mounts`` (frame -> true ``xyz_m`` and ``rpy_rad``; ``/tf_static`` has
+    the nominal ones), ``laser_range_bias_m`` (frame -> constant range bias) and
+    ``laser_phase_ns`` (frame -> true start of the first scan after ``start_time_ns``, so a
+    scan's true start is ``start + phase + n / rate_hz``: the stamp less the clock offset,
+    within its jitter, rounds to it)."""
     return {
         "profile": profile.name,
         "seed": str(seed),
@@ -641,6 +765,23 @@ def sim_metadata(profile: SimProfile, seed: int, suite: SensorSuite) -> dict[str
         "clock_offsets_ns": json.dumps({t: c.offset_ns for t, c in suite.clocks.items()}),
         "gps_dropouts_ns": json.dumps(suite.dropouts),
         "wheel_scale": json.dumps(suite.wheel_scale.tolist()),
+        "laser_true_mounts": json.dumps(
+            {m.frame_id: {"xyz_m": m.xyz_m, "rpy_rad": m.rpy_rad} for m in suite.laser_truth.mounts}
+        ),
+        "laser_range_bias_m": json.dumps(
+            {
+                m.frame_id: b
+                for m, b in zip(
+                    suite.laser_truth.mounts, suite.laser_truth.range_bias_m, strict=True
+                )
+            }
+        ),
+        "laser_phase_ns": json.dumps(
+            {
+                m.frame_id: float(ph)
+                for m, ph in zip(suite.laser_truth.mounts, suite.laser_phase_ns, strict=True)
+            }
+        ),
     }
 
 
@@ -652,11 +793,14 @@ def simulate(
     seed: int = 0,
     show_progress: bool = False,
     workers: int | None = None,
+    lasers: bool = True,
 ) -> SimResult:
     """Simulate a drive and write it to ``out_path`` (complete, or not at all).
 
     ``workers`` processes cast the laser rays (default: one when the machine has more than
-    one core, else none); the log does not depend on it.
+    one core, else none); the log does not depend on it. ``lasers=False`` leaves the laser
+    scans out: the vehicle's motion and its IMU are the same as with them (the other
+    sensors' noise draws are not), a fast log for judging the physics and the labels.
     """
     if workers is None:
         workers = 1 if (os.cpu_count() or 1) > 1 else 0
@@ -692,7 +836,7 @@ def simulate(
             TOPIC_TF_STATIC: "tf2_msgs/msg/TFMessage",
             TOPIC_TRUTH_ODOM: "nav_msgs/msg/Odometry",
             TOPIC_TRUTH_FEATURES: "terrain_msgs/msg/RoughFeatureArray",
-            **{t: "sensor_msgs/msg/LaserScan" for t in suite.topics_laser},
+            **{t: "sensor_msgs/msg/LaserScan" for t in suite.topics_laser if lasers},
         }
         for topic, type_name in topics.items():
             writer.register(topic, type_name)
@@ -735,13 +879,14 @@ def simulate(
                 return executor.submit(_cast_in_worker, rays)
         else:
             start_cast = partial(_cast_now, LaserCaster(prof.world, seed, prof.sensors.laser))
-        pending: deque[tuple[TrueBlock, TrueBlock, LaserRays | None, Future[FloatArray] | None]] = (
-            deque()
-        )
+        pending: deque[
+            tuple[TrueBlock, ImuSamples | None, LaserRays | None, Future[FloatArray] | None]
+        ] = deque()
+        meter = ShockMeter.for_imu(prof.sensors.imu.rate_hz, default_config().label)
 
         def finish_oldest() -> None:
-            block, ext, rays, future = pending.popleft()
-            suite.imu(ext, HISTORY_SAMPLES, out)
+            block, imu, rays, future = pending.popleft()
+            suite.imu(imu, out)
             suite.wheels(block, out)
             suite.gps(block, out)
             suite.truth(block, out)
@@ -755,9 +900,13 @@ def simulate(
             while driver.sigma_m < driver.end_sigma_m:
                 block = driver.step(BLOCK_SAMPLES)
                 ext = _concat_blocks(prev, block, HISTORY_SAMPLES)
-                rays = suite.plan_lasers(ext, HISTORY_SAMPLES)
+                imu = suite.sample_imu(ext, HISTORY_SAMPLES)
+                if imu is not None:  # the controller reads the shock its IMU felt
+                    shock_g = meter.read(imu.accel_mps2[:, 2])
+                    driver.controller.on_shock(shock_g, float(block.speed_mps[-1]))
+                rays = suite.plan_lasers(ext, HISTORY_SAMPLES) if lasers else None
                 future = start_cast(rays) if rays is not None else None
-                pending.append((block, ext, rays, future))
+                pending.append((block, imu, rays, future))
                 if len(pending) > 2 * workers:
                     finish_oldest()
                 prev = block

@@ -1,0 +1,131 @@
+"""The label rate of the simulated race over several seeds: issue 11's "must show" in numbers.
+
+For each seed: simulates a ``race`` log (default 6 km), ingests, poses and labels it with the
+label stage's filter, then labels it again with the filter's stop edge at 9, 10 and 11 Hz
+(pass edge 5 Hz above, 40 taps), and counts what lies under each positive event (the truth
+feature's kind, or background roughness). Prints one line per seed and a summary; writes
+``seeds.json`` into ``--out``. Logs are kept in ``--out`` so a rerun skips the simulation.
+
+Usage: python benchmarks/sim_seeds.py --out DIR [--seeds 601 602 603 604 605 606]
+       [--distance-m 6000] [--no-lasers] [--jobs 2]
+
+``--no-lasers`` simulates without laser scans (the drive and the IMU are the same, so are the
+labels): several times faster, for tuning the vehicle.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import polars as pl
+
+from toolkit.config import default_config
+from toolkit.stages.ingest import ingest_log
+from toolkit.stages.label import run_label
+from toolkit.stages.pose import run_pose
+from toolkit.tableio import read_table
+from toolkit.workspace import Workspace
+
+STOP_EDGES_HZ = (9.0, 10.0, 11.0)
+
+
+def label_rates(log: Path) -> dict[str, object]:
+    """Events, rough share per stop edge and the positives' kinds for one log."""
+    cfg = default_config()
+    with tempfile.TemporaryDirectory(prefix="sim_seeds_") as tmp:
+        ws = Workspace(Path(tmp) / "ws")
+        log_id = ingest_log(log, ws, cfg).log_id
+        run_pose(ws, log_id, cfg)
+        by_edge: dict[str, float] = {}
+        for stop in STOP_EDGES_HZ:
+            label = dataclasses.replace(cfg.label, fir_stop_hz=stop, fir_pass_hz=stop + 5.0)
+            r = run_label(ws, log_id, dataclasses.replace(cfg, label=label), overwrite=True)
+            by_edge[f"{stop:g}"] = round(100.0 * r.rough / max(r.events, 1), 4)
+        result = run_label(ws, log_id, cfg, overwrite=True)
+        events = read_table(ws.log_dir(log_id) / "events.parquet", "events")
+        rough = events.filter(events.column("rough")).to_pylist()
+        kinds = Counter(str(row.get("truth_feature_kind") or "background") for row in rough)
+        # How far each kind is from the threshold: ruggedness quantiles per truth kind.
+        frame = pl.from_arrow(events).with_columns(
+            pl.col("truth_feature_kind").fill_null("background").alias("kind")
+        )
+        spread = (
+            frame.group_by("kind")
+            .agg(
+                pl.len().alias("n"),
+                pl.col("ruggedness").quantile(0.5).alias("p50"),
+                pl.col("ruggedness").quantile(0.9).alias("p90"),
+                pl.col("ruggedness").max().alias("max"),
+            )
+            .sort("kind")
+        )
+    return {
+        "events": result.events,
+        "rough": result.rough,
+        "rough_percent": round(100.0 * result.rough_rate, 4),
+        "rough_percent_by_stop_edge_hz": by_edge,
+        "positives_by_kind": dict(kinds),
+        "ruggedness_by_kind": {
+            r["kind"]: [r["n"], round(r["p50"], 4), round(r["p90"], 4), round(r["max"], 4)]
+            for r in spread.to_dicts()
+        },
+    }
+
+
+def one_seed(job: tuple[int, Path, float, bool]) -> dict[str, object]:
+    """Simulates (unless the log exists) and labels one seed."""
+    seed, out, distance_m, no_lasers = job
+    log = out / f"race_{seed}{'_nolasers' if no_lasers else ''}.mcap"
+    sim_s = None
+    if not log.exists():
+        t = time.perf_counter()
+        subprocess.run(
+            [sys.executable, "-m", "toolkit", "sim", str(log), "--profile", "race",
+             "--distance-m", str(distance_m), "--seed", str(seed),
+             *(["--no-lasers"] if no_lasers else [])],
+            check=True, stdout=subprocess.DEVNULL,
+        )  # fmt: skip
+        sim_s = round(time.perf_counter() - t, 1)
+    row = label_rates(log)
+    row["sim_seconds"] = sim_s
+    return row
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[601, 602, 603, 604, 605, 606])
+    ap.add_argument("--distance-m", type=float, default=6000.0)
+    ap.add_argument("--no-lasers", action="store_true")
+    ap.add_argument("--jobs", type=int, default=1, help="seeds run in parallel")
+    args = ap.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    print(f"load average {os.getloadavg()}")
+    results: dict[str, object] = {}
+    jobs = [(seed, args.out, args.distance_m, args.no_lasers) for seed in args.seeds]
+    with ProcessPoolExecutor(max_workers=args.jobs) as pool:
+        for seed, row in zip(args.seeds, pool.map(one_seed, jobs), strict=True):
+            results[str(seed)] = row
+            edges = row["rough_percent_by_stop_edge_hz"]
+            print(
+                f"seed {seed}: {row['events']} events, rough {row['rough_percent']} % "
+                f"(stop edge 9/10/11 Hz: {edges}), positives {row['positives_by_kind']}, "
+                f"sim {row['sim_seconds']} s",
+                flush=True,
+            )
+            print(f"  ruggedness [n, p50, p90, max] by kind: {row['ruggedness_by_kind']}")
+    (args.out / "seeds.json").write_text(json.dumps(results, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
