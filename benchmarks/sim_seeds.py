@@ -47,10 +47,18 @@ def label_rates(log: Path) -> dict[str, object]:
         log_id = ingest_log(log, ws, cfg).log_id
         run_pose(ws, log_id, cfg)
         by_edge: dict[str, float] = {}
+        kinds_by_edge: dict[str, dict[str, int]] = {}
         for stop in STOP_EDGES_HZ:
             label = dataclasses.replace(cfg.label, fir_stop_hz=stop, fir_pass_hz=stop + 5.0)
             r = run_label(ws, log_id, dataclasses.replace(cfg, label=label), overwrite=True)
             by_edge[f"{stop:g}"] = round(100.0 * r.rough / max(r.events, 1), 4)
+            edge_events = read_table(ws.log_dir(log_id) / "events.parquet", "events")
+            kinds_by_edge[f"{stop:g}"] = dict(
+                Counter(
+                    str(row.get("truth_feature_kind") or "background")
+                    for row in edge_events.filter(edge_events.column("rough")).to_pylist()
+                )
+            )
         result = run_label(ws, log_id, cfg, overwrite=True)
         events = read_table(ws.log_dir(log_id) / "events.parquet", "events")
         rough = events.filter(events.column("rough")).to_pylist()
@@ -74,6 +82,7 @@ def label_rates(log: Path) -> dict[str, object]:
         "rough": result.rough,
         "rough_percent": round(100.0 * result.rough_rate, 4),
         "rough_percent_by_stop_edge_hz": by_edge,
+        "positives_by_kind_by_stop_edge_hz": kinds_by_edge,
         "positives_by_kind": dict(kinds),
         "ruggedness_by_kind": {
             r["kind"]: [r["n"], round(r["p50"], 4), round(r["p90"], 4), round(r["max"], 4)]
@@ -124,6 +133,7 @@ def main() -> None:
                 flush=True,
             )
             print(f"  ruggedness [n, p50, p90, max] by kind: {row['ruggedness_by_kind']}")
+            print(f"  positives by kind at stop edge 9/10/11 Hz: {row['positives_by_kind_by_stop_edge_hz']}")
     (args.out / "seeds.json").write_text(json.dumps(results, indent=2) + "\n")
 
 

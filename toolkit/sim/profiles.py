@@ -78,7 +78,7 @@ def make_profile(name: str, distance_m: float | None = None) -> SimProfile:
     if name == "race":
         return SimProfile(
             name=name,
-            world=WorldParams(length_m=distance_m or 8000.0, feature_rate_per_km=16.0),
+            world=WorldParams(length_m=distance_m or 8000.0, feature_rate_per_km=50.0),
             # Random dropouts as well, but one of 10 s for certain, so every race log checks
             # how far the pose drifts while it coasts.
             sensors=replace(

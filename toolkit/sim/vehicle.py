@@ -132,15 +132,15 @@ class VehicleParams:
     sprung_mass_kg: float = 2200.0
     pitch_inertia_kgm2: float = 3800.0
     roll_inertia_kgm2: float = 850.0
-    unsprung_mass_kg: float = 65.0
+    unsprung_mass_kg: float = 55.0
     spring_n_per_m: float = 30000.0
-    body_damping_ratio: float = 0.25
-    tyre_n_per_m: float = 300000.0
+    body_damping_ratio: float = 0.30
+    tyre_n_per_m: float = 320000.0
     tyre_damping_ns_per_m: float = 100.0
     wheel_radius_m: float = 0.38
     tyre_width_m: float = 0.22
     tyre_pressure_pa: float = 200e3
-    bump_stop_clearance_m: float = 0.06
+    bump_stop_clearance_m: float = 0.045
     bump_stop_n_per_m: float = 300000.0
 
     @property

@@ -54,7 +54,7 @@ FEATURE_KINDS = ("washboard", "pothole", "rock", "rut", "cattle_guard")
 # Beaucham, CRREL SR 92-26, 1992); rock heights are judgement (what a 0.2-0.5 m desert
 # stone shows above the ground), capped per rock by its footprint (see make_features).
 FEATURE_HEIGHT_RANGE_M = {
-    "washboard": (0.015, 0.04),
+    "washboard": (0.008, 0.025),
     "pothole": (0.03, 0.15),
     "rock": (0.03, 0.15),
     "rut": (0.02, 0.08),
@@ -69,11 +69,11 @@ FEATURE_HEIGHT_RANGE_M = {
 # 2000, ch. 1); ruts form only where the surface is soft, and cattle guards sit only where
 # a fence crosses the road.
 FEATURE_KIND_WEIGHTS = {
-    "washboard": 0.25,
-    "pothole": 0.30,
-    "rock": 0.30,
+    "washboard": 0.02,
+    "pothole": 0.31,
+    "rock": 0.54,
     "rut": 0.10,
-    "cattle_guard": 0.05,
+    "cattle_guard": 0.03,
 }
 
 # -- Where features lie across the road (d, left positive) --------------------------------
@@ -144,7 +144,7 @@ class WorldParams:
     length_m: float
     road_half_width_m: float = 3.5
     road_class: str = "D"
-    rough_class: str = "F"
+    rough_class: str = "E"
     rough_stretch_fraction: float = 0.15
     offroad_class: str = "F"
     feature_rate_per_km: float = 6.0
