@@ -1,13 +1,30 @@
-"""The ``race`` profile's rough events, labelled by the reference labeller (paper, Sect. 5
-and 7): about 0.3-0.6 % of 1.4 m events reach 0.02 G/mph, and event shocks span about
-0.02 G to 0.6 G."""
+"""The ``race`` profile's rough events (paper, Sect. 5 and 7; issue 11).
+
+By the label stage itself (ingest, pose, label, with its 40-tap filter): about 0.3-0.6 % of
+1.4 m events reach 0.02 G/mph, a share that moves by less than a factor of three as the
+filter's band edge moves from 9 to 11 Hz, and the positives come from several kinds of
+feature and from the background roughness. By the reference labeller: the event count and
+that event shocks span about 0.02 G to 0.6 G. The race seed here (1) is not one of those the
+simulator was tuned on (601-606, ``benchmarks/sim_seeds.py``).
+"""
 
 from __future__ import annotations
+
+import dataclasses
+from collections import Counter
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+from toolkit.config import default_config
 from toolkit.sim.profiles import make_profile
+from toolkit.sim.simulate import SimResult
+from toolkit.stages.ingest import ingest_log
+from toolkit.stages.label import run_label
+from toolkit.stages.pose import run_pose
+from toolkit.tableio import read_table
+from toolkit.workspace import Workspace
 
 from .logdata import SimLog, label_log
 from .reference_labeller import Events
@@ -33,12 +50,53 @@ def test_race_has_enough_events(events: Events, race_log: SimLog) -> None:
     assert len(events) > 2000
 
 
-def test_race_positive_fraction(events: Events) -> None:
-    """About 0.3-0.6 % of events reach 0.02 G/mph (the paper: 0.36 % and 0.44 %)."""
-    fraction = float(events.positive.mean())
-    assert 0.003 <= fraction <= 0.006, (
-        f"{events.positive.sum()} of {len(events)} events positive ({fraction:.3%})"
+@pytest.fixture(scope="module")
+def stage_labels(
+    race_result: SimResult, tmp_path_factory: pytest.TempPathFactory
+) -> dict[float, list[str]]:
+    """The label stage's rough events on the race log, as their truth kinds ("background"
+    where no feature lies under a rear tyre), with the filter's stop edge at 9, 10 (the
+    default) and 11 Hz (pass edge 5 Hz above), and the event count under "events"."""
+    cfg = default_config()
+    ws = Workspace(tmp_path_factory.mktemp("race_ws") / "ws")
+    log_id = ingest_log(Path(race_result.path), ws, cfg).log_id
+    run_pose(ws, log_id, cfg)
+    out: dict[float, list[str]] = {}
+    for stop in (9.0, 11.0, cfg.label.fir_stop_hz):
+        label = dataclasses.replace(cfg.label, fir_stop_hz=stop, fir_pass_hz=stop + 5.0)
+        run_label(ws, log_id, dataclasses.replace(cfg, label=label), overwrite=True)
+        events = read_table(ws.log_dir(log_id) / "events.parquet", "events")
+        rough = events.filter(events.column("rough")).column("truth_feature_kind").to_pylist()
+        out[stop] = [kind or "background" for kind in rough]
+        out.setdefault(-1.0, [""] * events.num_rows)
+    print(
+        f"\nlabel stage on the race log: {len(out[-1.0])} events; rough at stop edge "
+        + ", ".join(f"{k:g} Hz {len(v)} {dict(Counter(v))}" for k, v in out.items() if k > 0)
     )
+    return out
+
+
+def test_race_positive_fraction(stage_labels: dict[float, list[str]]) -> None:
+    """About 0.3-0.6 % of events reach 0.02 G/mph (the paper: 0.36 % and 0.44 %)."""
+    n = len(stage_labels[-1.0])
+    fraction = len(stage_labels[default_config().label.fir_stop_hz]) / n
+    assert 0.003 <= fraction <= 0.006, f"{fraction:.3%} of {n} events"
+
+
+def test_race_positive_fraction_holds_as_the_band_edge_moves(
+    stage_labels: dict[float, list[str]],
+) -> None:
+    """From a 9 Hz to an 11 Hz stop edge the positives change by less than a factor of 3."""
+    at_9, at_11 = len(stage_labels[9.0]), len(stage_labels[11.0])
+    assert at_11 > 0 and at_9 / at_11 < 3.0, (at_9, at_11)
+
+
+def test_race_positives_come_from_features_and_background(
+    stage_labels: dict[float, list[str]],
+) -> None:
+    kinds = Counter(stage_labels[default_config().label.fir_stop_hz])
+    assert kinds["background"] > 0, kinds
+    assert len(set(kinds) - {"background"}) >= 3, kinds
 
 
 def test_race_shock_span(events: Events) -> None:

@@ -78,6 +78,9 @@ def make_profile(name: str, distance_m: float | None = None) -> SimProfile:
     if name == "race":
         return SimProfile(
             name=name,
+            # 50 features per km (one per 20 m, most of them stones of 3-5 cm, a third beside
+            # the wheels): with the class E rough stretches, 0.3-0.6 % of 1.4 m events reach
+            # 0.02 G/mph on race seeds 601-606 (benchmarks/README.md), as in Sect. 7.
             world=WorldParams(length_m=distance_m or 8000.0, feature_rate_per_km=50.0),
             # Random dropouts as well, but one of 10 s for certain, so every race log checks
             # how far the pose drifts while it coasts.

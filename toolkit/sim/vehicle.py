@@ -78,29 +78,34 @@ class VehicleParams:
     track) with about 2.2 t sprung including its equipment; unchanged from the first model.
 
     Suspension and tyres. Modes of the whole model (:func:`modal_summary`, eigenvalues of the
-    full car): heave 1.12 Hz at a damping ratio of 0.22, pitch 1.24 Hz at 0.24, roll 1.51 Hz
-    at 0.29, wheel hop 11.1-11.3 Hz at 0.23-0.24.
+    full car): heave 1.13 Hz at a damping ratio of 0.26, pitch 1.25 Hz at 0.29, roll 1.53 Hz
+    at 0.35, wheel hop 12.4-12.7 Hz at 0.29-0.30.
 
     * ``spring_n_per_m`` 30 kN/m at each wheel: body bounce near 1.1 Hz, at the soft end of
       the 1-1.5 Hz that Gillespie (1992, ch. 5) gives for cars, as off-road vehicles are set
       up for travel rather than body control.
-    * ``body_damping_ratio`` 0.25: ``cs / (2 sqrt(ks ms / 4))``, Gillespie's quarter-car
+    * ``body_damping_ratio`` 0.30: ``cs / (2 sqrt(ks ms / 4))``, Gillespie's quarter-car
       damping ratio (1992, ch. 5), whose range for modern cars he gives as 0.2-0.4; Wong
       (2001, ch. 7) shows the same range as the compromise between ride and road holding.
-      The first model's 4500 N s/m was 0.5, about twice typical (issue 11). At the low end
-      because the damper also damps wheel hop: at the hop frequency ``w_u`` the body's
-      acceleration is about ``kt r / ms`` whatever the damping, against about ``cs w r / ms``
-      between the two modes, so on a road whose velocity spectrum is flat (ISO 8608) the hop
-      peak stands above the floor only while ``cs < kt / w_u``, about ``sqrt(kt mu)``.
-    * ``unsprung_mass_kg`` 65 kg per corner: wheel and tyre (about 25 kg for an 18 inch alloy
-      with a 255/55 tyre), brake, hub carrier and half the links, spring and drive shaft of a
-      heavy SUV; about 11 % of the corner's sprung mass, near the tenth Gillespie (1992,
-      ch. 5) takes as typical.
-    * ``tyre_n_per_m`` 300 kN/m: the vertical rate of a large SUV radial (extra-load 255/55
+      The first model's 4500 N s/m was 0.5, about twice typical (issue 11). In the lower half
+      of the range because the damper also damps wheel hop: at the hop frequency ``w_u`` the
+      body's acceleration is about ``kt r / ms`` whatever the damping, against about
+      ``cs w r / ms`` between the two modes, so on a road whose velocity spectrum is flat
+      (ISO 8608) the hop peak stands above the floor only while ``cs < kt / w_u``, about
+      ``sqrt(kt mu)`` (here 2.4 kN s/m against 4.1). Not at its bottom, 0.2-0.25: a wheel
+      hop damped to 0.23 rings for several cycles over washboard near its frequency, which
+      made the labels hang on where the shock filter's band starts (tuned on race seeds
+      601-606, ``benchmarks/sim_seeds.py``; see benchmarks/README.md).
+    * ``unsprung_mass_kg`` 55 kg per corner: wheel and tyre (about 25 kg for an 18 inch alloy
+      with a 255/55 tyre), brake, aluminium hub carrier and half of the (aluminium) links,
+      spring and drive shaft of a heavy SUV; 10 % of the corner's 550 kg sprung mass, the
+      tenth Gillespie (1992, ch. 5) takes as typical.
+    * ``tyre_n_per_m`` 320 kN/m: the vertical rate of a large SUV radial (extra-load 255/55
       R18). Car tyres are about 150-300 kN/m, the rate growing with size and pressure
-      (Pacejka 2006, ch. 10; Wong 2001, ch. 1); this is an estimate at the top of that range,
-      not a measurement. With the spring it puts wheel hop at ``sqrt((ks + kt) / mu) / 2 pi``
-      = 11.3 Hz, inside the 10-15 Hz that Gillespie (1992, ch. 5) gives for wheel hop.
+      (Pacejka 2006, ch. 10; Wong 2001, ch. 1); a light-truck-sized, extra-load tyre is a
+      little above that range. An estimate, not a measurement. With the spring it puts wheel
+      hop at ``sqrt((ks + kt) / mu) / 2 pi`` = 12.7 Hz, inside the 10-15 Hz that Gillespie
+      (1992, ch. 5) gives for wheel hop, and clear of the shock filter's 10 Hz band edge.
     * ``tyre_damping_ns_per_m`` 100 N s/m: a rolling radial tyre damps little, far less than
       the damper (Wong 2001, ch. 1, on the tyre's vertical damping falling with speed); about
       1 % of critical for the wheel-hop mode.
@@ -111,12 +116,12 @@ class VehicleParams:
     * ``tyre_pressure_pa`` 200 kPa (29 psi): a little under road pressure (about 240 kPa), as
       desert drivers air down. The print's mean ground pressure is the inflation pressure
       plus a small carcass term (Wong 2001, ch. 2, for a tyre on firm ground), so the print
-      is ``W / (p b)`` = 0.13 m (front) and 0.14 m (rear) long.
-    * ``bump_stop_clearance_m`` 0.06 m: the wheel's travel up from static ride height until
+      is ``W / (p b)`` = 0.128 m (front) and 0.141 m (rear) long.
+    * ``bump_stop_clearance_m`` 0.045 m: the wheel's travel up from static ride height until
       the jounce bumper on the damper rod is met. Gillespie (1992, ch. 5) takes about
       +-0.1 m as the "rattle space" of a car suspension, of which the bumper's free travel is
       the larger part; Stanley rode low, with some 200 kg of computers, sensors and rack on a
-      stock Touareg, so less than that is left (judgement, not a measurement).
+      stock Touareg, so less than half of that is left (judgement, not a measurement).
     * ``bump_stop_n_per_m`` 300 kN/m: the jounce bumper's rate once met, ten times the
       spring's. Micro-cellular polyurethane bumpers stiffen progressively from about the
       spring's rate to many times it over their 20-40 mm of crush (Gillespie 1992, ch. 5,

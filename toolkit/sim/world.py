@@ -7,7 +7,7 @@ height of the ground is the sum of
 * a smooth part: the route's hills ``z0(s)`` plus a cross profile ``crossfall(d)`` (a crowned
   road, shoulders and low graded berms beside it);
 * fine random roughness on the road with an ISO 8608 displacement spectrum
-  ``Gd(n) = Gd(n0) (n / n0)^-2`` with ``n0 = 0.1`` cycles/m (class D on the dirt road, E-F in
+  ``Gd(n) = Gd(n0) (n / n0)^-2`` with ``n0 = 0.1`` cycles/m (class D on the dirt road, E in
   rough stretches), synthesised on a 5 cm grid;
 * coarser, rougher terrain beside the road on a 20 cm grid;
 * sparse discrete rough features (washboard, potholes, rocks, ruts, cattle guards), placed
@@ -48,7 +48,8 @@ ISO8608_CLASS_GD_N0_M3 = {
 
 FEATURE_KINDS = ("washboard", "pothole", "rock", "rut", "cattle_guard")
 # Height (peak-to-peak, or depth) range of each kind, metres: washboard corrugations are
-# shallow but periodic; ruts and cattle-guard decks are bounded by what traffic leaves.
+# shallow but periodic (0.8-2.5 cm: the corrugations of a graded road between gradings;
+# judgement), ruts and cattle-guard decks are bounded by what traffic leaves.
 # Pothole depths span the three depth classes of the unsurfaced-road pothole rating
 # (TM 5-626, 1995, ch. 3, distress "Potholes": 1/2-2 in, 2-4 in, over 4 in; Eaton &
 # Beaucham, CRREL SR 92-26, 1992); rock heights are judgement (what a 0.2-0.5 m desert
@@ -63,11 +64,18 @@ FEATURE_HEIGHT_RANGE_M = {
 # "ridge" is placed only on purpose (calibration obstacles), never at random.
 
 # Share of the random features of each kind (normalised over ``WorldParams.feature_kinds``).
-# Judgement: rocks and potholes are the common discrete hazards of a desert road, washboard
-# the common periodic one (corrugations cover long stretches of any unsurfaced road with
-# traffic; Skorseth & Selim, "Gravel Roads Maintenance and Design Manual", FHWA/SD LTAP
-# 2000, ch. 1); ruts form only where the surface is soft, and cattle guards sit only where
-# a fence crosses the road.
+# Judgement: stones are the common discrete hazard of a desert road (most of them small:
+# heights log-uniform), potholes the next; ruts form only where the surface is soft, and
+# cattle guards sit only where a fence crosses the road (at 50 features per km in the race
+# profile, 1.5 per km). Washboard is the common periodic hazard of any unsurfaced road with
+# traffic (Skorseth & Selim, "Gravel Roads Maintenance and Design Manual", FHWA/SD LTAP
+# 2000, ch. 1), but a stretch of it is one long, narrow-band excitation: at 25 % of the
+# features (the first model's share, 9 % of the road) it made most positive labels, and
+# which of them were positive hung on where the shock filter's band starts (a washboard
+# driven at v / wavelength near 10 Hz). At 2 % (one stretch per km, about 2 % of the road)
+# the positives come mostly from discrete impacts, as the paper's "small discontinuities"
+# (sect. 8). The shares were set with the label rate measured on race seeds 601-606
+# (benchmarks/sim_seeds.py; benchmarks/README.md), not taken from a survey.
 FEATURE_KIND_WEIGHTS = {
     "washboard": 0.02,
     "pothole": 0.31,
@@ -144,6 +152,10 @@ class WorldParams:
     length_m: float
     road_half_width_m: float = 3.5
     road_class: str = "D"
+    # Rough stretches are ISO class E ("very poor"), four times class D's spectral density.
+    # Class F (the first model's) over 15 % of the road had the wheels off the ground every
+    # few metres, a road a racer would not drive at the route's 10-17 m/s; and its Gaussian
+    # roughness, not features a laser could single out, made most of the rough labels.
     rough_class: str = "E"
     rough_stretch_fraction: float = 0.15
     offroad_class: str = "F"
