@@ -2,8 +2,8 @@
 
 * ``sample``: about a minute of driving on a road dense with rough features, for demos,
   the bundled sample log and quick tests.
-* ``race``: the realistic case. Rough features are sparse, so (with 1.4 m events) about
-  0.3-0.6 % of events reach 0.02 G/mph, as in the paper's Sect. 7.
+* ``race``: the realistic case. Rough features are mostly small stones, so (with 1.4 m
+  events) about 0.3-0.6 % of events reach 0.02 G/mph, as in the paper's Sect. 7.
 * ``calibration``: a straight, smooth road with five identical obstacles, each driven over
   at a different constant speed (5 to 15 m/s), for the shock-versus-speed line of Fig. 5.
   Identical copies of one obstacle stand in for turning round and driving it again.
@@ -78,10 +78,11 @@ def make_profile(name: str, distance_m: float | None = None) -> SimProfile:
     if name == "race":
         return SimProfile(
             name=name,
-            # 50 features per km (one per 20 m, most of them stones of 3-5 cm, a third beside
-            # the wheels): with the class E rough stretches, 0.3-0.6 % of 1.4 m events reach
-            # 0.02 G/mph on race seeds 601-606 (benchmarks/README.md), as in Sect. 7.
-            world=WorldParams(length_m=distance_m or 8000.0, feature_rate_per_km=50.0),
+            # 58 features per km (one per 17 m, most of them stones of 3-5 cm, a third beside
+            # the wheels): with the class E rough stretches, about 0.3-0.4 % of 1.4 m events
+            # reach 0.02 G/mph on race seeds 601-606 (benchmarks/README.md; Sect. 7: 0.36 and
+            # 0.44 %). Set with that rate in view, as the feature shares in world.py were.
+            world=WorldParams(length_m=distance_m or 8000.0, feature_rate_per_km=58.0),
             # Random dropouts as well, but one of 10 s for certain, so every race log checks
             # how far the pose drifts while it coasts.
             sensors=replace(

@@ -48,14 +48,14 @@ ISO8608_CLASS_GD_N0_M3 = {
 
 FEATURE_KINDS = ("washboard", "pothole", "rock", "rut", "cattle_guard")
 # Height (peak-to-peak, or depth) range of each kind, metres: washboard corrugations are
-# shallow but periodic (0.8-2.5 cm: the corrugations of a graded road between gradings;
+# shallow but periodic (0.5-2 cm: the corrugations of a graded road between gradings;
 # judgement), ruts and cattle-guard decks are bounded by what traffic leaves.
 # Pothole depths span the three depth classes of the unsurfaced-road pothole rating
 # (TM 5-626, 1995, ch. 3, distress "Potholes": 1/2-2 in, 2-4 in, over 4 in; Eaton &
 # Beaucham, CRREL SR 92-26, 1992); rock heights are judgement (what a 0.2-0.5 m desert
 # stone shows above the ground), capped per rock by its footprint (see make_features).
 FEATURE_HEIGHT_RANGE_M = {
-    "washboard": (0.008, 0.025),
+    "washboard": (0.005, 0.02),
     "pothole": (0.03, 0.15),
     "rock": (0.03, 0.15),
     "rut": (0.02, 0.08),
@@ -69,17 +69,21 @@ FEATURE_HEIGHT_RANGE_M = {
 # cattle guards sit only where a fence crosses the road (at 50 features per km in the race
 # profile, 1.5 per km). Washboard is the common periodic hazard of any unsurfaced road with
 # traffic (Skorseth & Selim, "Gravel Roads Maintenance and Design Manual", FHWA/SD LTAP
-# 2000, ch. 1), but a stretch of it is one long, narrow-band excitation: at 25 % of the
-# features (the first model's share, 9 % of the road) it made most positive labels, and
-# which of them were positive hung on where the shock filter's band starts (a washboard
-# driven at v / wavelength near 10 Hz). At 2 % (one stretch per km, about 2 % of the road)
-# the positives come mostly from discrete impacts, as the paper's "small discontinuities"
-# (sect. 8). The shares were set with the label rate measured on race seeds 601-606
-# (benchmarks/sim_seeds.py; benchmarks/README.md), not taken from a survey.
+# 2000, ch. 1), but a stretch of it is one long, narrow-band excitation: its ripples are
+# spaced by the speed of the traffic that made them over its wheels' hop frequency
+# (Taberlet, Morris & McElwaine, Phys. Rev. Lett. 99, 068003, 2007), so a vehicle driven at
+# a similar speed meets it near its own wheel hop, and near where the shock filter's band
+# starts. At 25 % of the features and 6-30 m a stretch (the first model's, 9 % of the road)
+# washboard made most positive labels and which of them were positive hung on that band
+# edge. At 3 % and 3-12 m a stretch (about 1 % of the road; corrugations gather where
+# traffic brakes and accelerates, Skorseth & Selim ch. 1) the positives come mostly from
+# discrete impacts, the paper's "small discontinuities" (sect. 8). The shares were set with
+# the label rate measured on race seeds 601-606 (benchmarks/sim_seeds.py;
+# benchmarks/README.md), not taken from a survey.
 FEATURE_KIND_WEIGHTS = {
-    "washboard": 0.02,
+    "washboard": 0.03,
     "pothole": 0.31,
-    "rock": 0.54,
+    "rock": 0.53,
     "rut": 0.10,
     "cattle_guard": 0.03,
 }
@@ -870,7 +874,7 @@ def make_features(
         height = _log_uniform(rng, h_lo, h_hi)
         if kind == "washboard":
             wavelength = float(rng.uniform(0.4, 1.0))
-            length = float(rng.uniform(6.0, 30.0))
+            length = float(rng.uniform(3.0, 12.0))
             out.append(RoughFeature(kind, s0, s0 + length, 0.0, 2 * half_road, height, wavelength))
         elif kind == "rut":
             length = float(rng.uniform(8.0, 40.0))
