@@ -133,7 +133,9 @@ def main() -> None:
                 flush=True,
             )
             print(f"  ruggedness [n, p50, p90, max] by kind: {row['ruggedness_by_kind']}")
-            print(f"  positives by kind at stop edge 9/10/11 Hz: {row['positives_by_kind_by_stop_edge_hz']}")
+            print(
+                f"  positives by kind at stop edge 9/10/11 Hz: {row['positives_by_kind_by_stop_edge_hz']}"
+            )
     (args.out / "seeds.json").write_text(json.dumps(results, indent=2) + "\n")
 
 

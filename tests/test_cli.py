@@ -201,6 +201,7 @@ def test_sim_passes_arguments_and_prints_summary(
                 "seed": 7,
                 "show_progress": False,
                 "workers": None,
+                "lasers": True,
             },
         )
     ]
@@ -211,7 +212,11 @@ def test_sim_passes_arguments_and_prints_summary(
         "seed": 0,
         "show_progress": False,
         "workers": 0,
+        "lasers": True,
     }
+    result = runner.invoke(main, ["sim", str(out), "--no-lasers"])
+    assert result.exit_code == 0, result.output
+    assert calls[-1][1]["lasers"] is False
 
 
 def test_sim_toolkit_error_exits_1(

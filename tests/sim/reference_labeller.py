@@ -36,11 +36,15 @@ def shock_filter_taps(rate_hz: float = 100.0, taps: int = FIR_TAPS) -> FloatArra
 
 
 def filtered_shock(
-    t_ns: NDArray[np.int64], accel_z: FloatArray, rate_hz: float = 100.0
+    t_ns: NDArray[np.int64],
+    accel_z: FloatArray,
+    rate_hz: float = 100.0,
+    taps: FloatArray | None = None,
 ) -> tuple[NDArray[np.int64], FloatArray, NDArray[np.bool_]]:
     """Filtered z acceleration, the delay-compensated times of its samples, and a mask of the
-    samples past the filter's start-up (the first ``taps`` outputs are transients)."""
-    taps = shock_filter_taps(rate_hz)
+    samples past the filter's start-up (the first ``taps`` outputs are transients). ``taps``
+    another linear-phase FIR than this module's (its delay is its half length too)."""
+    taps = shock_filter_taps(rate_hz) if taps is None else taps
     out = lfilter(taps, [1.0], accel_z)
     delay_ns = int(round((taps.size - 1) / 2 * 1e9 / rate_hz))
     settled = np.arange(out.size) >= taps.size

@@ -50,58 +50,62 @@ def test_race_has_enough_events(events: Events, race_log: SimLog) -> None:
     assert len(events) > 2000
 
 
+@dataclasses.dataclass(frozen=True)
+class StageLabels:
+    """The label stage's events on the race log: their count, every event's ``shock_g`` at
+    the default filter, and the rough events' truth kinds ("background" where no feature
+    lies under a rear tyre) by the filter's stop edge (Hz)."""
+
+    events: int
+    shock_g: np.ndarray
+    rough_kinds: dict[float, list[str]]
+
+
 @pytest.fixture(scope="module")
-def stage_labels(
-    race_result: SimResult, tmp_path_factory: pytest.TempPathFactory
-) -> dict[float, list[str]]:
-    """The label stage's rough events on the race log, as their truth kinds ("background"
-    where no feature lies under a rear tyre), with the filter's stop edge at 9, 10 (the
-    default) and 11 Hz (pass edge 5 Hz above), and the event count under "events"."""
+def stage_labels(race_result: SimResult, tmp_path_factory: pytest.TempPathFactory) -> StageLabels:
+    """Ingest, pose and label the race log; label it again with the filter's stop edge at 9
+    and 11 Hz (pass edge 5 Hz above), the default being 10 Hz."""
     cfg = default_config()
     ws = Workspace(tmp_path_factory.mktemp("race_ws") / "ws")
     log_id = ingest_log(Path(race_result.path), ws, cfg).log_id
     run_pose(ws, log_id, cfg)
-    out: dict[float, list[str]] = {}
+    kinds: dict[float, list[str]] = {}
     for stop in (9.0, 11.0, cfg.label.fir_stop_hz):
         label = dataclasses.replace(cfg.label, fir_stop_hz=stop, fir_pass_hz=stop + 5.0)
         run_label(ws, log_id, dataclasses.replace(cfg, label=label), overwrite=True)
         events = read_table(ws.log_dir(log_id) / "events.parquet", "events")
         rough = events.filter(events.column("rough")).column("truth_feature_kind").to_pylist()
-        out[stop] = [kind or "background" for kind in rough]
-        out.setdefault(-1.0, [""] * events.num_rows)
+        kinds[stop] = [kind or "background" for kind in rough]
+    out = StageLabels(events.num_rows, events.column("shock_g").to_numpy(), kinds)
     print(
-        f"\nlabel stage on the race log: {len(out[-1.0])} events; rough at stop edge "
-        + ", ".join(f"{k:g} Hz {len(v)} {dict(Counter(v))}" for k, v in out.items() if k > 0)
+        f"\nlabel stage on the race log: {out.events} events; rough at stop edge "
+        + ", ".join(f"{k:g} Hz {len(v)} {dict(Counter(v))}" for k, v in kinds.items())
     )
     return out
 
 
-def test_race_positive_fraction(stage_labels: dict[float, list[str]]) -> None:
+def test_race_positive_fraction(stage_labels: StageLabels) -> None:
     """About 0.3-0.6 % of events reach 0.02 G/mph (the paper: 0.36 % and 0.44 %)."""
-    n = len(stage_labels[-1.0])
-    fraction = len(stage_labels[default_config().label.fir_stop_hz]) / n
-    assert 0.003 <= fraction <= 0.006, f"{fraction:.3%} of {n} events"
+    rough = stage_labels.rough_kinds[default_config().label.fir_stop_hz]
+    fraction = len(rough) / stage_labels.events
+    assert 0.003 <= fraction <= 0.006, f"{fraction:.3%} of {stage_labels.events} events"
 
 
-def test_race_positive_fraction_holds_as_the_band_edge_moves(
-    stage_labels: dict[float, list[str]],
-) -> None:
+def test_race_positive_fraction_holds_as_the_band_edge_moves(stage_labels: StageLabels) -> None:
     """From a 9 Hz to an 11 Hz stop edge the positives change by less than a factor of 3."""
-    at_9, at_11 = len(stage_labels[9.0]), len(stage_labels[11.0])
+    at_9, at_11 = len(stage_labels.rough_kinds[9.0]), len(stage_labels.rough_kinds[11.0])
     assert at_11 > 0 and at_9 / at_11 < 3.0, (at_9, at_11)
 
 
-def test_race_positives_come_from_features_and_background(
-    stage_labels: dict[float, list[str]],
-) -> None:
-    kinds = Counter(stage_labels[default_config().label.fir_stop_hz])
+def test_race_positives_come_from_features_and_background(stage_labels: StageLabels) -> None:
+    kinds = Counter(stage_labels.rough_kinds[default_config().label.fir_stop_hz])
     assert kinds["background"] > 0, kinds
     assert len(set(kinds) - {"background"}) >= 3, kinds
 
 
-def test_race_shock_span(events: Events) -> None:
-    """Event shocks span about 0.02 G (negligible) to 0.6 G (severe)."""
-    p1 = float(np.percentile(events.shock_g, 1))
-    top = float(events.shock_g.max())
+def test_race_shock_span(stage_labels: StageLabels) -> None:
+    """Event shocks (the label stage's) span about 0.02 G (negligible) to 0.6 G (severe)."""
+    p1 = float(np.percentile(stage_labels.shock_g, 1))
+    top = float(stage_labels.shock_g.max())
     assert p1 <= 0.03
     assert 0.3 <= top <= 1.0

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
+from toolkit.analysis.shock import design_shock_fir
 from toolkit.sim.profiles import CALIBRATION_SPEEDS_MPS, make_profile
 
 from .logdata import GRAVITY_MPS2, SimLog, on_grid_true_times
@@ -53,7 +54,8 @@ def imu_track(log: SimLog) -> ImuTrack:
     t, az = t[inside], az[inside]
     speed = tr.speed
     accel = np.gradient(speed, (tr.t_ns - tr.t_ns[0]) * 1e-9)
-    t_f, shock, settled = filtered_shock(t, az, p.rate_hz)
+    # The label stage's own filter (the paper's: 40 taps, 0-10 Hz removed), as issue 11 asks.
+    t_f, shock, settled = filtered_shock(t, az, p.rate_hz, design_shock_fir(p.rate_hz).taps)
     return ImuTrack(
         t_ns=t,
         accel_z=az,

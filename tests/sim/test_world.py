@@ -323,7 +323,9 @@ def test_on_a_race_some_features_are_met_by_one_wheel_some_by_both_many_missed()
     )
     # Over seeds 1-30 the share met is 0.49-0.70 (mean 0.61): well below today's 0.9.
     assert 0.35 <= met <= 0.75
-    assert min(total[0], total[1], total[2]) >= 0.1 * n
+    # Missed and met by one wheel are the common cases; met by both (washboard, cattle guards
+    # and wide potholes span the track) the rarer one.
+    assert min(total[0], total[1]) >= 0.1 * n and total[2] >= 0.05 * n
     for kind in ("rock", "pothole"):
         c = table[kind]
         assert sum(c.values()) >= 10, kind

@@ -60,7 +60,7 @@ def make_profile(name: str, distance_m: float | None = None) -> SimProfile:
         return SimProfile(
             name=name,
             world=WorldParams(
-                length_m=distance_m or 540.0,
+                length_m=distance_m or 760.0,
                 # Dense, so a minute holds a dozen rough events although about 40 % of the
                 # features lie beside the wheels (toolkit.sim.world.make_features).
                 feature_rate_per_km=90.0,

@@ -441,15 +441,17 @@ class Suspension:
     and bump stops met.
 
     ``A``, ``B`` (256, 14, 14), (256, 14, 11): continuous systems, numbered as
-    :data:`N_PATTERNS` says; ``Ad``, ``Bd`` the same discretised. The common system (all
-    tyres down, no stop met) also in modal form, ``z[k+1] = lam z[k] + Bm u[k]`` with
-    ``x = V z``.
+    :data:`N_PATTERNS` says; ``Ad``, ``Bd`` the same discretised, each pattern on its first
+    use (:meth:`discrete`: a drive meets a few dozen of the 256, and each costs a matrix
+    exponential). The common system (all tyres down, no stop met) also in modal form,
+    ``z[k+1] = lam z[k] + Bm u[k]`` with ``x = V z``.
     """
 
     A: FloatArray
     B: FloatArray
     Ad: FloatArray
     Bd: FloatArray
+    discretised: NDArray[np.bool_]  # (256,): which patterns Ad and Bd hold yet
     lam: NDArray[np.complex128]  # (14,)
     V: NDArray[np.complex128]  # (14, 14)
     Vinv: NDArray[np.complex128]  # (14, 14)
@@ -466,13 +468,15 @@ class Suspension:
     def build(cls, params: VehicleParams, dt_s: float) -> Suspension:
         A = np.empty((N_PATTERNS, N_STATES, N_STATES))
         B = np.empty((N_PATTERNS, N_STATES, N_INPUTS))
-        Ad = np.empty_like(A)
-        Bd = np.empty_like(B)
+        Ad = np.full_like(A, np.nan)
+        Bd = np.full_like(B, np.nan)
+        discretised = np.zeros(N_PATTERNS, dtype=bool)
         for pattern in range(N_PATTERNS):
             down = tuple(bool(pattern >> i & 1) for i in range(4))
             stop = tuple(bool(pattern >> (4 + i) & 1) for i in range(4))
             A[pattern], B[pattern] = full_car_matrices(params, down, stop)  # type: ignore[arg-type]
-            Ad[pattern], Bd[pattern] = _zoh(A[pattern], B[pattern], dt_s)
+        Ad[ALL_DOWN], Bd[ALL_DOWN] = _zoh(A[ALL_DOWN], B[ALL_DOWN], dt_s)
+        discretised[ALL_DOWN] = True
         lam, V = np.linalg.eig(Ad[ALL_DOWN])
         Vinv = np.linalg.inv(V)
         xi, yi = params.corners()
@@ -481,6 +485,7 @@ class Suspension:
             B=B,
             Ad=Ad,
             Bd=Bd,
+            discretised=discretised,
             lam=lam,
             V=V,
             Vinv=Vinv,
@@ -493,6 +498,13 @@ class Suspension:
             stop_clearance_m=params.bump_stop_clearance_m,
             dt_s=dt_s,
         )
+
+    def discrete(self, pattern: int) -> tuple[FloatArray, FloatArray]:
+        """``Ad``, ``Bd`` of one contact pattern, discretised now if not yet."""
+        if not self.discretised[pattern]:
+            self.Ad[pattern], self.Bd[pattern] = _zoh(self.A[pattern], self.B[pattern], self.dt_s)
+            self.discretised[pattern] = True
+        return self.Ad[pattern], self.Bd[pattern]
 
     def equilibrium(self, u: FloatArray) -> FloatArray:
         """The static state for constant input ``u`` (11,), all tyres down: ``A x + B u = 0``."""
@@ -557,7 +569,6 @@ class Suspension:
         n = u.shape[0]
         kt, ct = self.tyre_n_per_m, self.tyre_damping_ns_per_m
         pre = self.static_load_n + kt * u[:, INPUT_ROAD] + ct * u[:, INPUT_ROAD_RATE]  # (n, 4)
-        Ad, Bd = self.Ad, self.Bd
         G = self.corner_from_body
         clearance = self.stop_clearance_m
         x = np.array(x0, dtype=np.float64)
@@ -568,7 +579,8 @@ class Suspension:
             stops = x[3:7] - G @ x[:3] > clearance
             while True:
                 pattern = _pattern(down, stops)
-                x_next = Ad[pattern] @ x + Bd[pattern] @ u[k]
+                Ad, Bd = self.discrete(pattern)
+                x_next = Ad @ x + Bd @ u[k]
                 pulls = down & (pre[k] - kt * x_next[3:7] - ct * x_next[10:14] < 0.0)
                 if not pulls.any():
                     break
