@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from mcap.reader import make_reader
 
 from toolkit.sim.profiles import make_profile
 from toolkit.sim.simulate import simulate
@@ -39,6 +40,31 @@ def test_log_does_not_depend_on_laser_workers(short_logs: dict[str, Path]) -> No
     """Casting the lasers in the main process (workers=0) or in worker processes (the
     default on a multi-core machine) writes the same bytes."""
     assert short_logs["a0"].read_bytes() == short_logs["a1"].read_bytes()
+
+
+def test_a_log_without_lasers_is_the_same_log_less_its_scans(
+    short_logs: dict[str, Path], tmp_path: Path
+) -> None:
+    """``--no-lasers`` (for tuning the vehicle fast) drives the same drive with the same
+    noise on every other sensor: the lasers draw only from a generator of their own."""
+    bare = simulate(
+        tmp_path / "bare.mcap", profile="sample", distance_m=DISTANCE_M, seed=SEED_A, lasers=False
+    ).path
+
+    def messages(path: Path) -> dict[str, list[tuple[int, bytes]]]:
+        out: dict[str, list[tuple[int, bytes]]] = {}
+        with path.open("rb") as f:
+            for _, channel, message in make_reader(f).iter_messages():
+                out.setdefault(channel.topic, []).append((message.log_time, message.data))
+        return out
+
+    full, without = messages(short_logs["a1"]), messages(bare)
+    lasers = {t for t in full if t.startswith("/laser/")}
+    assert lasers and not lasers & set(without)
+    # The static transforms and the simulator's metadata name the lasers either way.
+    assert set(full) - lasers == set(without)
+    for topic, rows in without.items():
+        assert rows == full[topic], topic
 
 
 def test_other_seed_gives_other_log(short_logs: dict[str, Path]) -> None:

@@ -60,10 +60,10 @@ def make_profile(name: str, distance_m: float | None = None) -> SimProfile:
         return SimProfile(
             name=name,
             world=WorldParams(
-                length_m=distance_m or 760.0,
+                length_m=distance_m or 710.0,
                 # Dense, so a minute holds a dozen rough events although about 40 % of the
                 # features lie beside the wheels (toolkit.sim.world.make_features).
-                feature_rate_per_km=90.0,
+                feature_rate_per_km=150.0,
                 feature_height_range_m=(0.06, 0.15),
                 rough_stretch_fraction=0.25,
             ),

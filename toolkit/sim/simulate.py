@@ -273,6 +273,10 @@ class SensorSuite:
         self.profile = profile
         self.world = world
         self.start_ns = start_ns
+        # Each sensor family draws its noise from a generator of its own: the lasers only from
+        # laser_rng, the IMU from imu_rng, GPS, compass and wheels from rng. So a log made
+        # without lasers (--no-lasers) is the same log less its scans, and a change to the
+        # laser model leaves every other sensor's noise as it was.
         self.rng = np.random.default_rng([seed, 11])
         self.imu_rng = np.random.default_rng([seed, 15])
         clock_rng = np.random.default_rng([seed, 12])
@@ -579,7 +583,7 @@ class SensorSuite:
             host = np.clip(
                 self.laser_rng.normal(0.0, jitter_ns, rows.size), -3 * jitter_ns, 3 * jitter_ns
             )
-            stamps = clock.stamps(self.rng, t_true) + np.round(host).astype(np.int64)
+            stamps = clock.stamps(self.laser_rng, t_true) + np.round(host).astype(np.int64)
             cols = {
                 **header_columns(stamps, mount.frame_id),
                 "angle_min": lp.angle_min_rad,
@@ -594,7 +598,7 @@ class SensorSuite:
             # The scan is published once complete.
             out.add(
                 topic,
-                clock.log_times(self.rng, t_true + int(span_ns)),
+                clock.log_times(self.laser_rng, t_true + int(span_ns)),
                 encode_batch("sensor_msgs/msg/LaserScan", cols),
             )
 
@@ -607,8 +611,8 @@ class SensorSuite:
         n_scans = rays.starts_ns.size
         bias = np.asarray(self.laser_truth.range_bias_m)[rays.laser_index]
         ranges = ranges + np.repeat(bias, lp.beams)
-        ranges = ranges + self.rng.normal(0, lp.range_noise_m, ranges.size)
-        ranges[self.rng.random(ranges.size) < lp.dropout_probability] = np.inf
+        ranges = ranges + self.laser_rng.normal(0, lp.range_noise_m, ranges.size)
+        ranges[self.laser_rng.random(ranges.size) < lp.dropout_probability] = np.inf
         ranges[(ranges < lp.range_min_m) | (ranges > lp.range_max_m)] = np.inf
         ranges = ranges.reshape(n_scans, lp.beams)
         ranges[self._dust(rays)] = np.nan
