@@ -71,6 +71,7 @@ class Truth:
     velocity_body: FloatArray  # (n, 3)
     omega_body: FloatArray  # (n, 3)
     route_s: FloatArray  # route distance of each pose
+    route_d: FloatArray  # lateral offset of each pose from the centreline (left positive)
     _slerp: Slerp = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -150,7 +151,7 @@ class SimLog:
         route = self.world.route
         # Nearest centreline vertex as the guess, then the route's own Newton projection.
         _, nearest = cKDTree(np.stack([route.x_m, route.y_m], axis=1)).query(pos[:, :2])
-        s, _ = route.to_route(pos[:, 0], pos[:, 1], route.s_m[nearest])
+        s, d = route.to_route(pos[:, 0], pos[:, 1], route.s_m[nearest])
         return Truth(
             t_ns=self.stamps("/truth/odom"),
             position=pos,
@@ -158,6 +159,7 @@ class SimLog:
             velocity_body=vel,
             omega_body=omega,
             route_s=s,
+            route_d=d,
         )
 
     def static_transform(self, child_frame: str) -> tuple[FloatArray, FloatArray]:

@@ -322,8 +322,8 @@ def test_no_tensile_tyre_force_over_a_rough_race_stretch(
 
 def test_imu_vertical_spectrum_has_the_wheel_hop_peak(race_log: SimLog) -> None:
     """The IMU's z acceleration over the race log's ordinary road (ISO class D, 2 s windows
-    at least 3 m before and 8 m after every rough feature: the rear axle past it, and the
-    wheel hop's ring-down), averaged Hann periodograms: a
+    at least 3 m before and 8 m after every rough feature the tyres could meet: the rear axle
+    past it, and the wheel hop's ring-down), averaged Hann periodograms: a
     hump at the wheel hop, a local maximum standing above the 5-8 Hz floor between body and
     wheel modes, then the fall above it. (On the rough class E stretches the wheels leave
     the ground so often that the hop cannot build up, and over the whole log the features'
@@ -341,10 +341,15 @@ def test_imu_vertical_spectrum_has_the_wheel_hop_peak(race_log: SimLog) -> None:
     inside = truth.covers(t)
     t, az = t[inside], az[inside]
     s = truth.interp(t, truth.route_s)
+    d = truth.interp(t, truth.route_d)
     feats = race_log.columns["/truth/features"]["features"][0]
     near = np.zeros(s.size, dtype=bool)
-    for lo, hi in zip(feats["s_start_m"], feats["s_end_m"], strict=True):
-        near |= (s > lo - 3.0) & (s < hi + 8.0)
+    # Features whose box reaches the band the tyres sweep (beside it, none is felt).
+    reach = VEHICLE.track_m / 2 + VEHICLE.tyre_width_m / 2
+    for lo, hi, dc, w in zip(
+        feats["s_start_m"], feats["s_end_m"], feats["d_center_m"], feats["width_m"], strict=True
+    ):
+        near |= (s > lo - 3.0) & (s < hi + 8.0) & (np.abs(d - dc) < reach + w / 2)
     rough = race_log.world.terrain.roughness_scale(s) > 1.05
 
     def spectrum(skip: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:

@@ -239,7 +239,7 @@ def test_sample_log_row_counts_match_the_log(sample_ingest: tuple[Workspace, Ing
     counts = {t.topic: t.message_count for t in scan_log(SAMPLE_LOG).topics}
     lasers = [f"/laser/front_{i}" for i in range(1, 6)]
     assert result.status == "ingested"
-    assert result.row_counts["imu"] == 6150  # 61.5 s at 100 Hz
+    assert result.row_counts["imu"] == 6710  # 67.1 s at 100 Hz (sample_logs/README.md)
     assert result.row_counts["imu"] == counts["/imu/data"]
     assert result.row_counts["gps"] == counts["/gps/fix"]
     assert result.row_counts["heading"] == counts["/gps/heading"]

@@ -311,7 +311,7 @@ def test_sample_rough_events_are_true_features(
         f"with a feature: {some.sum()} events, {rough[some].sum()} rough, median "
         f"{np.median(r[some]):.4f}; tall: {tall.sum()} events, median {np.median(r[tall]):.4f}"
     )
-    assert result.events == pytest.approx(440 / 1.4, rel=0.05)  # the sample drives ~440 m
+    assert result.events == pytest.approx(619 / 1.4, rel=0.05)  # the sample drives 619 m
     assert result.rejects == {"too_slow": 0, "no_imu": result.rejects["no_imu"]}
     assert result.rejects["no_imu"] <= 6  # filter start-up and the end only
     assert rough.sum() >= 10  # as the reference labeller finds on this log

@@ -183,8 +183,10 @@ class LaserTruth:
 
 
 def draw_laser_truth(p: LaserParams, seed: int) -> LaserTruth:
-    """The true mounts and range biases of a log's lasers, from their own random stream."""
-    rng = np.random.default_rng([seed, 15])
+    """The true mounts and range biases of a log's lasers, from their own random stream
+    (17: streams 11-16 are the other sensors', :class:`toolkit.sim.simulate.SensorSuite`;
+    sharing one, as 15 did with the IMU's noise, would correlate the two)."""
+    rng = np.random.default_rng([seed, 17])
     n = len(p.mounts)
     lo, hi = p.rack_angle_error_rad
     rack = rng.uniform(lo, hi, 2) * rng.choice([-1.0, 1.0], 2)  # roll, pitch
