@@ -197,7 +197,7 @@ def _require_file(path: Path, error: type[ToolkitError] = ToolkitError) -> None:
     "--workers",
     type=click.IntRange(min=0),
     default=None,
-    help="Processes casting laser rays (default: 1 on a multi-core machine, else 0). "
+    help="Processes casting laser rays (default: one per core, at most 3; 0 on one core). "
     "The log is the same whatever the number.",
 )
 @click.option(
