@@ -94,7 +94,7 @@ def label_rates(log: Path) -> dict[str, object]:
 def one_seed(job: tuple[int, Path, float, bool]) -> dict[str, object]:
     """Simulates (unless the log exists) and labels one seed."""
     seed, out, distance_m, no_lasers = job
-    log = out / f"race_{seed}{'_nolasers' if no_lasers else ''}.mcap"
+    log = out / f"race_{seed}_{distance_m:g}m{'_nolasers' if no_lasers else ''}.mcap"
     sim_s = None
     if not log.exists():
         t = time.perf_counter()

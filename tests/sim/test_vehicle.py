@@ -141,7 +141,7 @@ def test_print_and_modes_are_those_documented() -> None:
 
 def test_pothole_is_bridged_and_rock_is_felt_by_its_top() -> None:
     """8 cm deep and 0.4 m across under the left wheels: the footprint bridges the pothole
-    (the tread sinks until its outline meets the rims) and rides on the rock's flat top.
+    (the tread sinks until its outline meets the rims) and rides on the rock's dome.
 
     The pothole (a vertical rim to half its depth, then a bowl) is deep enough for the tread
     to hang in it: the dip is about the sag of the tyre's round outline over the hole's
@@ -313,7 +313,9 @@ def test_no_tensile_tyre_force_over_a_rough_race_stretch(
     assert 1 - down.mean() > 1e-3
     assert start.min() < -0.2 * w.min()
     assert applied.min() > -0.005 * w.min()
-    assert np.all(start[down] >= 0.0) and np.all(end[down] >= 0.0)
+    # A tyre counted as down pushes at the end of its step too (it pushes at the start by
+    # construction: tyre_force_n is that force, clipped).
+    assert np.all(end[down] >= 0.0)
     np.testing.assert_allclose(applied, expected, rtol=0, atol=0.005 * w.min())
 
 
@@ -328,7 +330,13 @@ def test_imu_vertical_spectrum_has_the_wheel_hop_peak(race_log: SimLog) -> None:
     wheel modes, then the fall above it. (On the rough class E stretches the wheels leave
     the ground so often that the hop cannot build up, and over the whole log the features'
     own lines blur it; both are printed.) The first model's spectrum fell monotonically from
-    5 Hz here (-3 dB at 10 Hz, seed 1)."""
+    5 Hz here (-3 dB at 10 Hz, seed 1).
+
+    The hump lies at 10-11.5 Hz, below the modes' 12.4-12.7 Hz: what the IMU sees is the
+    hop's response times the road's input, whose displacement spectrum falls as 1/f^2 (ISO
+    8608) and which the tyre's footprint smooths further, so the product peaks below the
+    damped (0.3) mode; hence the band 9-12.5 Hz. +1.5 dB is about four times the scatter of
+    an average of this many half-overlapping 2 s periodograms (~0.4 dB for 100 windows)."""
     p = make_profile("race").sensors.imu
     t = on_grid_true_times(
         race_log.stamps("/imu/data"),

@@ -78,10 +78,11 @@ def make_profile(name: str, distance_m: float | None = None) -> SimProfile:
     if name == "race":
         return SimProfile(
             name=name,
-            # 58 features per km (one per 17 m, most of them stones of 3-5 cm, a third beside
-            # the wheels): with the class E rough stretches, about 0.3-0.4 % of 1.4 m events
-            # reach 0.02 G/mph on race seeds 601-606 (benchmarks/README.md; Sect. 7: 0.36 and
-            # 0.44 %). Set with that rate in view, as the feature shares in world.py were.
+            # 58 features per km (one per 17 m; stones the commonest kind, heights log-uniform
+            # 3-15 cm; a third of all features beside the wheels): with the class E rough
+            # stretches, about 0.3-0.4 % of 1.4 m events reach 0.02 G/mph on race seeds
+            # 601-606 (benchmarks/README.md; Sect. 7: 0.36 and 0.44 %). Set with that rate in
+            # view, as the feature shares in world.py were.
             world=WorldParams(length_m=distance_m or 8000.0, feature_rate_per_km=58.0),
             # Random dropouts as well, but one of 10 s for certain, so every race log checks
             # how far the pose drifts while it coasts.

@@ -817,6 +817,8 @@ def simulate(
     if workers is None:
         cores = os.cpu_count() or 1
         workers = min(cores, MAX_DEFAULT_WORKERS) if cores > 1 else 0
+    if not lasers:
+        workers = 0  # nothing to cast
     prof = make_profile(profile, distance_m)
     world = make_world(prof.world, seed)
     path = make_driven_path(world.route, np.random.default_rng([seed, 4]), prof.lane_wander_m)

@@ -36,13 +36,15 @@ static wheel load, not from the instantaneous load, which keeps the dynamics lin
 contact changes.
 
 **Integration.** Between contact changes the model is linear and time-invariant, so it is
-discretised exactly (zero-order hold at the dynamics rate) for each of the 16 patterns of
-tyres on the ground. The common case, all four tyres down for a whole block, runs in modal
-form: each mode is a first-order complex recursion that ``scipy.signal.lfilter`` runs over the
-block at C speed. When a tyre would pull at either end of some step, the block is redone from
-that step one dynamics step at a time, each step with the discrete system of the tyres that
-push throughout it (:meth:`Suspension.step_block`); the two paths agree to round-off while no
-tyre lifts.
+discretised exactly (zero-order hold at the dynamics rate) for each of the 256 patterns of
+tyres on the ground and bump stops met (each on its first use). The common case, all four
+tyres down and no stop met for a whole block, runs in modal form: each mode is a first-order
+complex recursion that ``scipy.signal.lfilter`` runs over the block at C speed. When a tyre
+would pull at either end of some step, or a corner starts a step beyond its bump stop's
+clearance, the block is redone from that step one dynamics step at a time, each step with the
+discrete system of the tyres that push and the stops met throughout it
+(:meth:`Suspension.step_block`); the two paths agree to round-off while no tyre lifts and no
+stop is met.
 
 References: T. D. Gillespie, *Fundamentals of Vehicle Dynamics*, SAE 1992, ch. 5 (ride);
 J. Y. Wong, *Theory of Ground Vehicles*, 3rd ed., Wiley 2001, ch. 7 (vehicle ride); P. W. A.
@@ -92,7 +94,7 @@ class VehicleParams:
       body's acceleration is about ``kt r / ms`` whatever the damping, against about
       ``cs w r / ms`` between the two modes, so on a road whose velocity spectrum is flat
       (ISO 8608) the hop peak stands above the floor only while ``cs < kt / w_u``, about
-      ``sqrt(kt mu)`` (here 2.4 kN s/m against 4.1). Not at its bottom, 0.2-0.25: a wheel
+      ``sqrt(kt mu)`` (here 2.4 kN s/m against 4.0-4.2). Not at its bottom, 0.2-0.25: a wheel
       hop damped to 0.23 rings for several cycles over washboard near its frequency, which
       made the labels hang on where the shock filter's band starts (tuned on race seeds
       601-606, ``benchmarks/sim_seeds.py``; see benchmarks/README.md).

@@ -66,8 +66,8 @@ FEATURE_HEIGHT_RANGE_M = {
 # Share of the random features of each kind (normalised over ``WorldParams.feature_kinds``).
 # Judgement: stones are the common discrete hazard of a desert road (most of them small:
 # heights log-uniform), potholes the next; ruts form only where the surface is soft, and
-# cattle guards sit only where a fence crosses the road (at 50 features per km in the race
-# profile, 1.5 per km). Washboard is the common periodic hazard of any unsurfaced road with
+# cattle guards sit only where a fence crosses the road (at 58 features per km in the race
+# profile, 1.7 per km). Washboard is the common periodic hazard of any unsurfaced road with
 # traffic (Skorseth & Selim, "Gravel Roads Maintenance and Design Manual", FHWA/SD LTAP
 # 2000, ch. 1), but a stretch of it is one long, narrow-band excitation: its ripples are
 # spaced by the speed of the traffic that made them over its wheels' hop frequency
