@@ -490,3 +490,49 @@ def tables(workspace: Path, overwrite: bool) -> None:
     with ws.lock():
         result = run_tables(ws, cfg, overwrite=overwrite)
     click.echo(result.summary())
+
+
+_WORKSPACE_OPTION = click.option(
+    "-w",
+    "--workspace",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Workspace directory (with its training tables).",
+)
+
+
+@main.command()
+@_WORKSPACE_OPTION
+@click.option("--overwrite", is_flag=True, help="Learn again even if the model is up to date.")
+def learn(workspace: Path, overwrite: bool) -> None:
+    """Coordinate ascent on the training tables -> WS/model.json, the 14 parameters (sect. 6)."""
+    from toolkit.progress import progress
+    from toolkit.stages.learn import run_learn
+    from toolkit.workspace import Workspace
+
+    ws = Workspace(workspace)
+    cfg = ws.read_config()
+    with ws.lock(), progress(total=cfg.learn.iterations, desc="learn", unit="rotation") as bar:
+        result = run_learn(ws, cfg, overwrite=overwrite, progress=lambda _: bar.update(1))
+    click.echo(result.summary())
+
+
+@main.command()
+@_WORKSPACE_OPTION
+@click.option("--overwrite", is_flag=True, help="Evaluate again even if the report is up to date.")
+def evaluate(workspace: Path, overwrite: bool) -> None:
+    """ROC against the race's method, speed control, report -> WS/report/ (sect. 7)."""
+    from toolkit.progress import progress
+    from toolkit.stages.evaluate import run_evaluate
+    from toolkit.workspace import Workspace
+
+    ws = Workspace(workspace)
+    cfg = ws.read_config()
+    with ws.lock(), progress(total=7, desc="evaluate", unit="step") as bar:
+
+        def step(what: str) -> None:
+            bar.set_postfix_str(what)
+            bar.update(1)
+
+        result = run_evaluate(ws, cfg, overwrite=overwrite, step=step)
+    click.echo(result.text())

@@ -275,6 +275,24 @@ class EvaluateConfig:
     recovery_mps2: Annotated[float, Rule(gt=0.0)]
     hold_distance_m: Annotated[float, Rule(ge=0.0)]
     lookahead_m: Annotated[float, Rule(ge=0.0)]
+    #: The reactive controller's recovery rates swept with slow_fractions, m/s^2.
+    recovery_rates_mps2: Annotated[tuple[float, ...], Rule(min_length=1, gt=0.0, unique=True)] = (
+        0.25,
+        0.5,
+        1.0,
+    )
+    #: Shock counted as experienced: only what exceeds this floor, G.
+    shock_floor_g: Annotated[float, Rule(ge=0.0)] = 0.3
+    #: The race's obstacle test (toolkit.model.baseline): grid cell, m; obstacle height, m;
+    #: pose error at zero time, m; its variance growth, m^2/s; the test's confidence.
+    baseline_cell_m: Annotated[float, Rule(gt=0.0)] = 0.25
+    baseline_delta_m: Annotated[float, Rule(ge=0.0)] = 0.15
+    baseline_sigma0_m: Annotated[float, Rule(gt=0.0)] = 0.03
+    baseline_growth_m2_per_s: Annotated[float, Rule(ge=0.0)] = 0.0025
+    baseline_confidence: Annotated[float, Rule(gt=0.5, lt=1.0)] = 0.95
+    #: Bootstrap resamples of the test events for the ROC's confidence intervals, and the seed.
+    bootstrap_resamples: Annotated[int, Rule(ge=10)] = 1000
+    bootstrap_seed: Annotated[int, Rule(ge=0)] = 0
 
 
 @dataclass(frozen=True)

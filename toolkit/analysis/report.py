@@ -1,0 +1,211 @@
+"""The evaluation report: the ROC figure (Fig. 6 analogue) and ``report/index.html``.
+
+The HTML is a single static page, readable without the code: what was compared, on which
+events, the ROC table with its confidence intervals, the learned parameters with what each
+means in eq. (3)-(5), the speed-control result, and the figures. Every number on it is read
+from ``summary.json`` and ``model.json`` of the same run; nothing is typed in.
+"""
+
+from __future__ import annotations
+
+import html
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from toolkit.analysis.figures import new_figure, save_png_atomic, write_bytes_atomic
+
+#: Display names of the methods, in the report's order.
+METHOD_NAMES: dict[str, str] = {
+    "self_supervised": "self-supervised (this model)",
+    "baseline_all_lasers": "race obstacle test, all lasers",
+    "baseline_closest_laser": "race obstacle test, closest laser",
+    "oracle": "oracle: model on true terrain heights",
+    "no_time_term": "ablation: no time term (alpha_3 = 0)",
+    "no_rate_terms": "ablation: no roll/pitch-rate terms (alpha_7 = alpha_9 = 0)",
+}
+
+#: What each learned parameter does (eqs. 3-5), for the parameter table.
+PARAMETER_MEANINGS: tuple[tuple[str, str], ...] = (
+    (
+        "alpha_1, alpha_2",
+        "weight and exponent of the height difference |z_r - z_c| (evidence for roughness)",
+    ),
+    (
+        "alpha_3, alpha_4",
+        "weight and exponent of the time between the two observations "
+        "(penalty: pose error grows with it, Fig. 4)",
+    ),
+    (
+        "alpha_5, alpha_6",
+        "weight and exponent of the horizontal distance between the points (penalty)",
+    ),
+    ("alpha_7, alpha_8", "weight and exponent of each point's roll rate (penalty)"),
+    ("alpha_9, alpha_10", "weight and exponent of each point's pitch rate (penalty)"),
+    ("upsilon", "growth of the weight of successive scores in R = sum W_i upsilon^i (eq. 3)"),
+    ("omega", "how many of the largest pair scores enter R (eq. 3)"),
+    ("zeta", "exponent combining the tyres, R_combined = R_left^zeta + R_right^zeta (eq. 5)"),
+    ("mu", "threshold: rough when R_combined > mu"),
+)
+
+
+def roc_png(
+    path: Path, curves: Mapping[str, Any], title: str = "Fig. 6 analogue: ROC on the test split"
+) -> Path:
+    """The ROC curves (objects with ``fpr`` and ``tpr`` arrays) of each method, one figure."""
+    fig = new_figure(6.5, 5.5)
+    ax = fig.add_subplot(1, 1, 1)
+    for name, curve in curves.items():
+        style = "--" if name.startswith("no_") else ("-." if name == "oracle" else "-")
+        ax.step(
+            curve.fpr, curve.tpr, where="post", linestyle=style, label=METHOD_NAMES.get(name, name)
+        )
+    ax.plot([0, 1], [0, 1], color="0.7", linewidth=0.8, label="chance")
+    ax.set_xlabel("false-positive rate")
+    ax.set_ylabel("true-positive rate")
+    ax.set_xlim(0, 1)
+    ax.set_ylim(0, 1.01)
+    ax.set_title(title)
+    ax.legend(loc="lower right", fontsize=7)
+    ax.grid(alpha=0.3)
+    return save_png_atomic(fig, path)
+
+
+@dataclass(frozen=True)
+class ReportInputs:
+    """What the page shows: the run's summary and model documents, figure file names (in
+    the report directory), and copied per-log figures as (caption, file name)."""
+
+    summary: Mapping[str, Any]
+    model: Mapping[str, Any]
+    roc_figures: Sequence[str]
+    speed_files: Sequence[str]
+    log_figures: Sequence[tuple[str, str]] = field(default=())
+
+
+def _fmt(v: Any, digits: int = 3) -> str:
+    if v is None:
+        return "n/a"
+    if isinstance(v, float):
+        return f"{v:.{digits}f}"
+    return html.escape(str(v))
+
+
+def _roc_rows(summary: Mapping[str, Any]) -> list[str]:
+    rows = []
+    entries: list[tuple[str, Any]] = [
+        (k, summary.get(k))
+        for k in ("self_supervised", "baseline_all_lasers", "baseline_closest_laser", "oracle")
+    ]
+    entries += list((summary.get("ablations") or {}).items())
+    for key, m in entries:
+        name = html.escape(METHOD_NAMES.get(key, key))
+        if not m:
+            rows.append(f"<tr><td>{name}</td><td colspan='5'>not evaluated</td></tr>")
+            continue
+        ci = m.get("auc_ci95") or [None, None]
+        cells = [f"{_fmt(m['auc'])} [{_fmt(ci[0])}, {_fmt(ci[1])}]"]
+        for fpr, tpr in m["tpr_at_fpr"].items():
+            lo, hi = (m.get("tpr_at_fpr_ci95") or {}).get(fpr, [None, None])
+            cells.append(f"{_fmt(tpr, 2)} [{_fmt(lo, 2)}, {_fmt(hi, 2)}]")
+        cells.append(_fmt(m.get("spearman_vs_ruggedness")))
+        rows.append(f"<tr><td>{name}</td>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
+    return rows
+
+
+def index_html(inputs: ReportInputs) -> str:
+    """The page (module docstring)."""
+    s, m = inputs.summary, inputs.model
+    fprs = next(
+        (list(v["tpr_at_fpr"]) for v in (s.get("self_supervised"), s.get("oracle")) if v), []
+    )
+    head = "".join(f"<th>TPR at FPR {html.escape(f)}</th>" for f in fprs)
+    alpha = m.get("alpha", [])
+    params = [("alpha_" + str(i + 1), a) for i, a in enumerate(alpha)]
+    params += [(k, m.get(k)) for k in ("upsilon", "omega", "zeta", "mu")]
+    sp = s.get("speed_control", {})
+    red = sp.get("shock_reduction_at_equal_time")
+    red_text = (
+        "n/a (the curves' completion times do not overlap)" if red is None else f"{100 * red:.0f} %"
+    )
+    parts = [
+        "<!DOCTYPE html><html><head><meta charset='utf-8'>",
+        "<title>terrain: evaluation report</title>",
+        "<style>body{font-family:sans-serif;max-width:60em;margin:2em auto;line-height:1.4}"
+        "table{border-collapse:collapse}"
+        "td,th{border:1px solid #ccc;padding:.25em .6em;text-align:left}"
+        "img{max-width:100%}</style></head><body>",
+        "<h1>Terrain roughness: evaluation report</h1>",
+        "<p>A reproduction of Stavens &amp; Thrun (2006), <i>A Self-Supervised Terrain Roughness "
+        "Estimator for Off-Road Autonomous Driving</i>. Each event is a 1.4 m stretch of the rear "
+        "axle's path; it is <b>rough</b> when the shock the IMU felt there divided by the speed "
+        "(its ruggedness) is at least the label threshold. Every method scores the laser points "
+        "seen ahead of the rear tyres before the vehicle got there; the learned model's "
+        "parameters come from the training split only; everything below is on the test split "
+        "unless it says otherwise.</p>",
+        "<h2>Events</h2><table><tr><th>split</th><th>events</th><th>rough</th></tr>",
+        f"<tr><td>train</td><td>{s.get('train_events')}</td><td>{s.get('train_positives')}</td></tr>",
+        f"<tr><td>test</td><td>{s.get('test_events')}</td><td>{s.get('test_positives')}</td></tr></table>",
+        "<h2>Sensitivity against specificity (Fig. 6)</h2>",
+        "<p>Area under the ROC curve and true-positive rate at fixed false-positive rates, with "
+        "95 % intervals from a stratified bootstrap over test events; the last column is "
+        "Spearman's rank correlation between the score and the ruggedness. The race's obstacle "
+        "test generates the pair scores of the baselines, with their own trained upsilon, "
+        f"omega, zeta and mu (sect. 7.1); its closest laser here: "
+        f"<code>{_fmt(s.get('closest_laser'))}</code>.</p>",
+        f"<table><tr><th>method</th><th>AUC</th>{head}<th>Spearman</th></tr>",
+        *_roc_rows(s),
+        "</table>",
+        *[f"<p><img src='{html.escape(f)}' alt='ROC curves'></p>" for f in inputs.roc_figures],
+        "<h2>The learned model (sect. 4 and 6)</h2>",
+        f"<p>Coordinate ascent maximised Tp - {_fmt(m.get('lambda'), 1)} Fp on the training "
+        f"split: {_fmt(m.get('objective'))} (Tp {_fmt(m.get('tp_rate'))}, Fp "
+        f"{_fmt(m.get('fp_rate'), 4)}) after {_fmt(m.get('iterations'))} iterations.</p>",
+        "<table><tr><th>parameter</th><th>value</th></tr>",
+        *[f"<tr><td>{html.escape(k)}</td><td>{_fmt(v, 4)}</td></tr>" for k, v in params],
+        "</table><p>What they mean:</p><table>",
+        *[
+            f"<tr><td>{html.escape(k)}</td><td>{html.escape(v)}</td></tr>"
+            for k, v in PARAMETER_MEANINGS
+        ],
+        "</table>",
+        "<h2>Speed control (Fig. 7)</h2>",
+        "<p>The test route replayed with the speed lowered reactively (after the IMU measured a "
+        "rough event, as in the race) or proactively (before events the model flags). Shock at "
+        "another speed is ruggedness x speed (sect. 5.2); counted is the part of each event's "
+        f"shock above {_fmt(sp.get('shock_floor_g'), 2)} G. Both axes are normalised by driving "
+        f"at the logged speed. Largest shock reduction of the proactive over the reactive "
+        f"controller at equal completion time: <b>{red_text}</b>.</p>",
+        *[
+            f"<p><img src='{html.escape(f)}' alt='speed trade-off'></p>"
+            for f in inputs.speed_files
+            if f.endswith(".png")
+        ],
+        *[
+            f"<p>Curves: <a href='{html.escape(f)}'>{html.escape(f)}</a></p>"
+            for f in inputs.speed_files
+            if f.endswith(".csv")
+        ],
+    ]
+    if inputs.log_figures:
+        parts.append("<h2>Per-log figures (Figs. 4 and 5)</h2>")
+        for caption, name in inputs.log_figures:
+            parts.append(
+                f"<h3>{html.escape(caption)}</h3><p><img src='{html.escape(name)}' "
+                f"alt='{html.escape(caption)}'></p>"
+            )
+    if s.get("warnings"):
+        parts.append("<h2>Warnings</h2><ul>")
+        parts += [f"<li>{html.escape(str(w))}</li>" for w in s["warnings"]]
+        parts.append("</ul>")
+    parts.append(f"<p><small>terrain {_fmt(s.get('toolkit_version'))}</small></p></body></html>\n")
+    return "\n".join(parts)
+
+
+def write_index_html(path: Path, inputs: ReportInputs) -> Path:
+    """Write :func:`index_html` atomically."""
+    return write_bytes_atomic(path, index_html(inputs).encode("utf-8"))
+
+
+__all__ = ["METHOD_NAMES", "ReportInputs", "index_html", "roc_png", "write_index_html"]

@@ -1,0 +1,109 @@
+"""The race's obstacle test as the baseline of Fig. 6 (sect. 7.1; Thrun et al. 2006a).
+
+Stanley's terrain analysis during the race (Thrun, Montemerlo and Aron, "Probabilistic
+Terrain Analysis for High-Speed Desert Driving", RSS 2006; also Thrun et al., J. Field
+Robotics 23(9), 2006, sect. 6) compares pairs of laser points that fall into the same small
+grid cell: the cell holds an obstacle when two of its points differ in height by more than
+``delta``, judged probabilistically against the error of the pose, whose variance grows
+with the time between the two scans (a Markov chain model of pose error, so a random walk:
+variance linear in time). Here, for points i and j of one patch in the same cell::
+
+    sigma^2(dt) = sigma0^2 + q |tau_i - tau_j|
+    s_ij        = (|z_i - z_j| - delta) / sigma(dt)
+
+``Phi(s_ij)`` is the probability that the true height difference exceeds ``delta`` when the
+measured one is Gaussian around it with that standard deviation, so a pair is *flagged* when
+``s_ij > Phi^-1(confidence)``; the continuous ``s_ij`` is the pair's score. As in sect. 7.1
+("we use the method in (Thrun et al., 2006a) to generate a vector W"), the scores of a
+patch's same-cell pairs replace Delta of eq. (4); eqs. (3) and (5) and the threshold then
+apply with their own upsilon, omega, zeta and mu, trained separately
+(:func:`toolkit.model.ascent.coordinate_ascent` with the alphas frozen). Pairs in different
+cells are not compared (score -inf, an absent pair).
+
+The constants (``[evaluate]`` in the configuration): ``delta`` 15 cm, the race's obstacle
+height (Thrun et al. 2006, sect. 6); the cell, ``sigma0`` and ``q`` are not given in the
+sources at hand and are set a priori (not tuned on any result): a 25 cm cell, the range
+noise of the closest laser for ``sigma0``, and ``q`` from this toolkit's Fig. 4 analogue
+(z-differences between scans growing by a few cm per second of separation).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.stats import norm
+
+from toolkit.model.patches import TyrePatches
+from toolkit.model.roughness import CHUNK_GROUPS, top_k_desc
+
+FloatArray = NDArray[np.float64]
+Float32Array = NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class BaselineParams:
+    """The race test's constants: cell size, obstacle height delta, the pose-error model
+    (sigma0 and its growth q) and the confidence of the test."""
+
+    cell_m: float = 0.25
+    delta_m: float = 0.15
+    sigma0_m: float = 0.03
+    growth_m2_per_s: float = 0.0025
+    confidence: float = 0.95
+
+    @property
+    def flag_score(self) -> float:
+        """The score above which a pair is flagged: ``Phi^-1(confidence)``."""
+        return float(norm.ppf(self.confidence))
+
+
+def pair_scores(patches: TyrePatches, params: BaselineParams) -> Float32Array:
+    """(G, P) float32: ``s_ij`` for the pairs ``np.tril_indices(n_max, -1)`` of every patch
+    (the layout of :class:`toolkit.model.roughness.PairTable`), -inf where the two points are
+    not both real or not in the same cell."""
+    r, c = np.tril_indices(patches.n_max, -1)
+    cx = np.floor(patches.x / params.cell_m)
+    cy = np.floor(patches.y / params.cell_m)
+    same = (cx[:, r] == cx[:, c]) & (cy[:, r] == cy[:, c])
+    same &= patches.valid[:, r] & patches.valid[:, c]
+    dz = np.abs(patches.z[:, r] - patches.z[:, c])
+    dt = np.abs(patches.tau[:, r] - patches.tau[:, c])
+    sigma = np.sqrt(params.sigma0_m**2 + params.growth_m2_per_s * dt)
+    s = ((dz - params.delta_m) / sigma).astype(np.float32)
+    s[~same] = -np.inf
+    return s
+
+
+def flagged(patches: TyrePatches, params: BaselineParams) -> NDArray[np.bool_]:
+    """(G,) whether any same-cell pair of a patch passes the race's obstacle test."""
+    return np.asarray((pair_scores(patches, params) > params.flag_score).any(axis=1), bool)
+
+
+class FixedScores:
+    """Pair scores that do not depend on the alphas (the baseline's ``s_ij``), in the
+    interface the learner scores through (:class:`toolkit.model.roughness.TopScores`)."""
+
+    def __init__(self, scores: Float32Array) -> None:
+        self.scores = scores
+
+    @property
+    def groups(self) -> int:
+        return int(self.scores.shape[0])
+
+    def subset(self, groups: NDArray[np.bool_]) -> FixedScores:
+        """The scores of the patches where ``groups`` (G,) is True."""
+        return FixedScores(self.scores[groups])
+
+    def top_scores(self, alpha: Sequence[float], k: int) -> FloatArray:
+        del alpha  # the race's test has no alphas
+        parts = [
+            top_k_desc(self.scores[i : i + CHUNK_GROUPS], k)
+            for i in range(0, self.groups, CHUNK_GROUPS)
+        ]
+        return np.concatenate(parts, axis=0) if parts else np.zeros((0, k))
+
+
+__all__ = ["BaselineParams", "FixedScores", "flagged", "pair_scores"]

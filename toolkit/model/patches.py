@@ -1,0 +1,286 @@
+"""Tyre patches: the laser points the model scores for each event and rear tyre (sect. 4).
+
+Section 4 scores, per rear tyre and separately, the ``N`` laser points "near the predicted
+future location" of that tyre; ``tables/event_points.parquet`` lists them (sect. 7: within
+30 cm of the ground the tyre traversed). This module turns that long table into a dense,
+padded layout every later computation can vectorise over::
+
+    group g = 2 * event_index + wheel          (wheel 0 = left, 1 = right)
+    x, y, z, tau, gamma, psi : (G, n_max) float64, one row per group, points in columns
+    valid                    : (G, n_max) bool, False in the padding
+    count                    : (G,) int64, the points kept per group
+
+**How many points.** The score of eq. (2) compares every pair: ``N (N - 1) / 2`` of them. The
+paper's tables hold 887,878 points for 11,470 training events (sect. 7), 39 points a tyre;
+Stanley's five 75 Hz lasers simulated here put about 380 under a tyre (see
+``benchmarks/README.md``), a hundred times the pairs. ``[model] max_points_per_wheel`` (40 by
+default, the paper's density) caps ``N``: a patch with more points keeps a uniform sample of
+them. The sample is *bottom-k by a hash of the point's identity* (its time ``t_ns`` and its
+laser's name): deterministic, independent of row order, and consistent, so a point under the end of
+one event and the start of the next is kept in both or in neither. 0 keeps every point (the
+padded width is then the largest patch).
+
+Nothing here knows the model's parameters; :mod:`toolkit.model.roughness` scores patches.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+from numpy.typing import NDArray
+
+from toolkit.errors import StageError
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+BoolArray = NDArray[np.bool_]
+
+WHEELS = ("left", "right")
+#: Columns of ``tables/event_points.parquet`` a patch is built from.
+POINT_COLUMNS = (
+    "log_id",
+    "event_id",
+    "wheel",
+    "x",
+    "y",
+    "z",
+    "tau",
+    "roll_rate",
+    "pitch_rate",
+    "laser",
+    "t_ns",
+)
+
+
+@dataclass(frozen=True)
+class TyrePatches:
+    """The points under each event's rear tyres, padded to ``n_max`` per group.
+
+    Attributes (G = 2 x events; group ``2 e + w`` is event ``e``'s wheel ``w``):
+        x, y, z: (G, n_max) point position in the pose's world frame, m.
+        tau: (G, n_max) observation time, s (eq. 1's tau).
+        gamma, psi: (G, n_max) estimated roll and pitch rate at that time, rad/s.
+        valid: (G, n_max) True where a point is (padding is False).
+        count: (G,) points per group.
+        laser: (G, n_max) int16 index into ``lasers`` (-1 in the padding).
+        lasers: the laser topics, sorted.
+    """
+
+    x: FloatArray
+    y: FloatArray
+    z: FloatArray
+    tau: FloatArray
+    gamma: FloatArray
+    psi: FloatArray
+    valid: BoolArray
+    count: IntArray
+    laser: NDArray[np.int16]
+    lasers: tuple[str, ...]
+
+    @property
+    def groups(self) -> int:
+        return int(self.valid.shape[0])
+
+    @property
+    def events(self) -> int:
+        return self.groups // 2
+
+    @property
+    def n_max(self) -> int:
+        return int(self.valid.shape[1])
+
+    def with_z(self, z: FloatArray) -> TyrePatches:
+        """The same patches with other heights (G, n_max) (the oracle's true terrain)."""
+        return TyrePatches(
+            self.x,
+            self.y,
+            np.asarray(z, np.float64),
+            self.tau,
+            self.gamma,
+            self.psi,
+            self.valid,
+            self.count,
+            self.laser,
+            self.lasers,
+        )
+
+
+def point_priority(t_ns: NDArray[np.int64], laser_code: NDArray[np.uint64]) -> NDArray[np.uint64]:
+    """A pseudo-random, reproducible rank (N,) for points (N,) from their identity: the
+    SplitMix64 finaliser (Steele, Lea and Flood 2014) of ``t_ns`` mixed with a code of the
+    laser's name (:func:`laser_code`)."""
+    with np.errstate(over="ignore"):
+        v = t_ns.astype(np.uint64) ^ (laser_code.astype(np.uint64) * np.uint64(0x9E3779B97F4A7C15))
+        v = (v ^ (v >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        v = (v ^ (v >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        out: NDArray[np.uint64] = v ^ (v >> np.uint64(31))
+        return out
+
+
+def laser_code(name: str) -> int:
+    """A stable number for a laser's topic (CRC-32 of its UTF-8 bytes): the same on every
+    run and whatever other lasers a table holds."""
+    return zlib.crc32(name.encode("utf-8"))
+
+
+@dataclass
+class _Kept:
+    """Rows that may still be among their patch's n_max (column arrays of equal length)."""
+
+    group: IntArray
+    priority: NDArray[np.uint64]
+    values: dict[str, FloatArray]
+    laser: list[str]  # laser name of each row
+
+
+def _bottom_k(group: IntArray, priority: NDArray[np.uint64], k: int) -> IntArray:
+    """Indices of the rows that are among the ``k`` lowest priorities of their group
+    (all rows when ``k`` is 0), ordered by (group, priority)."""
+    order = np.lexsort((priority, group))
+    if k == 0:
+        return order
+    g = group[order]
+    first = np.r_[True, g[1:] != g[:-1]]
+    start = np.maximum.accumulate(np.where(first, np.arange(g.size), 0))
+    return order[np.arange(g.size) - start < k]
+
+
+_VALUE_COLUMNS = {
+    "x": "x",
+    "y": "y",
+    "z": "z",
+    "tau": "tau",
+    "gamma": "roll_rate",
+    "psi": "pitch_rate",
+}
+
+
+def build_patches(
+    events: pa.Table,
+    points: pa.Table | Iterable[pa.RecordBatch | pa.Table],
+    max_points_per_wheel: int,
+    *,
+    only_laser: str | None = None,
+    source: str | Path = "tables/event_points.parquet",
+) -> TyrePatches:
+    """Patches for ``events`` (a table with ``log_id`` and ``event_id``, in the order the
+    result's groups follow) from the rows of ``tables/event_points.parquet``: a table, or
+    record batches streamed from it (memory then holds only the rows that may be kept: at
+    most ``max_points_per_wheel`` per patch and batch).
+
+    ``only_laser`` keeps that laser's points alone (the baseline's closest laser, sect. 7.1).
+    Points of events not in ``events`` are ignored. StageError if a point names a wheel other
+    than left or right.
+    """
+    n_events = events.num_rows
+    n_groups = 2 * n_events
+    k = max_points_per_wheel
+    keys = pa.table(
+        {
+            "log_id": events.column("log_id").cast(pa.string()),
+            "event_id": events.column("event_id"),
+            "_event": pa.array(np.arange(n_events, dtype=np.int64)),
+        }
+    )
+    kept: list[_Kept] = []
+    batches = points.to_batches() if isinstance(points, pa.Table) else points
+    for batch in batches:
+        table = pa.table(batch) if isinstance(batch, pa.RecordBatch) else batch
+        if only_laser is not None:
+            table = table.filter(pc.equal(table.column("laser").cast(pa.string()), only_laser))
+        if table.num_rows == 0:
+            continue
+        table = table.select(list(POINT_COLUMNS)).cast(_PLAIN_SCHEMA)
+        table = table.append_column("_row", pa.array(np.arange(table.num_rows, dtype=np.int64)))
+        # pyarrow's join does not keep row order; the row number restores it.
+        joined = table.join(keys, ["log_id", "event_id"], join_type="inner").sort_by("_row")
+        if joined.num_rows == 0:
+            continue
+        wheel_names = joined.column("wheel").to_numpy(zero_copy_only=False)
+        wheel = np.full(joined.num_rows, -1, np.int64)
+        for w, name in enumerate(WHEELS):
+            wheel[wheel_names == name] = w
+        if (wheel < 0).any():
+            bad = wheel_names[wheel < 0][0]
+            raise StageError(f"wheel {bad!r} is neither 'left' nor 'right'", path=source)
+        group = joined.column("_event").to_numpy() * 2 + wheel
+        laser_names = joined.column("laser").to_numpy(zero_copy_only=False)
+        names, inverse = np.unique(laser_names, return_inverse=True)
+        codes = np.array([laser_code(str(n)) for n in names], np.uint64)[inverse]
+        priority = point_priority(joined.column("t_ns").to_numpy(), codes)
+        take = _bottom_k(group, priority, k)
+        kept.append(
+            _Kept(
+                group[take],
+                priority[take],
+                {key: joined.column(col).to_numpy()[take] for key, col in _VALUE_COLUMNS.items()},
+                [str(n) for n in laser_names[take]],
+            )
+        )
+    group = np.concatenate([c.group for c in kept]) if kept else np.zeros(0, np.int64)
+    priority = np.concatenate([c.priority for c in kept]) if kept else np.zeros(0, np.uint64)
+    take = _bottom_k(group, priority, k)
+    g = group[take]
+    count_all = np.bincount(g, minlength=n_groups).astype(np.int64)
+    n_max = max(k or int(count_all.max(initial=0)), 2)
+    start = np.concatenate([[0], np.cumsum(count_all)[:-1]])
+    cols = np.arange(g.size, dtype=np.int64) - start[g]
+
+    def dense(key: str) -> FloatArray:
+        out = np.zeros((n_groups, n_max), np.float64)
+        if kept:
+            out[g, cols] = np.concatenate([c.values[key] for c in kept])[take]
+        return out
+
+    all_lasers = np.array([n for c in kept for n in c.laser], dtype=object)
+    lasers = tuple(sorted(set(all_lasers.tolist())))
+    valid = np.zeros((n_groups, n_max), bool)
+    valid[g, cols] = True
+    laser = np.full((n_groups, n_max), -1, np.int16)
+    if g.size:
+        laser[g, cols] = np.searchsorted(np.array(lasers, dtype=object), all_lasers[take])
+    return TyrePatches(
+        x=dense("x"),
+        y=dense("y"),
+        z=dense("z"),
+        tau=dense("tau"),
+        gamma=dense("gamma"),
+        psi=dense("psi"),
+        valid=valid,
+        count=count_all,
+        laser=laser,
+        lasers=lasers,
+    )
+
+
+_PLAIN_SCHEMA = pa.schema(
+    [
+        ("log_id", pa.string()),
+        ("event_id", pa.int64()),
+        ("wheel", pa.string()),
+        ("x", pa.float64()),
+        ("y", pa.float64()),
+        ("z", pa.float64()),
+        ("tau", pa.float64()),
+        ("roll_rate", pa.float64()),
+        ("pitch_rate", pa.float64()),
+        ("laser", pa.string()),
+        ("t_ns", pa.int64()),
+    ]
+)
+
+
+__all__ = [
+    "POINT_COLUMNS",
+    "WHEELS",
+    "TyrePatches",
+    "build_patches",
+    "laser_code",
+    "point_priority",
+]

@@ -1,0 +1,287 @@
+"""The roughness model of sect. 4: pairwise scores, the total score R, and R_combined.
+
+For the ``N`` laser points ``L_i = [x, y, z, tau, gamma, psi]`` (eq. 1) under one rear tyre
+in one event (a *patch*, :mod:`toolkit.model.patches`)::
+
+    S[r, c]  = Delta(L_r, L_c)                                                     (eq. 2)
+    Delta    = a1 |z_r - z_c|^a2 - a3 |tau_r - tau_c|^a4 - a5 |xy_r - xy_c|^a6
+               - a7 |gamma_r|^a8 - a7 |gamma_c|^a8 - a9 |psi_r|^a10 - a9 |psi_c|^a10   (eq. 4)
+    W        = the omega largest entries of S below its diagonal, ascending
+    R        = sum_i W_i upsilon^i                                                 (eq. 3)
+    R_comb   = R_left^zeta + R_right^zeta                                           (eq. 5)
+    rough   <=> R_comb > mu
+
+Only the ``N (N - 1) / 2`` entries below the diagonal are computed (sect. 4: S is symmetric
+with a zero diagonal). Units: z and xy in m, tau in s, gamma and psi in rad/s.
+
+**Where the paper leaves a gap, this implementation decides** (each tested in
+``tests/model/test_roughness.py``):
+
+1. *Eq. (3)'s upper limit.* "The largest omega elements are extracted into W", so W has
+   omega entries, ``W_0 .. W_{omega-1}`` in ascending order; the sum runs ``i = 0 .. omega-1``
+   (eq. 3's ``omega`` read as W's last index, else W would need omega + 1 elements). With
+   upsilon > 1 the largest score gets the largest weight, ``upsilon^(omega-1)``: "large,
+   compelling evidence should win out over the cumulative effect of small evidence".
+2. *Fewer than omega pairs.* The scores are ranked from the top: the k-th largest always
+   gets ``upsilon^(omega-k)``, and the ranks no pair fills contribute 0 (no evidence). A
+   patch's largest score thus weighs the same whether the patch has 3 points or 300.
+3. *A patch with fewer than two points* has no pair: R = 0, by rule 2. (The tables stage
+   drops such events already; a subset of lasers, as for the baseline's closest laser, can
+   still leave one.)
+4. *Negative R under a fractional zeta.* Scores are differences and often negative, and
+   ``R^zeta`` is not real for R < 0. Eq. (5) uses the signed power
+   ``sign(R) |R|^zeta``: equal to ``R^zeta`` for R >= 0, continuous, odd, and increasing in
+   R for any zeta > 0, so a rougher tyre never lowers R_combined.
+5. *Exponents* a2, a4, a6, a8, a10 must be positive: ``|0|^a`` is infinite for a <= 0 (two
+   points at the same height, or a still vehicle). With ``a > 0``, ``|0|^a = 0``.
+6. *Where mu sits* between two adjacent R_combined values is decided by the learner
+   (:mod:`toolkit.model.ascent`): at their midpoint.
+
+Computation: ``Delta`` is evaluated as ``exp(a * log|d|)`` over precomputed logarithms of the
+pair differences (:class:`PairTable`), in float32, a chunk of patches at a time on two
+threads (numpy releases the GIL), and the omega largest per patch found with
+``np.partition``. Changing a weight (a1, a3, ...) or an exponent recomputes only Delta;
+changing upsilon, omega or zeta reuses the sorted top scores (the learner caches them).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from toolkit.model.patches import TyrePatches
+
+FloatArray = NDArray[np.float64]
+Float32Array = NDArray[np.float32]
+
+N_ALPHA = 10
+#: Index of each alpha that is an exponent (0-based: a2, a4, a6, a8, a10).
+EXPONENTS = (1, 3, 5, 7, 9)
+#: Patches per chunk of the vectorised score (keeps each chunk's ~10 temporaries in cache).
+CHUNK_GROUPS = 512
+THREADS = 2
+
+
+@dataclass(frozen=True)
+class RoughnessParams:
+    """The 14 parameters of sect. 4: alpha_1..alpha_10 (eq. 4), upsilon, omega (eq. 3),
+    zeta (eq. 5) and the threshold mu."""
+
+    alpha: tuple[float, ...]
+    upsilon: float
+    omega: int
+    zeta: float
+    mu: float
+
+    def vector(self) -> tuple[float, ...]:
+        """The 13-vector B of sect. 6: (alpha_1..alpha_10, upsilon, omega, zeta)."""
+        return (*self.alpha, self.upsilon, float(self.omega), self.zeta)
+
+    @classmethod
+    def from_vector(cls, b: Sequence[float], mu: float) -> RoughnessParams:
+        return cls(
+            tuple(float(v) for v in b[:N_ALPHA]),
+            float(b[10]),
+            int(round(b[11])),
+            float(b[12]),
+            float(mu),
+        )
+
+    def admissible(self) -> bool:
+        """Whether eqs. (3)-(5) are defined: exponents, upsilon and zeta positive, omega at
+        least 1, everything finite (see the module docstring, decision 5)."""
+        finite = all(math.isfinite(v) for v in (*self.alpha, self.upsilon, self.zeta))
+        return (
+            finite
+            and all(self.alpha[i] > 0.0 for i in EXPONENTS)
+            and self.upsilon > 0.0
+            and self.zeta > 0.0
+            and self.omega >= 1
+        )
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "alpha": list(self.alpha),
+            "upsilon": self.upsilon,
+            "omega": self.omega,
+            "zeta": self.zeta,
+            "mu": self.mu,
+        }
+
+
+class TopScores(Protocol):
+    """Anything that gives, per patch, its k largest pair scores: the model's Delta
+    (:class:`PairTable`) or the baseline's (:mod:`toolkit.model.baseline`)."""
+
+    @property
+    def groups(self) -> int: ...
+
+    def top_scores(self, alpha: Sequence[float], k: int) -> FloatArray:
+        """(G, k) the k largest scores of each patch, descending; -inf where a patch has
+        fewer than k pairs."""
+        ...
+
+
+def _log_abs(d: FloatArray) -> Float32Array:
+    with np.errstate(divide="ignore"):
+        return np.log(np.abs(d)).astype(np.float32)
+
+
+class PairTable:
+    """Every pair below the diagonal of each patch's S, as logarithms of its differences.
+
+    For a patch of ``n_max`` padded points the pairs are ``(r, c) = np.tril_indices(n_max,
+    -1)`` (``r > c``), P = n_max (n_max - 1) / 2 of them, the same for every patch; a pair
+    with a padding point is invalid. Arrays: ``log_dz``, ``log_dtau``, ``log_dxy`` (G, P)
+    float32 (``log 0 = -inf``, which ``exp(a * -inf) = 0`` turns into ``|0|^a = 0`` for
+    a > 0); ``log_gamma``, ``log_psi`` (G, n_max) float32; ``pair_valid`` (G, P) bool.
+    Memory: about 13 bytes a pair (the 10-mile race's training half: ~9 M pairs at the
+    default 40 points a tyre, ~120 MB).
+    """
+
+    def __init__(self, patches: TyrePatches) -> None:
+        r, c = np.tril_indices(patches.n_max, -1)
+        self.r = r.astype(np.intp)
+        self.c = c.astype(np.intp)
+        self.pair_valid = patches.valid[:, self.r] & patches.valid[:, self.c]
+        self.log_dz = _log_abs(patches.z[:, self.r] - patches.z[:, self.c])
+        self.log_dtau = _log_abs(patches.tau[:, self.r] - patches.tau[:, self.c])
+        dxy = np.hypot(
+            patches.x[:, self.r] - patches.x[:, self.c], patches.y[:, self.r] - patches.y[:, self.c]
+        )
+        self.log_dxy = _log_abs(dxy)
+        self.log_gamma = _log_abs(patches.gamma)
+        self.log_psi = _log_abs(patches.psi)
+        self._groups = patches.groups
+        self._pool = ThreadPoolExecutor(THREADS) if THREADS > 1 else None
+
+    @property
+    def groups(self) -> int:
+        return self._groups
+
+    def subset(self, groups: NDArray[np.bool_]) -> PairTable:
+        """The pairs of the patches where ``groups`` (G,) is True (a copy, same layout)."""
+        out = PairTable.__new__(PairTable)
+        out.r, out.c = self.r, self.c
+        for name in ("pair_valid", "log_dz", "log_dtau", "log_dxy", "log_gamma", "log_psi"):
+            setattr(out, name, getattr(self, name)[groups])
+        out._groups = int(np.count_nonzero(groups))
+        out._pool = self._pool
+        return out
+
+    @property
+    def pairs(self) -> int:
+        """Pairs per patch, padding included (P)."""
+        return int(self.r.size)
+
+    def delta(self, alpha: Sequence[float], rows: slice = slice(None)) -> Float32Array:
+        """Eq. (4) for every pair of the patches ``rows``: (g, P) float32, -inf for pairs
+        with a padding point."""
+        a = [np.float32(v) for v in alpha]
+        d: Float32Array = a[0] * np.exp(a[1] * self.log_dz[rows])
+        if a[2] != 0.0:
+            d -= a[2] * np.exp(a[3] * self.log_dtau[rows])
+        if a[4] != 0.0:
+            d -= a[4] * np.exp(a[5] * self.log_dxy[rows])
+        # The rate terms are per point: |gamma|^a8 once per point, then summed per pair.
+        if a[6] != 0.0:
+            g = a[6] * np.exp(a[7] * self.log_gamma[rows])
+            d -= g[:, self.r]
+            d -= g[:, self.c]
+        if a[8] != 0.0:
+            p = a[8] * np.exp(a[9] * self.log_psi[rows])
+            d -= p[:, self.r]
+            d -= p[:, self.c]
+        d[~self.pair_valid[rows]] = -np.inf
+        return d
+
+    def _top_chunk(self, alpha: Sequence[float], k: int, rows: slice) -> FloatArray:
+        return top_k_desc(self.delta(alpha, rows), k)
+
+    def top_scores(self, alpha: Sequence[float], k: int) -> FloatArray:
+        """(G, k) float64: each patch's k largest Delta, descending (-inf past its pairs)."""
+        chunks = [
+            slice(i, min(i + CHUNK_GROUPS, self._groups))
+            for i in range(0, self._groups, CHUNK_GROUPS)
+        ]
+        if not chunks:
+            return np.zeros((0, k))
+        if self._pool is None:
+            parts = [self._top_chunk(alpha, k, s) for s in chunks]
+        else:
+            parts = list(self._pool.map(lambda s: self._top_chunk(alpha, k, s), chunks))
+        return np.concatenate(parts, axis=0)
+
+
+def top_k_desc(scores: Float32Array | FloatArray, k: int) -> FloatArray:
+    """(g, k) float64: the k largest of each row of ``scores`` (g, P), descending, padded
+    with -inf when P < k."""
+    g, p = scores.shape
+    if k >= p:
+        top = np.sort(scores, axis=1)[:, ::-1]
+        pad = np.full((g, k - p), -np.inf)
+        return np.concatenate([top.astype(np.float64), pad], axis=1)
+    part = np.partition(scores, p - k, axis=1)[:, p - k :]
+    return np.sort(part, axis=1)[:, ::-1].astype(np.float64)
+
+
+def total_score(top_desc: FloatArray, upsilon: float, omega: int) -> FloatArray:
+    """Eq. (3): R (G,) from each patch's scores ranked from the top (G, >= omega).
+
+    The j-th largest (j = 0, 1, ...) is ``W_{omega-1-j}`` and weighs ``upsilon^(omega-1-j)``;
+    ranks without a pair (-inf) add 0 (module docstring, decisions 1-3)."""
+    w = top_desc[:, :omega]
+    w = np.where(np.isfinite(w), w, 0.0)
+    weights = float(upsilon) ** np.arange(omega - 1, -1, -1, dtype=np.float64)
+    return w @ weights[: w.shape[1]]
+
+
+def signed_power(r: FloatArray, zeta: float) -> FloatArray:
+    """``sign(R) |R|^zeta`` (decision 4)."""
+    return np.sign(r) * np.abs(r) ** zeta
+
+
+def combine(r_group: FloatArray, zeta: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Eq. (5): (R_left, R_right, R_combined), each (E,), from R per patch (2E,) ordered
+    event by event, left then right."""
+    r_lr = r_group.reshape(-1, 2)
+    r_left, r_right = r_lr[:, 0], r_lr[:, 1]
+    return r_left, r_right, signed_power(r_left, zeta) + signed_power(r_right, zeta)
+
+
+@dataclass(frozen=True)
+class EventScores:
+    """The model's verdict per event (E,): R_left, R_right, R_combined and R_combined > mu."""
+
+    r_left: FloatArray
+    r_right: FloatArray
+    r_combined: FloatArray
+    predicted: NDArray[np.bool_]
+
+
+def score_events(source: TopScores, params: RoughnessParams) -> EventScores:
+    """Eqs. (2)-(5) and the threshold for every event of ``source``."""
+    top = source.top_scores(params.alpha, params.omega)
+    r_left, r_right, r_comb = combine(total_score(top, params.upsilon, params.omega), params.zeta)
+    return EventScores(r_left, r_right, r_comb, r_comb > params.mu)
+
+
+__all__ = [
+    "EXPONENTS",
+    "N_ALPHA",
+    "EventScores",
+    "PairTable",
+    "RoughnessParams",
+    "TopScores",
+    "combine",
+    "score_events",
+    "signed_power",
+    "top_k_desc",
+    "total_score",
+]

@@ -1,0 +1,553 @@
+"""Evaluate stage: the learned model against the race's method, on the test split (sect. 7).
+
+Inputs: the training tables (as ``terrain tables`` wrote them) and ``model.json`` (as
+``terrain learn`` wrote it). Outputs under ``WS/report/``:
+
+- ``scores.parquet``: per event (both splits) the model's R_left, R_right, R_combined and
+  verdict, the label and the ruggedness, and every other method's R_combined.
+- ``summary.json``: per method, on the test split, AUC and TPR at the configured FPRs with
+  bootstrap intervals, and the rank correlation with ruggedness; the speed-control result;
+  the counts per split.
+- ``index.html`` with ``roc.png``, ``speed_tradeoff.png`` (and ``speed_tradeoff.csv``), and
+  copies of each log's Fig. 4 and, for calibration logs, Fig. 5.
+
+Methods (sect. 7.1 and beyond):
+
+- ``self_supervised``: the learned model (``model.json``).
+- ``baseline_all_lasers`` / ``baseline_closest_laser``: the race's obstacle test
+  (:mod:`toolkit.model.baseline`) generating W, with upsilon, omega, zeta and mu trained
+  separately on the training split, as sect. 7.1 did; once on all lasers' points and once on
+  the closest laser's alone. The closest laser is ``[evaluate] baseline_closest_laser``, or
+  by default the one whose points under the tyres were seen the shortest time before the
+  rear axle got there (the nearest beams: at any speed they land closest to the vehicle).
+- ``oracle`` (simulated logs only): the model's own search, trained and tested on the true
+  terrain height under each point instead of the measured z (pose, laser and range errors
+  removed; the points' places and times kept). It bounds what better z alone could buy.
+- ``ablations``: the model learned again with the time term (alpha_3 = 0) or the roll- and
+  pitch-rate terms (alpha_7 = alpha_9 = 0) removed, what each part of eq. (4) buys.
+
+Speed control (sect. 7.2, :mod:`toolkit.model.speed_control`): each log's test events in
+driving order, the reactive controller swept over ``slow_fractions`` x
+``recovery_rates_mps2`` and the proactive one over ``slow_fractions``, triggered by the
+model's verdicts.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+from numpy.typing import NDArray
+
+from toolkit import __version__
+from toolkit.analysis.figures import write_bytes_atomic
+from toolkit.analysis.report import ReportInputs, roc_png, write_index_html
+from toolkit.analysis.scan_agreement import PNG_NAME as FIG4_PNG
+from toolkit.analysis.shock import MPS_PER_MPH
+from toolkit.analysis.truth_terrain import true_ground
+from toolkit.config import PipelineConfig, config_hash
+from toolkit.errors import StageError
+from toolkit.model import speed_control as sc
+from toolkit.model.ascent import AscentResult, coordinate_ascent
+from toolkit.model.baseline import BaselineParams, FixedScores, pair_scores
+from toolkit.model.patches import TyrePatches
+from toolkit.model.roc import RocSummary, summarise
+from toolkit.model.roughness import EventScores, PairTable, RoughnessParams, TopScores, score_events
+from toolkit.stages.label import FIG5_PNG
+from toolkit.stages.learn import (
+    ascent_config,
+    load_model,
+    pair_table,
+    patches_of,
+    split_events,
+    table_inputs,
+)
+from toolkit.tableio import write_table
+from toolkit.workspace import (
+    StageRecord,
+    Workspace,
+    atomic_write_json,
+    check_up_to_date,
+    digest_files,
+    file_sha256,
+    require_finished,
+)
+
+_log = logging.getLogger(__name__)
+
+STAGE = "evaluate"
+CONFIG_SECTIONS = ("model", "learn", "evaluate")
+SCORES_NAME = "scores.parquet"
+SUMMARY_NAME = "summary.json"
+INDEX_NAME = "index.html"
+ROC_PNG = "roc.png"
+
+BoolArray = NDArray[np.bool_]
+FloatArray = NDArray[np.float64]
+
+#: Elements of B an ablation fixes at zero (0-based: alpha_3; alpha_7 and alpha_9), and the
+#: exponents that then have nothing to weigh (kept at their initial value).
+ABLATIONS: dict[str, tuple[dict[int, float], tuple[int, ...]]] = {
+    "no_time_term": ({2: 0.0}, (2, 3)),
+    "no_rate_terms": ({6: 0.0, 8: 0.0}, (6, 7, 8, 9)),
+}
+#: The baseline learns only upsilon, omega and zeta (and mu): sect. 7.1.
+BASELINE_FREE = (False,) * 10 + (True, True, True)
+
+
+def stage_config_hash(config: PipelineConfig) -> str:
+    return config_hash(config, CONFIG_SECTIONS)
+
+
+@dataclass(frozen=True)
+class MethodScores:
+    """One method's verdicts on every event (E,), and how it was trained (None for the
+    learned model, trained by ``terrain learn``)."""
+
+    scores: EventScores
+    trained: AscentResult | None
+    params: RoughnessParams
+
+
+@dataclass(frozen=True)
+class EvaluateResult:
+    status: str
+    summary: dict[str, Any]
+    report: Path
+    warnings: tuple[str, ...]
+    seconds: float
+
+    def text(self) -> str:
+        if self.status == "up_to_date":
+            return f"report up to date: {self.report}"
+        s = self.summary
+        lines = [f"report written in {self.seconds:.1f} s: {self.report}"]
+        for name in ("self_supervised", "baseline_all_lasers", "baseline_closest_laser", "oracle"):
+            m = s.get(name)
+            if isinstance(m, dict) and m.get("auc") is not None:
+                tpr = ", ".join(
+                    f"{k}: {v:.2f}" for k, v in m["tpr_at_fpr"].items() if v is not None
+                )
+                lines.append(f"  {name}: AUC {m['auc']:.3f}; TPR at FPR {tpr}")
+        red = s["speed_control"]["shock_reduction_at_equal_time"]
+        if red is not None:
+            lines.append(
+                f"  speed control: proactive shock {100 * red:.0f} % below reactive at equal time"
+            )
+        return "\n".join(lines)
+
+
+def _train_groups(train: BoolArray) -> BoolArray:
+    """Event mask (E,) -> patch mask (2E,): both tyres of each event."""
+    return np.repeat(train, 2)
+
+
+def _train_and_score(
+    source: TopScores,
+    subset: Callable[[BoolArray], TopScores],
+    train: BoolArray,
+    rough: BoolArray,
+    config: PipelineConfig,
+    free: tuple[bool, ...] | None = None,
+    fixed: dict[int, float] | None = None,
+) -> MethodScores:
+    """Coordinate ascent on the training events' patches, then every event scored."""
+    result = coordinate_ascent(
+        subset(_train_groups(train)), rough[train], ascent_config(config, free, fixed)
+    )
+    return MethodScores(score_events(source, result.params), result, result.params)
+
+
+def closest_laser(
+    patches: TyrePatches, t_start_s: FloatArray, configured: str | None
+) -> str | None:
+    """The configured closest laser, or the one whose points were seen the shortest median
+    time before their event started (None without points)."""
+    if configured:
+        return configured
+    if not patches.lasers:
+        return None
+    lead_s = np.repeat(t_start_s, 2)[:, None] - patches.tau
+    medians = [
+        float(np.median(lead_s[patches.valid & (patches.laser == i)]))
+        if np.any(patches.valid & (patches.laser == i))
+        else np.inf
+        for i in range(len(patches.lasers))
+    ]
+    return patches.lasers[int(np.argmin(medians))]
+
+
+def oracle_patches(
+    workspace: Workspace, events: pa.Table, patches: TyrePatches
+) -> TyrePatches | None:
+    """``patches`` with each point's z replaced by the true terrain height under it, or None
+    unless every log is simulated. Points off the modelled terrain are dropped."""
+    log_of_group = np.repeat(np.asarray(events.column("log_id").to_pylist(), dtype=object), 2)
+    z = patches.z.copy()
+    valid = patches.valid.copy()
+    for log_id in sorted(set(log_of_group.tolist())):
+        ground = true_ground(workspace.log_dir(log_id))
+        if ground is None:
+            return None
+        rows = np.flatnonzero(log_of_group == log_id)
+        mask = patches.valid[rows]
+        xyz = np.c_[patches.x[rows][mask], patches.y[rows][mask], patches.z[rows][mask]]
+        h, _ = ground.height_m(xyz)  # type: ignore[attr-defined]
+        sub = z[rows]
+        sub[mask] = h
+        z[rows] = sub
+        sub_valid = valid[rows]
+        sub_valid[mask] = np.isfinite(h)
+        valid[rows] = sub_valid
+    z[~valid] = 0.0
+    return TyrePatches(
+        patches.x,
+        patches.y,
+        z,
+        patches.tau,
+        patches.gamma,
+        patches.psi,
+        valid,
+        valid.sum(axis=1),
+        patches.laser,
+        patches.lasers,
+    )
+
+
+def _routes(events: pa.Table, predicted: BoolArray, test: BoolArray) -> list[sc.Route]:
+    """Each log's test events, in driving order, as speed-control routes."""
+    routes = []
+    log_ids = np.asarray(events.column("log_id").to_pylist(), dtype=object)
+    col = {
+        n: events.column(n).to_numpy(zero_copy_only=False)
+        for n in ("s_start_m", "s_end_m", "speed_mph", "ruggedness", "rough")
+    }
+    for log_id in sorted(set(log_ids[test].tolist())):
+        rows = np.flatnonzero(test & (log_ids == log_id))
+        rows = rows[np.argsort(col["s_start_m"][rows], kind="stable")]
+        routes.append(
+            sc.Route(
+                s_start_m=col["s_start_m"][rows].astype(np.float64),
+                s_end_m=col["s_end_m"][rows].astype(np.float64),
+                speed_mps=col["speed_mph"][rows].astype(np.float64) * MPS_PER_MPH,
+                ruggedness=col["ruggedness"][rows].astype(np.float64),
+                rough=col["rough"][rows].astype(bool),
+                predicted=predicted[rows].astype(bool),
+                source=str(log_id),
+            )
+        )
+    return routes
+
+
+def speed_control(
+    events: pa.Table, predicted: BoolArray, test: BoolArray, config: PipelineConfig, out_dir: Path
+) -> tuple[dict[str, Any], list[Path]]:
+    """Fig. 7: the curves, the CSV and PNG, and the summary entry."""
+    ev = config.evaluate
+    base = sc.SpeedControlParams(
+        slow_fraction=ev.slow_fractions[0],
+        decel_mps2=ev.decel_mps2,
+        recovery_mps2=ev.recovery_mps2,
+        hold_distance_m=ev.hold_distance_m,
+        lookahead_m=ev.lookahead_m,
+        shock_floor_g=ev.shock_floor_g,
+    )
+    routes = _routes(events, predicted, test)
+    reactive = sc.reactive_curve(routes, base, ev.slow_fractions, ev.recovery_rates_mps2)
+    proactive = sc.proactive_curve(routes, base, ev.slow_fractions)
+    none = sc.no_change_point(routes, base)
+    reduction = sc.shock_reduction_at_equal_time(
+        sc.pareto_front(reactive), sc.pareto_front(proactive)
+    )
+    curves = [reactive, proactive, [none]]
+    files = [
+        sc.write_tradeoff_csv(out_dir, curves),
+        sc.tradeoff_png(out_dir, curves, "Fig. 7 analogue"),
+    ]
+    best = reduction.max_reduction
+    return {
+        "shock_reduction_at_equal_time": None if not np.isfinite(best) else round(float(best), 6),
+        "reductions_along_reactive_front": [
+            {
+                "time_norm": round(float(t), 6),
+                "reduction": None if not np.isfinite(r) else round(float(r), 6),
+            }
+            for t, r in zip(reduction.time_norm, reduction.reductions, strict=True)
+        ],
+        "curves": sc.CSV_NAME,
+        "shock_floor_g": ev.shock_floor_g,
+        "no_change": {
+            "time_s": round(none.time_s, 3),
+            "shock_g": round(none.shock_g, 6),
+            "shocks_over_floor": none.shocks_over_floor,
+        },
+    }, files
+
+
+def run_evaluate(
+    workspace: Workspace,
+    config: PipelineConfig,
+    *,
+    overwrite: bool = False,
+    step: Callable[[str], None] | None = None,
+) -> EvaluateResult:
+    """Score every event by every method, compare them on the test split, write the report
+    (module docstring)."""
+    start = time.perf_counter()
+    tell = step or (lambda _: None)
+    inputs = table_inputs(workspace)
+    model_path = workspace.model_path
+    if not model_path.is_file():
+        raise StageError("no model; run `terrain learn` first", path=model_path)
+    model_sha = file_sha256(model_path)
+    require_finished(
+        workspace.manifest().stage("learn"), "learn", {"model.json": model_sha}, workspace.root
+    )
+    inputs["model.json"] = model_sha
+    cfg_hash = stage_config_hash(config)
+    report = workspace.report_dir
+    outputs = [report / SCORES_NAME, report / SUMMARY_NAME, report / INDEX_NAME]
+    manifest = workspace.manifest()
+    record = manifest.stage(STAGE)
+    if (
+        record is not None
+        and not overwrite
+        and check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=outputs)
+    ):
+        done = json.loads((report / SUMMARY_NAME).read_text())
+        return EvaluateResult(
+            "up_to_date", done, report / INDEX_NAME, (), time.perf_counter() - start
+        )
+
+    warnings: list[str] = []
+    timings: dict[str, float] = {}
+    params, model_doc = load_model(workspace)
+    t0 = time.perf_counter()
+    tell("reading the tables")
+    events = split_events(workspace, None)
+    split = np.asarray(events.column("split").to_pylist(), dtype=object)
+    train, test = split == "train", split == "test"
+    rough = events.column("rough").to_numpy(zero_copy_only=False).astype(bool)
+    ruggedness = events.column("ruggedness").to_numpy(zero_copy_only=False).astype(np.float64)
+    patches = patches_of(workspace, events, config)
+    pairs = pair_table(patches, config, workspace.config_path)
+    timings["read"] = time.perf_counter() - t0
+
+    methods: dict[str, MethodScores | None] = {}
+    t0 = time.perf_counter()
+    learned = MethodScores(score_events(pairs, params), None, params)
+    methods["self_supervised"] = learned
+    learnable = bool(rough[train].any() and (~rough[train]).any())
+    if not learnable:
+        warnings.append(
+            "the training split lacks rough or smooth events: baselines, oracle and "
+            "ablations not trained"
+        )
+    ev = config.evaluate
+    bp = BaselineParams(
+        ev.baseline_cell_m,
+        ev.baseline_delta_m,
+        ev.baseline_sigma0_m,
+        ev.baseline_growth_m2_per_s,
+        ev.baseline_confidence,
+    )
+    t_start_s = events.column("t_start_ns").to_numpy().astype(np.float64) * 1e-9
+    closest = closest_laser(patches, t_start_s, ev.baseline_closest_laser)
+    for name, laser in (("baseline_all_lasers", None), ("baseline_closest_laser", closest)):
+        tell(f"training {name}")
+        if not learnable or (name == "baseline_closest_laser" and closest is None):
+            methods[name] = None
+            continue
+        p = patches if laser is None else patches_of(workspace, events, config, only_laser=laser)
+        fixed = FixedScores(pair_scores(p, bp))
+        got = _train_and_score(fixed, fixed.subset, train, rough, config, BASELINE_FREE)
+        # An event without a point of this laser under a tyre has nothing to score.
+        none = (p.count.reshape(-1, 2) < 2).all(axis=1)
+        s = got.scores
+        r_comb = np.where(none, np.nan, s.r_combined)
+        methods[name] = MethodScores(
+            EventScores(s.r_left, s.r_right, r_comb, s.predicted & ~none), got.trained, got.params
+        )
+    tell("training the oracle")
+    truth = oracle_patches(workspace, events, patches) if learnable else None
+    if truth is None:
+        methods["oracle"] = None
+        if learnable:
+            warnings.append("not every log is simulated: no oracle")
+    else:
+        oracle_pairs = PairTable(truth)
+        methods["oracle"] = _train_and_score(
+            oracle_pairs, oracle_pairs.subset, train, rough, config
+        )
+    for name, (fixed_values, frozen) in ABLATIONS.items():
+        tell(f"training the ablation {name}")
+        if not learnable:
+            methods[name] = None
+            continue
+        free = tuple(j not in frozen for j in range(13))
+        methods[name] = _train_and_score(
+            pairs, pairs.subset, train, rough, config, free, fixed_values
+        )
+    timings["methods"] = time.perf_counter() - t0
+
+    tell("ROC and speed control")
+    t0 = time.perf_counter()
+    report.mkdir(parents=True, exist_ok=True)
+    testable = bool(rough[test].any() and (~rough[test]).any())
+    if not testable:
+        warnings.append("the test split lacks rough or smooth events: no ROC")
+    rocs: dict[str, RocSummary | None] = {}
+    for name, m in methods.items():
+        rocs[name] = (
+            summarise(
+                m.scores.r_combined[test],
+                rough[test],
+                ruggedness[test],
+                ev.fpr_points,
+                resamples=ev.bootstrap_resamples,
+                seed=ev.bootstrap_seed,
+            )
+            if m is not None and testable
+            else None
+        )
+    speed, speed_files = speed_control(events, learned.scores.predicted, test, config, report)
+    timings["evaluate"] = time.perf_counter() - t0
+
+    def entry(name: str) -> dict[str, Any] | None:
+        r, m = rocs.get(name), methods.get(name)
+        if r is None or m is None:
+            return None
+        out = r.to_json()
+        out["params"] = m.params.to_json()
+        if m.trained is not None:
+            out["train_objective"] = m.trained.objective
+        return out
+
+    counts = {
+        f"{side}_{k}": int(v)
+        for side, mask in (("train", train), ("test", test))
+        for k, v in (("events", mask.sum()), ("positives", (rough & mask).sum()))
+    }
+    summary: dict[str, Any] = {
+        "self_supervised": entry("self_supervised"),
+        "baseline_all_lasers": entry("baseline_all_lasers"),
+        "baseline_closest_laser": entry("baseline_closest_laser"),
+        "oracle": entry("oracle"),
+        "ablations": {name: entry(name) for name in ABLATIONS},
+        "speed_control": speed,
+        **counts,
+        "closest_laser": closest,
+        "model": {
+            k: model_doc[k]
+            for k in (
+                "alpha",
+                "upsilon",
+                "omega",
+                "zeta",
+                "mu",
+                "lambda",
+                "objective",
+                "tp_rate",
+                "fp_rate",
+                "iterations",
+            )
+        },
+        "baseline_test": {
+            "cell_m": bp.cell_m,
+            "delta_m": bp.delta_m,
+            "sigma0_m": bp.sigma0_m,
+            "growth_m2_per_s": bp.growth_m2_per_s,
+            "confidence": bp.confidence,
+        },
+        "warnings": warnings,
+        "toolkit_version": __version__,
+    }
+
+    def column(name: str) -> pa.Array:
+        m = methods.get(name)
+        if m is None:
+            return pa.nulls(events.num_rows, pa.float64())
+        v = m.scores.r_combined
+        return pa.array(v, pa.float64(), mask=~np.isfinite(v))
+
+    s = learned.scores
+    scores = pa.table(
+        {
+            "log_id": events.column("log_id"),
+            "event_id": events.column("event_id"),
+            "split": events.column("split"),
+            "r_left": s.r_left,
+            "r_right": s.r_right,
+            "r_combined": s.r_combined,
+            "predicted": s.predicted,
+            "rough": rough,
+            "ruggedness": ruggedness,
+            **{
+                name: column(name)
+                for name in ("baseline_all_lasers", "baseline_closest_laser", "oracle", *ABLATIONS)
+            },
+        }
+    )
+    write_table(
+        report / SCORES_NAME,
+        scores,
+        "scores",
+        source_sha256=sorted(inputs.values()),
+        config_hash=cfg_hash,
+    )
+    figures = [roc_png(report / ROC_PNG, {n: r.curve for n, r in rocs.items() if r is not None})]
+    copied = _copy_log_figures(workspace, events, report)
+    atomic_write_json(report / SUMMARY_NAME, summary)
+    write_index_html(
+        report / INDEX_NAME,
+        ReportInputs(
+            summary, model_doc, [p.name for p in figures], [p.name for p in speed_files], copied
+        ),
+    )
+    for w in warnings:
+        _log.warning("%s", w)
+    names = [SCORES_NAME, SUMMARY_NAME, INDEX_NAME]
+    manifest.record_stage(
+        STAGE,
+        StageRecord(
+            inputs=inputs,
+            config_hash=cfg_hash,
+            outputs=tuple(f"report/{n}" for n in names),
+            row_counts={**counts, "scores": events.num_rows},
+            timings_s={
+                **{k: round(v, 6) for k, v in timings.items()},
+                "total": round(time.perf_counter() - start, 6),
+            },
+            warnings=tuple(warnings),
+            output_files=digest_files(report, names),
+        ),
+    )
+    return EvaluateResult(
+        "written", summary, report / INDEX_NAME, tuple(warnings), time.perf_counter() - start
+    )
+
+
+def _copy_log_figures(
+    workspace: Workspace, events: pa.Table, report: Path
+) -> list[tuple[str, str]]:
+    """Each log's Fig. 4 (and Fig. 5, for calibration logs) copied beside the report, as
+    (caption, file name) pairs."""
+    out: list[tuple[str, str]] = []
+    for log_id in sorted(set(events.column("log_id").to_pylist())):
+        for src, caption in ((FIG4_PNG, "Fig. 4 analogue"), (FIG5_PNG, "Fig. 5 analogue")):
+            path = workspace.log_dir(log_id) / src
+            if path.is_file():
+                name = f"{log_id}_{src}"
+                write_bytes_atomic(report / name, path.read_bytes())
+                out.append((f"{caption}: {log_id}", name))
+    return out
+
+
+__all__ = ["STAGE", "EvaluateResult", "closest_laser", "oracle_patches", "run_evaluate"]

@@ -1,0 +1,330 @@
+"""Learn stage: the training tables -> ``model.json``, the roughness model's 14 parameters
+(paper sect. 6).
+
+Inputs: ``tables/events.parquet`` (the training split's events and their ``rough`` labels)
+and ``tables/event_points.parquet`` (the points under each tyre), as the last finished
+``terrain tables`` wrote them. Each training event's tyre patches
+(:mod:`toolkit.model.patches`, at most ``[model] max_points_per_wheel`` points a tyre) are
+turned into their pairs once (:class:`toolkit.model.roughness.PairTable`); coordinate ascent
+(:mod:`toolkit.model.ascent`) then searches B = (alpha_1..alpha_10, upsilon, omega, zeta)
+and mu for the largest ``Tp - lambda Fp`` (eq. 6).
+
+``model.json`` holds the parameters, lambda, the objective with its true- and false-positive
+rates, the iterations and the objective after each, the accepted steps, the initial guess
+and increments, what it was trained on (events, positives, points, the tables' sha256) and
+the toolkit's version. The same tables and configuration give the same file, byte for byte.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from toolkit import __version__
+from toolkit.config import PipelineConfig, config_hash
+from toolkit.errors import StageError
+from toolkit.model.ascent import B_NAMES, AscentConfig, AscentResult, coordinate_ascent
+from toolkit.model.patches import POINT_COLUMNS, TyrePatches, build_patches
+from toolkit.model.roughness import PairTable, RoughnessParams
+from toolkit.tableio import iter_table_batches, read_table
+from toolkit.workspace import (
+    StageRecord,
+    Workspace,
+    atomic_write_json,
+    check_up_to_date,
+    digest_files,
+    file_sha256,
+    require_finished,
+)
+
+_log = logging.getLogger(__name__)
+
+STAGE = "learn"
+CONFIG_SECTIONS = ("model", "learn")
+MODEL_FORMAT = "terrain.roughness_model"
+MODEL_FORMAT_VERSION = 1
+#: Rows per batch when streaming the event points.
+POINT_BATCH = 1_048_576
+#: Largest pair table learning builds, bytes (13 bytes a pair: three float32 logarithms of
+#: differences and a validity flag).
+MAX_PAIR_BYTES = 6 << 30
+#: String columns of the event points read as dictionaries (a few distinct values each).
+DICTIONARY_COLUMNS = ("log_id", "wheel", "laser")
+
+
+def stage_config_hash(config: PipelineConfig) -> str:
+    """The hash of the configuration sections learning depends on."""
+    return config_hash(config, CONFIG_SECTIONS)
+
+
+def table_inputs(workspace: Workspace) -> dict[str, str]:
+    """sha256 of the two tables, refused (WorkspaceError naming the file) unless they are
+    what the last finished ``terrain tables`` wrote."""
+    tables_dir = workspace.tables_dir
+    paths = (workspace.events_table, workspace.event_points_table)
+    missing = [p for p in paths if not p.is_file()]
+    if missing:
+        raise StageError("no training tables; run `terrain tables` first", path=missing[0])
+    hashes = {p.name: file_sha256(p) for p in paths}
+    require_finished(workspace.manifest().stage("tables"), "tables", hashes, tables_dir)
+    return {f"tables/{name}": sha for name, sha in hashes.items()}
+
+
+def split_events(workspace: Workspace, split: str | None) -> pa.Table:
+    """The events of one split (``"train"``, ``"test"``) or all (None), in table order."""
+    events = read_table(workspace.events_table, "tables_events")
+    if split is None:
+        return events
+    return events.filter(pc.equal(events.column("split"), split))
+
+
+def patches_of(
+    workspace: Workspace,
+    events: pa.Table,
+    config: PipelineConfig,
+    *,
+    only_laser: str | None = None,
+) -> TyrePatches:
+    """The tyre patches of ``events``, streamed from ``tables/event_points.parquet``."""
+    batches = iter_table_batches(
+        workspace.event_points_table,
+        "event_points",
+        columns=POINT_COLUMNS,
+        batch_rows=POINT_BATCH,
+        as_dictionary=DICTIONARY_COLUMNS,
+    )
+    return build_patches(
+        events,
+        batches,
+        config.model.max_points_per_wheel,
+        only_laser=only_laser,
+        source=workspace.event_points_table,
+    )
+
+
+def ascent_config(
+    config: PipelineConfig,
+    free: tuple[bool, ...] | None = None,
+    fixed: dict[int, float] | None = None,
+) -> AscentConfig:
+    """The search of sect. 6 from ``[learn]``: ``free`` (13 flags) says which elements of B
+    move, ``fixed`` overrides initial values (an ablation's zeroed terms)."""
+    lc = config.learn
+    initial = [*lc.initial_alpha, lc.initial_upsilon, float(lc.initial_omega), lc.initial_zeta]
+    for j, v in (fixed or {}).items():
+        initial[j] = v
+    increments = (*lc.increment_alpha, lc.increment_upsilon, lc.increment_omega, lc.increment_zeta)
+    return AscentConfig(
+        initial=tuple(float(v) for v in initial),
+        increments=tuple(float(v) for v in increments),
+        lambda_fp=lc.lambda_fp,
+        iterations=lc.iterations,
+        free=free if free is not None else (True,) * 13,
+    )
+
+
+def pair_table(patches: TyrePatches, config: PipelineConfig, path: Path) -> PairTable:
+    """The pairs of ``patches``; StageError, before allocating, when they would take more
+    than :data:`MAX_PAIR_BYTES` (an uncapped ``[model] max_points_per_wheel`` on dense
+    lasers: N points a tyre make N (N - 1) / 2 pairs)."""
+    n = patches.n_max
+    need = patches.groups * (n * (n - 1) // 2) * 13
+    if need > MAX_PAIR_BYTES:
+        raise StageError(
+            f"{patches.groups} tyre patches of up to {n} points make {need / 2**30:.1f} GiB of "
+            f"pairs (limit {MAX_PAIR_BYTES / 2**30:.0f} GiB); set [model] max_points_per_wheel "
+            f"(now {config.model.max_points_per_wheel}) to 40 or so",
+            path=path,
+        )
+    return PairTable(patches)
+
+
+def require_both_classes(rough: np.ndarray, what: str, path: Path) -> None:
+    """StageError unless the labels (E,) hold at least one rough and one smooth event: the
+    rates of eq. (6) are undefined otherwise."""
+    n_pos = int(np.count_nonzero(rough))
+    if n_pos == 0 or n_pos == rough.size:
+        kind = "rough" if n_pos == 0 else "smooth"
+        raise StageError(
+            f"the {what} has {rough.size} events and no {kind} one: nothing to learn from "
+            "(more driving, or another [label] rough_threshold_g_per_mph)",
+            path=path,
+        )
+
+
+@dataclass(frozen=True)
+class LearnResult:
+    """What ``terrain learn`` did, for the command line."""
+
+    status: str  # "written" or "up_to_date"
+    model: dict[str, Any]
+    seconds: float
+
+    def summary(self) -> str:
+        m = self.model
+        if self.status == "up_to_date":
+            return f"model up to date (objective {m['objective']:.4f})"
+        t = m["training"]
+        return (
+            f"model learned on {t['events']} training events ({t['positives']} rough) in "
+            f"{self.seconds:.1f} s: Tp - {m['lambda']:g} Fp = {m['objective']:.4f} (Tp "
+            f"{m['tp_rate']:.3f}, Fp {m['fp_rate']:.4f}) after {m['iterations']} iterations"
+        )
+
+
+def model_json(
+    result: AscentResult,
+    config: AscentConfig,
+    *,
+    events: int,
+    positives: int,
+    points: int,
+    max_points_per_wheel: int,
+    inputs: dict[str, str],
+    cfg_hash: str,
+) -> dict[str, Any]:
+    """The contents of ``model.json`` (module docstring)."""
+    p = result.params
+    return {
+        "format": MODEL_FORMAT,
+        "format_version": MODEL_FORMAT_VERSION,
+        **p.to_json(),
+        "lambda": config.lambda_fp,
+        "objective": result.objective,
+        "tp_rate": result.tpr,
+        "fp_rate": result.fpr,
+        "train_auc": result.auc,
+        "iterations": result.iterations,
+        "evaluations": result.evaluations,
+        "objective_by_iteration": list(result.history),
+        "steps": [
+            {"iteration": i, "parameter": n, "value": v, "objective": j}
+            for i, n, v, j in result.steps
+        ],
+        "initial": dict(zip(B_NAMES, config.initial, strict=True)),
+        "increments": dict(zip(B_NAMES, config.increments, strict=True)),
+        "training": {
+            "events": events,
+            "positives": positives,
+            "points": points,
+            "max_points_per_wheel": max_points_per_wheel,
+            "tables_sha256": inputs,
+        },
+        "config_hash": cfg_hash,
+        "toolkit_version": __version__,
+    }
+
+
+def load_model(workspace: Workspace) -> tuple[RoughnessParams, dict[str, Any]]:
+    """The learned parameters and the whole ``model.json``; StageError if missing or
+    malformed."""
+    import json
+
+    path = workspace.model_path
+    if not path.is_file():
+        raise StageError("no model; run `terrain learn` first", path=path)
+    try:
+        doc = json.loads(path.read_text())
+        params = RoughnessParams(
+            tuple(float(a) for a in doc["alpha"]),
+            float(doc["upsilon"]),
+            int(doc["omega"]),
+            float(doc["zeta"]),
+            float(doc["mu"]),
+        )
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise StageError(f"unreadable model: {exc}", path=path) from exc
+    if len(params.alpha) != 10 or not params.admissible():
+        raise StageError(f"model parameters outside the model's domain: {params}", path=path)
+    return params, doc
+
+
+def run_learn(
+    workspace: Workspace,
+    config: PipelineConfig,
+    *,
+    overwrite: bool = False,
+    progress: Callable[[int], None] | None = None,
+) -> LearnResult:
+    """Learn the model from the training split and write ``model.json`` (module docstring)."""
+    import json
+
+    start = time.perf_counter()
+    inputs = table_inputs(workspace)
+    cfg_hash = stage_config_hash(config)
+    manifest = workspace.manifest()
+    record = manifest.stage(STAGE)
+    outputs = [workspace.model_path]
+    if (
+        record is not None
+        and not overwrite
+        and check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=outputs)
+    ):
+        doc = json.loads(workspace.model_path.read_text())
+        return LearnResult("up_to_date", doc, time.perf_counter() - start)
+
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    train = split_events(workspace, "train")
+    rough = train.column("rough").to_numpy(zero_copy_only=False).astype(bool)
+    require_both_classes(rough, "training split", workspace.events_table)
+    patches = patches_of(workspace, train, config)
+    pairs = pair_table(patches, config, workspace.config_path)
+    timings["pairs"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    search = ascent_config(config)
+    result = coordinate_ascent(pairs, rough, search, progress)
+    timings["ascent"] = time.perf_counter() - t0
+    doc = model_json(
+        result,
+        search,
+        events=train.num_rows,
+        positives=int(rough.sum()),
+        points=int(patches.count.sum()),
+        max_points_per_wheel=config.model.max_points_per_wheel,
+        inputs=inputs,
+        cfg_hash=cfg_hash,
+    )
+    atomic_write_json(workspace.model_path, doc)
+    manifest.record_stage(
+        STAGE,
+        StageRecord(
+            inputs=inputs,
+            config_hash=cfg_hash,
+            outputs=("model.json",),
+            row_counts={
+                "train_events": train.num_rows,
+                "train_positives": int(rough.sum()),
+                "points": int(patches.count.sum()),
+                "pairs": pairs.pairs * pairs.groups,
+            },
+            timings_s={
+                **{k: round(v, 6) for k, v in timings.items()},
+                "total": round(time.perf_counter() - start, 6),
+            },
+            output_files=digest_files(workspace.root, ["model.json"]),
+        ),
+    )
+    return LearnResult("written", doc, time.perf_counter() - start)
+
+
+__all__ = [
+    "STAGE",
+    "LearnResult",
+    "ascent_config",
+    "load_model",
+    "pair_table",
+    "patches_of",
+    "require_both_classes",
+    "run_learn",
+    "split_events",
+    "table_inputs",
+]
