@@ -1,0 +1,139 @@
+"""Sect. 6: the threshold search, and coordinate ascent on a planted problem."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from tests.model.helpers import Point, make_patches
+from toolkit.model.ascent import AscentConfig, best_threshold, coordinate_ascent
+from toolkit.model.roughness import PairTable, RoughnessParams, score_events
+
+
+def _brute_force_best(r: np.ndarray, y: np.ndarray, lam: float) -> float:
+    """max over every mu of eq. (6): each distinct value, each midpoint, and below all."""
+    values = np.unique(r)
+    candidates = list(values) + list((values[1:] + values[:-1]) / 2) + [values[0] - 1.0]
+    best = 0.0
+    for mu in candidates:
+        pred = r > mu
+        best = max(best, (pred & y).sum() / y.sum() - lam * (pred & ~y).sum() / (~y).sum())
+    return float(best)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_best_threshold_is_the_best_of_every_candidate(seed: int) -> None:
+    """Every R_combined value a candidate mu (ties included: scores rounded to a grid): the
+    objective found equals a brute-force maximum, and ``r > mu`` reproduces its rates."""
+    rng = np.random.default_rng(seed)
+    r = np.round(rng.normal(size=200), 1)
+    y = rng.random(200) < 0.1 + 0.3 * (r > 1)
+    y[0], y[1] = True, False
+    for lam in (0.0, 1.0, 5.0):
+        t = best_threshold(r, y, lam)
+        assert t.objective == pytest.approx(_brute_force_best(r, y, lam), abs=1e-12)
+        pred = r > t.mu
+        if t.objective > 0:
+            assert (pred & y).sum() / y.sum() == pytest.approx(t.tpr)
+            assert (pred & ~y).sum() / (~y).sum() == pytest.approx(t.fpr)
+
+
+def test_mu_sits_midway_between_adjacent_scores() -> None:
+    """Decision 6: mu halfway between the lowest score called rough and the next one."""
+    t = best_threshold(np.array([0.0, 1.0, 3.0, 5.0]), np.array([False, False, True, True]), 5.0)
+    assert (t.mu, t.objective, t.tpr, t.fpr) == (2.0, 1.0, 1.0, 0.0)
+
+
+def _planted(rng: np.random.Generator, events: int) -> tuple[list[list[list[Point]]], np.ndarray]:
+    """Smooth events: a slow pose drift, 8 cm between points seen 2 s apart (as Fig. 4's
+    error growing with time). Rough events: a 5 cm step between points seen 0.05 s apart.
+    Height difference alone ranks the drift above the step; the time term (alpha_3 > 0)
+    separates them."""
+    out, labels = [], []
+    for e in range(events):
+        rough = e % 5 == 0
+        wheels = []
+        for w in range(2):
+            pts: list[Point] = []
+            for k in range(8):
+                x = 0.15 * k
+                noise = float(rng.normal(0, 0.003))
+                if rough and w == 0:
+                    tau = 10.0 + 0.01 * k
+                    z = (0.05 if k >= 4 else 0.0) + noise
+                else:
+                    tau = 10.0 + (2.0 if k >= 4 else 0.0) + 0.01 * k
+                    z = (0.08 if k >= 4 else 0.0) + noise
+                pts.append((x, 0.01 * w, z, tau, 0.0, 0.0))
+            wheels.append(pts)
+        out.append(wheels)
+        labels.append(rough)
+    return out, np.array(labels)
+
+
+def _config(**kw: object) -> AscentConfig:
+    base = dict(
+        initial=(1.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 1.0, 2.0, 1.0),
+        increments=(0.5, 0.5, 0.02, 0.5, 0.05, 0.5, 0.02, 0.5, 0.02, 0.5, 0.1, 2.0, 0.25),
+        lambda_fp=5.0,
+        iterations=8,
+    )
+    base.update(kw)
+    return AscentConfig(**base)  # type: ignore[arg-type]
+
+
+def test_a_planted_problem_is_learned() -> None:
+    """From alpha_3 = 0 (J at 0: the drift outscores the step), the search finds the time
+    penalty and separates the training events perfectly (J = 1), and the learned model
+    classifies fresh events from the same process without error."""
+    rng = np.random.default_rng(3)
+    train, y_train = _planted(rng, 60)
+    source = PairTable(make_patches(train))
+    start = _config().initial
+    r0 = score_events(source, RoughnessParams.from_vector(start, 0.0)).r_combined
+    assert best_threshold(r0, y_train, 5.0).objective == 0.0  # the premise: J starts at 0
+    result = coordinate_ascent(source, y_train, _config())
+    assert result.objective == 1.0 and result.tpr == 1.0 and result.fpr == 0.0
+    assert result.params.alpha[2] > 0.0  # the time term was needed
+    test, y_test = _planted(rng, 40)
+    got = score_events(PairTable(make_patches(test)), result.params)
+    np.testing.assert_array_equal(got.predicted, y_test)
+
+
+def test_without_the_time_term_the_planted_problem_is_not_learned() -> None:
+    """The same problem with alpha_3 frozen at 0: no parameter separates it (J < 1): the
+    planted problem needs what the first test says it found."""
+    rng = np.random.default_rng(3)
+    train, y_train = _planted(rng, 60)
+    free = tuple(j not in (2, 3) for j in range(13))
+    result = coordinate_ascent(PairTable(make_patches(train)), y_train, _config(free=free))
+    assert result.objective < 1.0
+    assert result.params.alpha[2] == 0.0 and result.params.alpha[3] == 1.0
+
+
+def test_objective_never_decreases_and_omega_stays_a_positive_integer() -> None:
+    """On noisy random labels (hard to learn): the objective after each rotation and at each
+    accepted step never falls; omega is an integer >= 1 throughout."""
+    rng = np.random.default_rng(11)
+    raw, _ = _planted(rng, 50)
+    y = rng.random(50) < 0.3
+    y[:2] = [True, False]
+    result = coordinate_ascent(PairTable(make_patches(raw)), y, _config(iterations=6))
+    hist = np.array(result.history)
+    assert np.all(np.diff(hist) >= 0) and hist[-1] == result.objective
+    step_j = [s[3] for s in result.steps]
+    assert all(b >= a for a, b in itertools.pairwise(step_j))
+    assert isinstance(result.params.omega, int) and result.params.omega >= 1
+    assert all(
+        float(v).is_integer() and v >= 1 for _, name, v, _ in result.steps if name == "omega"
+    )
+
+
+def test_the_search_is_deterministic() -> None:
+    rng = np.random.default_rng(5)
+    raw, y = _planted(rng, 30)
+    a = coordinate_ascent(PairTable(make_patches(raw)), y, _config(iterations=4))
+    b = coordinate_ascent(PairTable(make_patches(raw)), y, _config(iterations=4))
+    assert a == b

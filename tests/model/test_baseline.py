@@ -1,0 +1,52 @@
+"""The race's obstacle test (Thrun et al. 2006a) as the baseline of Fig. 6."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from tests.model.helpers import Point, make_patches
+from toolkit.model.baseline import BaselineParams, FixedScores, flagged, pair_scores
+
+PARAMS = BaselineParams(
+    cell_m=0.25, delta_m=0.15, sigma0_m=0.03, growth_m2_per_s=0.0025, confidence=0.95
+)
+
+
+def _pair(dz: float, dt: float, dx: float = 0.05) -> list[Point]:
+    return [(0.1, 0.1, 0.0, 5.0, 0.0, 0.0), (0.1 + dx, 0.1, dz, 5.0 + dt, 0.0, 0.0)]
+
+
+def test_a_planted_step_is_flagged() -> None:
+    """A 30 cm step seen by two scans 10 ms apart in one cell: (0.30 - 0.15) / 0.030 = 5
+    standard deviations, far above the 95 % test's 1.64."""
+    p = make_patches([[_pair(0.30, 0.01), _pair(0.0, 0.01)]])
+    assert flagged(p, PARAMS).tolist() == [True, False]
+    s = pair_scores(p, PARAMS)
+    assert np.nanmax(s[0][np.isfinite(s[0])]) > 4.9
+
+
+def test_a_difference_explained_by_the_time_between_scans_is_ignored() -> None:
+    """The same 30 cm, but the scans 20 s apart: the pose error's variance has grown to
+    0.03^2 + 0.0025 x 20 (sigma 0.23 m), so the difference is 0.65 sigma above delta: not
+    significant."""
+    p = make_patches([[_pair(0.30, 20.0), _pair(0.30, 0.01)]])
+    assert flagged(p, PARAMS).tolist() == [False, True]
+
+
+def test_points_in_different_cells_are_not_compared() -> None:
+    """A 30 cm difference across a cell boundary (x = 0.24 and 0.26) is no pair at all."""
+    pts = [(0.24, 0.1, 0.0, 5.0, 0.0, 0.0), (0.26, 0.1, 0.3, 5.0, 0.0, 0.0)]
+    p = make_patches([[pts, pts]])
+    assert not flagged(p, PARAMS).any()
+    assert np.isneginf(pair_scores(p, PARAMS)).all()
+
+
+def test_fixed_scores_rank_and_subset() -> None:
+    p = make_patches([[_pair(0.30, 0.01), _pair(0.2, 0.01)], [_pair(0.1, 0.01), _pair(0.0, 0.01)]])
+    fixed = FixedScores(pair_scores(p, PARAMS))
+    top = fixed.top_scores((), 1)[:, 0]
+    assert top[0] > top[1] > top[2] > top[3]
+    keep = np.array([False, False, True, True])
+    np.testing.assert_array_equal(
+        fixed.subset(keep).top_scores((), 1), fixed.top_scores((), 1)[keep]
+    )

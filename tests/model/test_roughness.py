@@ -1,0 +1,141 @@
+"""Eqs. (2)-(5): the vectorised scores against plain loops, and each decision the paper
+leaves open (toolkit.model.roughness's docstring)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from tests.model.helpers import combined_loop, make_patches, r_loop, random_patches
+from toolkit.model.roughness import (
+    PairTable,
+    RoughnessParams,
+    score_events,
+    signed_power,
+    top_k_desc,
+    total_score,
+)
+
+
+def _random_params(rng: np.random.Generator) -> RoughnessParams:
+    alpha = []
+    for i in range(10):
+        alpha.append(float(rng.uniform(0.3, 2.5)) if i % 2 else float(rng.uniform(-0.5, 2.0)))
+    return RoughnessParams(
+        tuple(alpha),
+        float(rng.uniform(0.8, 1.5)),
+        int(rng.integers(1, 12)),
+        float(rng.uniform(0.3, 2.0)),
+        0.0,
+    )
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_vectorised_scores_equal_a_loop_over_pairs(seed: int) -> None:
+    """Patches of 0 to 9 points a tyre (so some with fewer pairs than omega, some with none)
+    and random admissible parameters: R_left, R_right and R_combined equal eqs. (2)-(5)
+    computed pair by pair (float32 differences: relative 1e-4)."""
+    rng = np.random.default_rng(seed)
+    raw = random_patches(rng, 12, 9)
+    params = _random_params(rng)
+    got = score_events(PairTable(make_patches(raw)), params)
+    for e, (left, right) in enumerate(raw):
+        rl, rr = r_loop(left, params), r_loop(right, params)
+        assert got.r_left[e] == pytest.approx(rl, rel=1e-4, abs=1e-5)
+        assert got.r_right[e] == pytest.approx(rr, rel=1e-4, abs=1e-5)
+        assert got.r_combined[e] == pytest.approx(
+            combined_loop(rl, rr, params.zeta), rel=1e-3, abs=1e-5
+        )
+
+
+def test_only_the_lower_triangle_is_scored() -> None:
+    """N points give N (N - 1) / 2 pairs, each once: with omega = all pairs and upsilon = 1,
+    R is the plain sum of Delta over r > c (the upper triangle would double it)."""
+    pts = [
+        (0.0, 0.0, 0.00, 0.0, 0.0, 0.0),
+        (0.1, 0.0, 0.03, 0.0, 0.0, 0.0),
+        (0.2, 0.0, 0.10, 0.0, 0.0, 0.0),
+        (0.3, 0.0, 0.01, 0.0, 0.0, 0.0),
+    ]
+    table = PairTable(make_patches([[pts, pts]]))
+    assert table.pairs == 6
+    alpha = (1.0, 1.0, 0, 1, 0, 1, 0, 1, 0, 1)
+    r = total_score(table.top_scores(alpha, 6), 1.0, 6)
+    dz = [abs(p[2] - q[2]) for i, p in enumerate(pts) for q in pts[:i]]
+    assert r[0] == pytest.approx(sum(dz), rel=1e-6)
+
+
+def test_the_largest_score_weighs_upsilon_to_the_omega_minus_one() -> None:
+    """Decision 1: W has omega entries, W_0..W_{omega-1} ascending, i = 0..omega-1."""
+    top = np.array([[5.0, 3.0, 2.0, 1.0]])
+    assert total_score(top, 2.0, 3)[0] == 5 * 4 + 3 * 2 + 2 * 1
+
+
+def test_fewer_pairs_than_omega_rank_from_the_top() -> None:
+    """Decision 2: two pairs and omega = 4: the largest still weighs upsilon^3, the next
+    upsilon^2; the empty ranks add nothing."""
+    top = top_k_desc(np.array([[1.0, 4.0]], np.float32), 4)
+    assert np.isinf(top[0, 2:]).all()
+    assert total_score(top, 2.0, 4)[0] == 4 * 8 + 1 * 4
+
+
+def test_a_patch_with_fewer_than_two_points_scores_zero() -> None:
+    """Decision 3: one point (no pair) or none: R = 0."""
+    one = [(0.0, 0.0, 0.5, 0.0, 0.0, 0.0)]
+    pts = [(0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (0.1, 0.0, 0.1, 0.0, 0.0, 0.0)]
+    got = score_events(
+        PairTable(make_patches([[one, []], [pts, one]])),
+        RoughnessParams((1.0, 1.0, 0, 1, 0, 1, 0, 1, 0, 1), 1.1, 3, 1.0, 0.0),
+    )
+    assert got.r_left[0] == 0.0 and got.r_right[0] == 0.0
+    assert got.r_left[1] > 0.0 and got.r_right[1] == 0.0
+
+
+def test_negative_r_under_a_fractional_zeta_is_a_signed_power() -> None:
+    """Decision 4: sign(R) |R|^zeta: real, odd, increasing in R."""
+    r = np.array([-4.0, -1.0, 0.0, 1.0, 4.0])
+    got = signed_power(r, 0.5)
+    assert got.tolist() == [-2.0, -1.0, 0.0, 1.0, 2.0]
+    assert np.all(np.diff(signed_power(np.linspace(-3, 3, 101), 0.3)) > 0)
+
+
+def test_exponents_must_be_positive_and_zero_differences_score_zero() -> None:
+    """Decision 5: an exponent <= 0 is outside the model; with a > 0, |0|^a = 0, so two
+    points at the same height and time add nothing but the distance term."""
+    base = RoughnessParams((1.0, 0.5, 1.0, 0.5, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0), 1.0, 1, 1.0, 0.0)
+    assert base.admissible()
+    for i in (1, 3, 5, 7, 9):
+        bad = list(base.alpha)
+        bad[i] = 0.0
+        assert not RoughnessParams(tuple(bad), 1.0, 1, 1.0, 0.0).admissible()
+    assert not RoughnessParams(base.alpha, 0.0, 1, 1.0, 0.0).admissible()
+    assert not RoughnessParams(base.alpha, 1.0, 0, 1.0, 0.0).admissible()
+    assert not RoughnessParams(base.alpha, 1.0, 1, 0.0, 0.0).admissible()
+    same = [(0.0, 0.0, 0.2, 1.0, 0.0, 0.0), (0.0, 0.0, 0.2, 1.0, 0.0, 0.0)]
+    got = score_events(PairTable(make_patches([[same, same]])), base)
+    assert got.r_left[0] == 0.0 and math.isfinite(got.r_combined[0])
+
+
+def test_predicted_is_r_combined_above_mu() -> None:
+    """rough iff R_combined > mu, strictly."""
+    pts = [(0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (0.1, 0.0, 0.1, 0.0, 0.0, 0.0)]
+    table = PairTable(make_patches([[pts, pts]]))
+    p = RoughnessParams((1.0, 1.0, 0, 1, 0, 1, 0, 1, 0, 1), 1.0, 1, 1.0, 0.0)
+    r = score_events(table, p).r_combined[0]
+    at = RoughnessParams(p.alpha, 1.0, 1, 1.0, float(r))
+    below = RoughnessParams(p.alpha, 1.0, 1, 1.0, float(np.nextafter(r, -np.inf)))
+    assert not score_events(table, at).predicted[0]
+    assert score_events(table, below).predicted[0]
+
+
+def test_subset_scores_equal_the_whole_tables_rows() -> None:
+    """PairTable.subset (training events only) scores its patches as the whole table does."""
+    rng = np.random.default_rng(7)
+    table = PairTable(make_patches(random_patches(rng, 10, 6)))
+    keep = np.repeat(np.arange(10) % 3 == 0, 2)
+    alpha = (1.0, 1.5, 0.1, 1.0, 0.2, 1.0, 0.05, 1.0, 0.05, 1.0)
+    np.testing.assert_array_equal(
+        table.subset(keep).top_scores(alpha, 5), table.top_scores(alpha, 5)[keep]
+    )
