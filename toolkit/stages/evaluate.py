@@ -307,9 +307,16 @@ def run_evaluate(
     if not model_path.is_file():
         raise StageError("no model; run `terrain learn` first", path=model_path)
     model_sha = file_sha256(model_path)
-    require_finished(
-        workspace.manifest().stage("learn"), "learn", {"model.json": model_sha}, workspace.root
-    )
+    learned_from = workspace.manifest().stage("learn")
+    require_finished(learned_from, "learn", {"model.json": model_sha}, workspace.root)
+    # The model must come from these tables: one learned before a relabelling or a new split
+    # would be scored on events it may have trained on, and its rates would not be these.
+    if learned_from is not None and dict(learned_from.inputs) != inputs:
+        raise StageError(
+            "the model was learned from other training tables than the ones here; run "
+            "`terrain learn` again",
+            path=model_path,
+        )
     inputs["model.json"] = model_sha
     cfg_hash = stage_config_hash(config)
     report = workspace.report_dir

@@ -1,0 +1,414 @@
+"""The learn stage on the bundled sample log: ``tables/`` -> ``model.json`` (sect. 6).
+
+One pipeline run (label, tables, learn, evaluate on a copy of the session's projected
+sample) is shared by this file and ``test_evaluate.py`` through :func:`pipeline`: it is
+built once per session, in a fixed folder under pytest's base temporary directory, whichever
+file asks first. Tests that change a workspace work on a copy of it.
+
+The checks derive what they expect from the tables (counts, hashes) or recompute it with
+the model's own building blocks (patches, pair table, scores), so a stage that recorded
+something other than what it did fails here.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pytest
+from click.testing import CliRunner
+from sklearn.metrics import roc_auc_score
+
+from toolkit.cli import main
+from toolkit.config import default_config
+from toolkit.errors import StageError, WorkspaceError
+from toolkit.model.patches import build_patches
+from toolkit.model.roughness import EXPONENTS, PairTable, RoughnessParams, score_events
+from toolkit.stages.evaluate import run_evaluate
+from toolkit.stages.label import run_label
+from toolkit.stages.learn import run_learn
+from toolkit.stages.tables import run_tables
+from toolkit.tableio import read_table, read_table_metadata, write_table
+from toolkit.workspace import Manifest, Workspace, digest_files, file_sha256
+
+#: Folder (under pytest's base temporary directory) of the shared pipeline run.
+PIPELINE_DIR = "learn_evaluate_pipeline"
+#: Keys ``model.json`` must hold: the contract's parameters and how they were trained.
+MODEL_KEYS = (
+    "alpha",
+    "upsilon",
+    "omega",
+    "zeta",
+    "mu",
+    "lambda",
+    "objective",
+    "tp_rate",
+    "fp_rate",
+    "iterations",
+    "objective_by_iteration",
+    "training",
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class Pipeline:
+    """The shared run: its workspace, the sample's log id and what the stages returned."""
+
+    ws: Workspace
+    log_id: str
+    learn_status: str
+    evaluate_status: str
+    evaluate_warnings: tuple[str, ...]
+
+
+def build_pipeline(
+    sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
+) -> Pipeline:
+    """Label, tables, learn and evaluate on a copy of the projected sample, once per
+    session: a later call (from this file or ``test_evaluate.py``, even through another
+    import of this module) finds the finished run by its ``done.json`` and reuses it."""
+    base = tmp_path_factory.getbasetemp() / PIPELINE_DIR
+    done = base / "done.json"
+    if not done.is_file():
+        if base.exists():
+            shutil.rmtree(base)  # an earlier build that failed half-way
+        root, log_id = sample_projected
+        ws = Workspace(base / "ws")
+        shutil.copytree(root, ws.root, symlinks=True)
+        cfg = default_config()
+        run_label(ws, log_id, cfg)
+        run_tables(ws, cfg)
+        learned = run_learn(ws, cfg)
+        evaluated = run_evaluate(ws, cfg)
+        done.write_text(
+            json.dumps(
+                {
+                    "log_id": log_id,
+                    "learn_status": learned.status,
+                    "evaluate_status": evaluated.status,
+                    "evaluate_warnings": list(evaluated.warnings),
+                }
+            )
+        )
+    info = json.loads(done.read_text())
+    return Pipeline(
+        Workspace(base / "ws"),
+        info["log_id"],
+        info["learn_status"],
+        info["evaluate_status"],
+        tuple(info["evaluate_warnings"]),
+    )
+
+
+def copy_workspace(ws: Workspace, dst: Path) -> Workspace:
+    """A copy of ``ws`` at ``dst`` a test may change."""
+    shutil.copytree(ws.root, dst, symlinks=True)
+    return Workspace(dst)
+
+
+def split_and_rough(ws: Workspace) -> tuple[np.ndarray, np.ndarray]:
+    """The ``split`` (object) and ``rough`` (bool) columns of ``tables/events.parquet``."""
+    events = read_table(ws.events_table, "tables_events")
+    split = np.asarray(events.column("split").to_pylist(), dtype=object)
+    rough = events.column("rough").to_numpy(zero_copy_only=False).astype(bool)
+    return split, rough
+
+
+def rewrite_events_table(ws: Workspace, events: pa.Table) -> None:
+    """Replace ``tables/events.parquet`` by ``events`` and record the tables as what the
+    last finished ``terrain tables`` wrote (sizes and sha256 of both files, as a real run
+    that produced these tables would have), so the consumers' input check passes."""
+    meta = read_table_metadata(ws.events_table)
+    write_table(
+        ws.events_table,
+        events,
+        "tables_events",
+        source_sha256=meta["source_sha256"].split(","),
+        config_hash=meta["config_hash"],
+    )
+    manifest = Manifest(ws.manifest_path)
+    record = manifest.stage("tables")
+    assert record is not None, "the workspace has no finished tables stage"
+    manifest.record_stage(
+        "tables",
+        dataclasses.replace(
+            record, output_files=digest_files(ws.tables_dir, list(record.output_files))
+        ),
+    )
+
+
+def with_rough(events: pa.Table, rough: np.ndarray) -> pa.Table:
+    """``events`` with its ``rough`` column replaced."""
+    i = events.schema.get_field_index("rough")
+    return events.set_column(i, "rough", pa.array(rough.astype(bool), pa.bool_()))
+
+
+def one_error_line(stderr: str) -> str:
+    """The single ``terrain: error:`` line of a failed command (no traceback)."""
+    lines = [line for line in stderr.splitlines() if line.strip()]
+    assert len(lines) == 1, stderr
+    assert lines[0].startswith("terrain: error: "), stderr
+    assert "Traceback" not in stderr
+    return lines[0]
+
+
+@pytest.fixture(scope="module")
+def pipeline(
+    sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
+) -> Pipeline:
+    return build_pipeline(sample_projected, tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def model(pipeline: Pipeline) -> dict[str, Any]:
+    return dict(json.loads(pipeline.ws.model_path.read_text()))
+
+
+# -- the data the rest stands on ---------------------------------------------------------
+
+
+def test_both_splits_hold_rough_and_smooth_events(pipeline: Pipeline) -> None:
+    """Precondition of every other test here: learning needs both classes in the training
+    split, the ROC both in the test split. If the sample or the labeller changes so that a
+    split loses a class, this says so instead of the other tests failing obscurely."""
+    split, rough = split_and_rough(pipeline.ws)
+    for name in ("train", "test"):
+        mine = split == name
+        assert 0 < int(rough[mine].sum()) < int(mine.sum()), (name, mine.sum(), rough[mine].sum())
+    assert set(split.tolist()) == {"train", "test"}
+    assert pipeline.learn_status == "written"
+    assert pipeline.evaluate_status == "written"
+
+
+# -- model.json ----------------------------------------------------------------------------
+
+
+def test_model_json_holds_the_parameters_and_how_they_were_trained(
+    pipeline: Pipeline,
+    model: dict[str, Any],
+) -> None:
+    """The contract's keys; 10 alphas with the exponents (alpha_2, 4, 6, 8, 10) positive,
+    as eq. (4) needs for ``|0|^a``; omega a positive integer (W's length); the training
+    counts equal what ``tables/events.parquet`` says of its train split; the objective is
+    eq. (6) of the recorded rates; the per-iteration objective never decreases (the search
+    only accepts improvements) and ends at the objective; the tables' sha256 are the
+    files'; the manifest's learn record describes the same run."""
+    ws = pipeline.ws
+    cfg = default_config()
+    for key in MODEL_KEYS:
+        assert key in model, key
+    alpha = model["alpha"]
+    assert len(alpha) == 10 and all(isinstance(a, float) for a in alpha)
+    assert all(alpha[i] > 0.0 for i in EXPONENTS), alpha
+    assert isinstance(model["omega"], int) and not isinstance(model["omega"], bool)
+    assert model["omega"] >= 1
+    assert model["upsilon"] > 0.0 and model["zeta"] > 0.0
+    assert np.isfinite(model["mu"])
+
+    split, rough = split_and_rough(ws)
+    train = split == "train"
+    training = model["training"]
+    assert training["events"] == int(train.sum())
+    assert training["positives"] == int(rough[train].sum())
+    assert training["max_points_per_wheel"] == cfg.model.max_points_per_wheel
+    # Points: each training tyre's points in the table, capped at max_points_per_wheel.
+    events = read_table(ws.events_table, "tables_events")
+    train_keys = {
+        (log, ev)
+        for log, ev, s in zip(
+            events.column("log_id").to_pylist(),
+            events.column("event_id").to_pylist(),
+            split.tolist(),
+            strict=True,
+        )
+        if s == "train"
+    }
+    points = read_table(
+        ws.event_points_table, "event_points", columns=["log_id", "event_id", "wheel"]
+    )
+    per_tyre = points.group_by(["log_id", "event_id", "wheel"]).aggregate([([], "count_all")])
+    capped = sum(
+        min(n, cfg.model.max_points_per_wheel)
+        for log, ev, n in zip(
+            per_tyre.column("log_id").to_pylist(),
+            per_tyre.column("event_id").to_pylist(),
+            per_tyre.column("count_all").to_pylist(),
+            strict=True,
+        )
+        if (log, ev) in train_keys
+    )
+    assert training["points"] == capped
+
+    assert model["lambda"] == cfg.learn.lambda_fp
+    assert model["objective"] == pytest.approx(
+        model["tp_rate"] - model["lambda"] * model["fp_rate"], abs=1e-12
+    )
+    history = model["objective_by_iteration"]
+    assert len(history) == model["iterations"] == cfg.learn.iterations
+    assert all(b >= a for a, b in zip(history, history[1:], strict=False)), history
+    assert history[-1] == model["objective"]
+
+    assert training["tables_sha256"] == {
+        "tables/events.parquet": file_sha256(ws.events_table),
+        "tables/event_points.parquet": file_sha256(ws.event_points_table),
+    }
+    record = ws.manifest().stage("learn")
+    assert record is not None
+    assert record.output_files["model.json"].sha256 == file_sha256(ws.model_path)
+    assert dict(record.inputs) == training["tables_sha256"]
+    assert record.row_counts["train_events"] == training["events"]
+    assert record.row_counts["train_positives"] == training["positives"]
+
+
+def test_the_parameters_reproduce_the_recorded_rates_on_the_training_split(
+    pipeline: Pipeline,
+    model: dict[str, Any],
+) -> None:
+    """Scoring the training events again, from the tables, with the model's building blocks
+    (patches, pair table, eqs. 2-5) and the parameters read back from ``model.json``, and
+    calling an event rough when ``R_combined > mu``, gives the true- and false-positive
+    rates the file records: the file holds the parameters that earned its objective, and
+    its mu sits where the learner put it. The recorded training AUC is the ranking's."""
+    ws = pipeline.ws
+    events = read_table(ws.events_table, "tables_events")
+    train = events.filter(pc.equal(events.column("split"), "train"))
+    rough = train.column("rough").to_numpy(zero_copy_only=False).astype(bool)
+    points = read_table(ws.event_points_table, "event_points")
+    patches = build_patches(
+        train, points, model["training"]["max_points_per_wheel"], source=ws.event_points_table
+    )
+    assert int(patches.count.sum()) == model["training"]["points"]
+    params = RoughnessParams(
+        tuple(model["alpha"]), model["upsilon"], model["omega"], model["zeta"], model["mu"]
+    )
+    scores = score_events(PairTable(patches), params)
+    predicted = scores.r_combined > model["mu"]
+    np.testing.assert_array_equal(predicted, scores.predicted)
+    assert float(predicted[rough].mean()) == pytest.approx(model["tp_rate"], abs=1e-12)
+    assert float(predicted[~rough].mean()) == pytest.approx(model["fp_rate"], abs=1e-12)
+    # mu separates the scores: no training event sits on the threshold.
+    assert not np.any(scores.r_combined == model["mu"])
+    assert model["train_auc"] == pytest.approx(roc_auc_score(rough, scores.r_combined), abs=1e-9)
+
+
+# -- reruns --------------------------------------------------------------------------------
+
+
+def test_learning_again_gives_the_same_bytes_and_a_current_model_is_left_alone(
+    pipeline: Pipeline, tmp_path: Path
+) -> None:
+    """Coordinate ascent is deterministic: ``--overwrite`` on the same tables and
+    configuration writes a byte-identical ``model.json``. Then, without ``--overwrite``,
+    both the function and ``terrain learn`` report the model up to date and leave the file
+    (and the manifest's record of it) untouched."""
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    before = ws.model_path.read_bytes()
+    again = run_learn(ws, default_config(), overwrite=True)
+    assert again.status == "written"
+    assert ws.model_path.read_bytes() == before
+    assert again.model == json.loads(before)
+
+    mtime = ws.model_path.stat().st_mtime_ns
+    record = ws.manifest().stage("learn")
+    third = run_learn(ws, default_config())
+    assert third.status == "up_to_date"
+    assert third.model == json.loads(before)
+    assert ws.model_path.stat().st_mtime_ns == mtime
+    assert ws.manifest().stage("learn") == record
+
+    result = CliRunner().invoke(main, ["learn", "-w", str(ws.root)])
+    assert result.exit_code == 0, result.stderr
+    assert "up to date" in result.stdout
+    assert ws.model_path.stat().st_mtime_ns == mtime
+    assert ws.model_path.read_bytes() == before
+
+
+# -- refusals ------------------------------------------------------------------------------
+
+
+def test_without_tables_learn_refuses_in_one_line_naming_the_file(
+    sample_projected: tuple[Path, str], tmp_path: Path
+) -> None:
+    """A projected workspace that never ran ``terrain tables``: the stage refuses, naming
+    the missing table and the verb to run, and writes no model; the command exits 1 with
+    one line."""
+    root, _ = sample_projected
+    ws = copy_workspace(Workspace(root), tmp_path / "ws")
+    with pytest.raises(StageError, match="run `terrain tables` first") as err:
+        run_learn(ws, default_config())
+    assert err.value.path == ws.events_table
+    assert not ws.model_path.exists()
+
+    result = CliRunner().invoke(main, ["learn", "-w", str(ws.root)])
+    assert result.exit_code == 1
+    line = one_error_line(result.stderr)
+    assert str(ws.events_table) in line and "terrain tables" in line
+    assert not ws.model_path.exists()
+
+
+@pytest.mark.parametrize("missing", ["rough", "smooth"])
+def test_a_training_split_of_one_class_is_refused_and_the_model_kept(
+    pipeline: Pipeline, tmp_path: Path, missing: str
+) -> None:
+    """Crafted tables (written through ``tableio.write_table`` and recorded as a finished
+    tables run, so the input check passes) whose training split has no rough (or no smooth)
+    event: eq. (6)'s rates are undefined, so learning refuses, naming the events table and
+    the class it lacks, by function and by command (exit 1, one line). The new tables are
+    not the old model's, so the stage does not call it up to date; the model of the earlier
+    tables stays as it was (nothing half-written)."""
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    before = ws.model_path.read_bytes()
+    events = read_table(ws.events_table, "tables_events")
+    split, rough = split_and_rough(ws)
+    crafted = rough.copy()
+    crafted[split == "train"] = missing == "smooth"
+    rewrite_events_table(ws, with_rough(events, crafted))
+    # The test split is as it was: only the training split lost a class.
+    np.testing.assert_array_equal(split_and_rough(ws)[1][split == "test"], rough[split == "test"])
+
+    with pytest.raises(StageError, match=f"training split has .* no {missing} one") as err:
+        run_learn(ws, default_config())
+    assert err.value.path == ws.events_table
+    assert ws.model_path.read_bytes() == before
+
+    result = CliRunner().invoke(main, ["learn", "-w", str(ws.root)])
+    assert result.exit_code == 1
+    line = one_error_line(result.stderr)
+    assert str(ws.events_table) in line and f"no {missing} one" in line
+    assert ws.model_path.read_bytes() == before
+    # Nothing written aside is left (``.model.json.<host>-<pid>-<random>.tmp``).
+    assert [p.name for p in ws.root.iterdir() if "model.json" in p.name] == ["model.json"]
+
+
+def test_tables_changed_after_the_tables_stage_are_refused(
+    pipeline: Pipeline, tmp_path: Path
+) -> None:
+    """An events table rewritten by hand (not recorded by a finished ``terrain tables``)
+    is not learned from: one error naming the file and telling to run tables again."""
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    before = ws.model_path.read_bytes()
+    events = read_table(ws.events_table, "tables_events")
+    meta = read_table_metadata(ws.events_table)
+    write_table(
+        ws.events_table,
+        events.slice(1),
+        "tables_events",
+        source_sha256=meta["source_sha256"].split(","),
+        config_hash=meta["config_hash"],
+    )
+    with pytest.raises(WorkspaceError, match="run `terrain tables` again") as err:
+        run_learn(ws, default_config(), overwrite=True)
+    assert err.value.path == ws.events_table
+    assert ws.model_path.read_bytes() == before
+
+
+def test_learn_has_help() -> None:
+    result = CliRunner().invoke(main, ["learn", "--help"])
+    assert result.exit_code == 0
+    assert "--workspace" in result.output and "--overwrite" in result.output
