@@ -528,7 +528,7 @@ def evaluate(workspace: Path, overwrite: bool) -> None:
 
     ws = Workspace(workspace)
     cfg = ws.read_config()
-    with ws.lock(), progress(total=7, desc="evaluate", unit="step") as bar:
+    with ws.lock(), progress(total=8, desc="evaluate", unit="step") as bar:
 
         def step(what: str) -> None:
             bar.set_postfix_str(what)

@@ -233,6 +233,9 @@ class ModelConfig:
 
     wheel_window_radius_m: Annotated[float, Rule(gt=0.0)]
     max_points_per_wheel: Annotated[int, Rule(ge=0)]
+    #: Which points a patch with more than max_points_per_wheel keeps: "hash" (a uniform,
+    #: reproducible sample) or "freshest" (those seen last before the event).
+    point_sample: Annotated[str, Rule(choices=("hash", "freshest"))] = "hash"
 
 
 @dataclass(frozen=True)

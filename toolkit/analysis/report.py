@@ -24,6 +24,7 @@ METHOD_NAMES: dict[str, str] = {
     "oracle": "oracle: model on true terrain heights",
     "no_time_term": "ablation: no time term (alpha_3 = 0)",
     "no_rate_terms": "ablation: no roll/pitch-rate terms (alpha_7 = alpha_9 = 0)",
+    "no_learning": "ablation: the initial guess, not learned",
 }
 
 #: What each learned parameter does (eqs. 3-5), for the parameter table.

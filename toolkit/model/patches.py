@@ -42,6 +42,8 @@ IntArray = NDArray[np.int64]
 BoolArray = NDArray[np.bool_]
 
 WHEELS = ("left", "right")
+#: How a patch with more than n_max points is thinned (module docstring).
+SAMPLES = ("hash", "freshest")
 #: Columns of ``tables/event_points.parquet`` a patch is built from.
 POINT_COLUMNS = (
     "log_id",
@@ -167,6 +169,7 @@ def build_patches(
     max_points_per_wheel: int,
     *,
     only_laser: str | None = None,
+    sample: str = "hash",
     source: str | Path = "tables/event_points.parquet",
 ) -> TyrePatches:
     """Patches for ``events`` (a table with ``log_id`` and ``event_id``, in the order the
@@ -181,11 +184,19 @@ def build_patches(
     n_events = events.num_rows
     n_groups = 2 * n_events
     k = max_points_per_wheel
+    if sample not in SAMPLES:
+        raise ValueError(f"sample must be one of {SAMPLES}, not {sample!r}")
+    t_start = (
+        events.column("t_start_ns")
+        if "t_start_ns" in events.column_names
+        else pa.nulls(n_events, pa.int64())
+    )
     keys = pa.table(
         {
             "log_id": events.column("log_id").cast(pa.string()),
             "event_id": events.column("event_id"),
             "_event": pa.array(np.arange(n_events, dtype=np.int64)),
+            "_t_start_ns": t_start.cast(pa.int64()),
         }
     )
     kept: list[_Kept] = []
@@ -214,6 +225,15 @@ def build_patches(
         names, inverse = np.unique(laser_names, return_inverse=True)
         codes = np.array([laser_code(str(n)) for n in names], np.uint64)[inverse]
         priority = point_priority(joined.column("t_ns").to_numpy(), codes)
+        if sample == "freshest":
+            # Lead time in microseconds above, the hash's low 20 bits below: the points seen
+            # last before the event, ties broken reproducibly.
+            lead_us = (
+                joined.column("_t_start_ns").to_numpy() - joined.column("t_ns").to_numpy()
+            ) // 1000
+            priority = (np.maximum(lead_us, 0).astype(np.uint64) << np.uint64(20)) | (
+                priority & np.uint64(0xFFFFF)
+            )
         take = _bottom_k(group, priority, k)
         kept.append(
             _Kept(

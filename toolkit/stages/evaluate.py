@@ -24,7 +24,9 @@ Methods (sect. 7.1 and beyond):
   terrain height under each point instead of the measured z (pose, laser and range errors
   removed; the points' places and times kept). It bounds what better z alone could buy.
 - ``ablations``: the model learned again with the time term (alpha_3 = 0) or the roll- and
-  pitch-rate terms (alpha_7 = alpha_9 = 0) removed, what each part of eq. (4) buys.
+  pitch-rate terms (alpha_7 = alpha_9 = 0) removed, what each part of eq. (4) buys; and
+  ``no_learning``, the search's initial guess as it stands (mu from the training split),
+  what the learning itself buys.
 
 Speed control (sect. 7.2, :mod:`toolkit.model.speed_control`): each log's test events in
 driving order, the reactive controller swept over ``slow_fractions`` x
@@ -34,6 +36,7 @@ model's verdicts.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import time
@@ -55,7 +58,7 @@ from toolkit.analysis.truth_terrain import true_ground
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.model import speed_control as sc
-from toolkit.model.ascent import AscentResult, coordinate_ascent
+from toolkit.model.ascent import AscentResult, best_threshold, coordinate_ascent
 from toolkit.model.baseline import BaselineParams, FixedScores, pair_scores
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roc import RocSummary, summarise
@@ -98,6 +101,9 @@ ABLATIONS: dict[str, tuple[dict[int, float], tuple[int, ...]]] = {
     "no_time_term": ({2: 0.0}, (2, 3)),
     "no_rate_terms": ({6: 0.0, 8: 0.0}, (6, 7, 8, 9)),
 }
+#: The ablations' names in the summary and in scores.parquet: the two above, and the
+#: initial guess itself, unlearned (mu chosen on the training split), what learning buys.
+ABLATION_NAMES = (*ABLATIONS, "no_learning")
 #: The baseline learns only upsilon, omega and zeta (and mu): sect. 7.1.
 BASELINE_FREE = (False,) * 10 + (True, True, True)
 
@@ -402,6 +408,15 @@ def run_evaluate(
         methods[name] = _train_and_score(
             pairs, pairs.subset, train, rough, config, free, fixed_values
         )
+    tell("scoring the initial guess")
+    if learnable:
+        start_params = RoughnessParams.from_vector(ascent_config(config).initial, 0.0)
+        start_r = score_events(pairs, start_params).r_combined
+        mu = best_threshold(start_r[train], rough[train], config.learn.lambda_fp).mu
+        start_params = dataclasses.replace(start_params, mu=mu)
+        methods["no_learning"] = MethodScores(score_events(pairs, start_params), None, start_params)
+    else:
+        methods["no_learning"] = None
     timings["methods"] = time.perf_counter() - t0
 
     tell("ROC and speed control")
@@ -447,7 +462,7 @@ def run_evaluate(
         "baseline_all_lasers": entry("baseline_all_lasers"),
         "baseline_closest_laser": entry("baseline_closest_laser"),
         "oracle": entry("oracle"),
-        "ablations": {name: entry(name) for name in ABLATIONS},
+        "ablations": {name: entry(name) for name in ABLATION_NAMES},
         "speed_control": speed,
         **counts,
         "closest_laser": closest,
@@ -498,7 +513,12 @@ def run_evaluate(
             "ruggedness": ruggedness,
             **{
                 name: column(name)
-                for name in ("baseline_all_lasers", "baseline_closest_laser", "oracle", *ABLATIONS)
+                for name in (
+                    "baseline_all_lasers",
+                    "baseline_closest_laser",
+                    "oracle",
+                    *ABLATION_NAMES,
+                )
             },
         }
     )

@@ -106,6 +106,7 @@ def patches_of(
         batches,
         config.model.max_points_per_wheel,
         only_laser=only_laser,
+        sample=config.model.point_sample,
         source=workspace.event_points_table,
     )
 
