@@ -63,3 +63,12 @@ def test_a_wheel_that_is_neither_left_nor_right_is_refused() -> None:
     t = t.set_column(t.schema.get_field_index("wheel"), "wheel", pa.array(["middle"]))
     with pytest.raises(StageError, match="'middle'"):
         build_patches(events_table(1), t, 0)
+
+
+def test_the_freshest_sample_keeps_the_points_seen_last() -> None:
+    """With point_sample "freshest", the kept points are those with the shortest time between
+    their observation and the event's start."""
+    pts = [[[(float(i), 0.0, 0.0, float(i), 0.0, 0.0) for i in range(30)], []]]
+    events = events_table(1).append_column("t_start_ns", pa.array([40_000_000_000], pa.int64()))
+    p = build_patches(events, points_table(pts), 10, sample="freshest")
+    assert {tau for _, tau in _kept(p, 0)} == {float(i) for i in range(20, 30)}
