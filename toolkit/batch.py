@@ -426,6 +426,7 @@ def run_batch(
     *,
     desc: str,
     unit: str = "item",
+    bar: Any = None,
 ) -> BatchSummary:
     """Run ``task(item)`` for every item on ``executor``; never stop at a failure.
 
@@ -435,12 +436,14 @@ def run_batch(
     executor itself could not run (a worker process that died, a lost Dask worker). A result
     counts as up to date when it (or its ``status`` attribute) is ``"up_to_date"``, as done
     otherwise. Outcomes are reported in input order; repeated items run once. A progress bar
-    over the items shows on a terminal.
+    over the items shows on a terminal; ``bar``, an open progress bar (``terrain run``'s
+    one display for the whole run), is advanced instead.
     """
     unique = list(dict.fromkeys(items))
     start = time.perf_counter()
     outcomes: dict[int, ItemOutcome] = {}
-    with progress(total=len(unique), desc=desc, unit=unit) as bar:
+    own = progress(total=len(unique), desc=desc, unit=unit) if bar is None else None
+    with own if own is not None else contextlib.nullcontext(bar) as bar:
         futures: dict[Future[ItemOutcome], int] = {}
         for index, item in enumerate(unique):
             try:

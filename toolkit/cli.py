@@ -28,6 +28,8 @@ from toolkit.errors import LogReadError, ToolkitError
 from toolkit.progress import progress_enabled, set_quiet
 
 PROG = "terrain"
+#: Stage names for --from/--to (toolkit.pipeline.STAGES, listed here so --help needs no import).
+STAGE_NAMES = ("ingest", "pose", "project", "label", "tables", "learn", "evaluate")
 
 _log = logging.getLogger("toolkit")
 
@@ -249,6 +251,48 @@ def info(log: Path, as_json: bool, full: bool) -> None:
         click.echo(render_table(log_info))
 
 
+def _executor_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    """The options of every verb that runs logs in parallel: executor, workers, shards."""
+    for option in reversed(_EXECUTOR_OPTIONS):
+        f = option(f)
+    return f
+
+
+_EXECUTOR_OPTIONS = [
+    click.option(
+        "--executor",
+        "executor_kind",
+        type=click.Choice(["local", "dask"]),
+        default="local",
+        show_default=True,
+        help="local: a process pool on this machine; dask: a Dask cluster (needs --scheduler "
+        "and the 'distributed' extra).",
+    ),
+    click.option("--scheduler", default=None, help="Dask scheduler address, e.g. tcp://host:8786."),
+    click.option(
+        "--workers",
+        type=click.IntRange(min=0),
+        default=None,
+        help="Local worker processes (default: one per CPU; 0 runs in this process, for "
+        "debugging).",
+    ),
+    click.option(
+        "--shard-index",
+        type=click.IntRange(min=0),
+        default=0,
+        show_default=True,
+        help="This job's shard (0-based), for job arrays.",
+    ),
+    click.option(
+        "--num-shards",
+        type=click.IntRange(min=1),
+        default=1,
+        show_default=True,
+        help="How many jobs share the logs; each takes every K-th log of the sorted list.",
+    ),
+]
+
+
 @main.command()
 @click.argument(
     "logs", metavar="LOG.mcap...", nargs=-1, required=True, type=click.Path(path_type=Path)
@@ -270,36 +314,7 @@ def info(log: Path, as_json: bool, full: bool) -> None:
     "one, else the built-in default (pipelines/stanley2005.toml).",
 )
 @click.option("--overwrite", is_flag=True, help="Re-ingest logs that are already up to date.")
-@click.option(
-    "--executor",
-    "executor_kind",
-    type=click.Choice(["local", "dask"]),
-    default="local",
-    show_default=True,
-    help="local: a process pool on this machine; dask: a Dask cluster (needs --scheduler "
-    "and the 'distributed' extra).",
-)
-@click.option("--scheduler", default=None, help="Dask scheduler address, e.g. tcp://host:8786.")
-@click.option(
-    "--workers",
-    type=click.IntRange(min=0),
-    default=None,
-    help="Local worker processes (default: one per CPU; 0 runs in this process, for debugging).",
-)
-@click.option(
-    "--shard-index",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="This job's shard (0-based), for job arrays.",
-)
-@click.option(
-    "--num-shards",
-    type=click.IntRange(min=1),
-    default=1,
-    show_default=True,
-    help="How many jobs share the logs; each takes every K-th log of the sorted list.",
-)
+@_executor_options
 @click.pass_context
 def ingest(
     ctx: click.Context,
@@ -536,3 +551,93 @@ def evaluate(workspace: Path, overwrite: bool) -> None:
 
         result = run_evaluate(ws, cfg, overwrite=overwrite, step=step)
     click.echo(result.text())
+
+
+@main.command()
+@click.argument(
+    "logs", metavar="LOG.mcap...", nargs=-1, required=True, type=click.Path(path_type=Path)
+)
+@click.option(
+    "-w",
+    "--workspace",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Workspace directory (created if missing).",
+)
+@click.option(
+    "-c",
+    "--config",
+    "config_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Pipeline configuration (TOML). Default: the workspace's, else the built-in one.",
+)
+@click.option(
+    "--from",
+    "first",
+    type=click.Choice(STAGE_NAMES),
+    default=None,
+    help="First stage to run (default: ingest).",
+)
+@click.option(
+    "--to",
+    "last",
+    type=click.Choice(STAGE_NAMES),
+    default=None,
+    help="Last stage to run (default: evaluate).",
+)
+@click.option("--overwrite", is_flag=True, help="Redo every stage in range, even if up to date.")
+@_executor_options
+@click.pass_context
+def run(
+    ctx: click.Context,
+    logs: tuple[Path, ...],
+    workspace: Path,
+    config_path: Path | None,
+    first: str | None,
+    last: str | None,
+    overwrite: bool,
+    executor_kind: str,
+    scheduler: str | None,
+    workers: int | None,
+    shard_index: int,
+    num_shards: int,
+) -> None:
+    """Every stage, ingest to evaluate, skipping what is up to date; prints where the report is.
+
+    The per-log stages run logs in parallel (as ingest does); a log that fails a stage is
+    reported and left out of the later ones. Killed at any moment and run again, it finishes
+    with the outputs an uninterrupted run gives.
+    """
+    if executor_kind == "dask" and not scheduler:
+        raise click.UsageError("--executor dask needs --scheduler ADDR", ctx)
+    if executor_kind != "dask" and scheduler is not None:
+        raise click.UsageError("--scheduler applies only with --executor dask", ctx)
+    if shard_index >= num_shards:
+        raise click.BadParameter(
+            f"{shard_index} is not below --num-shards {num_shards}",
+            ctx,
+            param_hint="'--shard-index'",
+        )
+    from toolkit.pipeline import run_pipeline
+
+    summary = run_pipeline(
+        list(logs),
+        workspace,
+        config_path,
+        first=first,
+        last=last,
+        overwrite=overwrite,
+        executor_kind=executor_kind,
+        scheduler=scheduler,
+        workers=workers,
+        shard_index=shard_index,
+        num_shards=num_shards,
+    )
+    click.echo(summary.render())
+    if summary.ok:
+        return
+    for report in summary.stages:
+        for item, reason in report.failures.items():
+            _error_line(f"{report.stage}: {item}: {reason}")
+    ctx.exit(1)

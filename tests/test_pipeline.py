@@ -1,0 +1,176 @@
+"""``terrain run``: the same outputs as the verbs one by one, nothing redone, kill -9 safe.
+
+Two small logs: the bundled sample under two names (two logs to the toolkit: a log's id comes
+from its name and content), so the per-log stages run them in parallel and tables splits
+across them (the first log trains, the second tests).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from toolkit.cli import STAGE_NAMES
+from toolkit.errors import WorkspaceError
+from toolkit.pipeline import STAGES, stage_range
+
+SAMPLE_LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "sample.mcap"
+#: Manifest fields that differ between two runs of the same stage on the same input.
+VOLATILE = {"timings_s", "finished_utc", "x_real_time", "seconds"}
+KILLS = 3
+SEED = 20261125
+
+
+def terrain(*args: str | Path) -> list[str]:
+    return [sys.executable, "-m", "toolkit", "-q", *map(str, args)]
+
+
+def _strip(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _strip(v) for k, v in obj.items() if k not in VOLATILE}
+    if isinstance(obj, list):
+        return [_strip(v) for v in obj]
+    return obj
+
+
+def state(ws: Path) -> dict[str, Any]:
+    """Every visible file of the workspace by content (manifests without their timings;
+    per-log directories through their public names)."""
+    out: dict[str, Any] = {}
+    for p in sorted(ws.rglob("*")):
+        rel = p.relative_to(ws)
+        if any(part.startswith(".") for part in rel.parts) or p.is_dir():
+            continue
+        if p.name == "manifest.json":
+            out[str(rel)] = _strip(json.loads(p.read_text()))
+        else:
+            out[str(rel)] = hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
+    d = tmp_path_factory.mktemp("logs")
+    out = [d / "run_a.mcap", d / "run_b.mcap"]
+    for p in out:
+        shutil.copyfile(SAMPLE_LOG, p)
+    return out
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(logs: list[Path], tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One `terrain run` to the end on the two logs."""
+    ws = tmp_path_factory.mktemp("run") / "ws"
+    subprocess.run(
+        terrain("run", *logs, "-w", ws, "--workers", "2"), check=True, capture_output=True
+    )
+    return ws
+
+
+def test_the_stage_list_is_the_pipelines() -> None:
+    assert STAGE_NAMES == STAGES
+    assert stage_range("pose", "label") == ("pose", "project", "label")
+    with pytest.raises(WorkspaceError):
+        stage_range("learn", "pose")
+
+
+def test_run_equals_the_verbs_one_by_one(
+    uninterrupted: Path, logs: list[Path], tmp_path: Path
+) -> None:
+    """The verbs ingest, pose, project, label, tables, learn, evaluate run by hand give the
+    same files, byte for byte (manifests without their timings)."""
+    ws = tmp_path / "ws"
+    subprocess.run(terrain("ingest", *logs, "-w", ws), check=True, capture_output=True)
+    for verb in ("pose", "project", "label", "tables", "learn", "evaluate"):
+        subprocess.run(terrain(verb, "-w", ws), check=True, capture_output=True)
+    got, want = state(ws), state(uninterrupted)
+    assert got.keys() == want.keys()
+    assert [k for k in want if got[k] != want[k]] == []
+    assert any(k.startswith("report/") for k in want) and "model.json" in want
+
+
+def test_a_second_run_does_nothing(uninterrupted: Path, logs: list[Path], tmp_path: Path) -> None:
+    """Every stage reports up to date and no output changes (content or modification time;
+    the manifests are rewritten, the lock file touched)."""
+    ws = tmp_path / "ws"
+    shutil.copytree(uninterrupted, ws, symlinks=True)
+
+    def outputs() -> dict[Path, int]:
+        return {
+            p: p.stat().st_mtime_ns
+            for p in ws.rglob("*")
+            if p.is_file() and p.name not in ("manifest.json", ".lock")
+        }
+
+    before = outputs()
+    out = subprocess.run(
+        terrain("run", *logs, "-w", ws), check=True, capture_output=True, text=True
+    )
+    lines = [ln for ln in out.stdout.splitlines() if ln.split(" ")[0] in STAGES]
+    assert len(lines) == len(STAGES)
+    assert all(" up to date" in ln and " done" not in ln for ln in lines), lines
+    assert outputs() == before
+    assert "report: " in out.stdout
+
+
+def test_from_and_to_run_only_their_stages(
+    uninterrupted: Path, logs: list[Path], tmp_path: Path
+) -> None:
+    """--from learn --to learn --overwrite relearns (done) and touches nothing else."""
+    ws = tmp_path / "ws"
+    shutil.copytree(uninterrupted, ws, symlinks=True)
+    before = state(ws)
+    out = subprocess.run(
+        terrain("run", *logs, "-w", ws, "--from", "learn", "--to", "learn", "--overwrite"),
+        check=True,
+        capture_output=True,
+        text=True,
+    )
+    stages = [ln.split(" ")[0] for ln in out.stdout.splitlines() if ln.split(" ")[0] in STAGES]
+    assert stages == ["learn"]
+    assert state(ws) == before  # learning again gives the same model, and nothing else ran
+
+
+def test_killed_at_random_moments_then_rerun_gives_the_same_outputs(
+    uninterrupted: Path, logs: list[Path], tmp_path: Path
+) -> None:
+    """SIGKILL at a random moment of a run (seeded, spread over a whole run's duration),
+    then `terrain run` again: the workspace equals the uninterrupted run's, file for file."""
+    rng = random.Random(SEED)
+    t0 = time.perf_counter()
+    probe = tmp_path / "probe"
+    subprocess.run(
+        terrain("run", *logs, "-w", probe, "--workers", "2"), check=True, capture_output=True
+    )
+    duration = time.perf_counter() - t0
+    want = state(uninterrupted)
+    for k in range(KILLS):
+        ws = tmp_path / f"ws{k}"
+        child = subprocess.Popen(
+            terrain("run", *logs, "-w", ws, "--workers", "2"),
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.DEVNULL,
+            start_new_session=True,
+        )
+        time.sleep(rng.uniform(0.1, 0.9) * duration)
+        # The whole process group: the run and its worker processes, as a machine failure.
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+        child.wait()
+        subprocess.run(
+            terrain("run", *logs, "-w", ws, "--workers", "2"), check=True, capture_output=True
+        )
+        got = state(ws)
+        assert got.keys() == want.keys(), k
+        assert [p for p in want if got[p] != want[p]] == [], k
