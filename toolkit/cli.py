@@ -641,3 +641,49 @@ def run(
         for item, reason in report.failures.items():
             _error_line(f"{report.stage}: {item}: {reason}")
     ctx.exit(1)
+
+
+@main.command()
+@_WORKSPACE_OPTION
+@click.option("--log", "log_id", required=True, help="The log to show (its workspace id).")
+@click.option(
+    "--out",
+    "out_path",
+    required=True,
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="The MCAP file to write (Foxglove opens it).",
+)
+@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+def viz(workspace: Path, log_id: str, out_path: Path, overwrite: bool) -> None:
+    """A Foxglove view of one log's results: pose, points by predicted roughness, events."""
+    from toolkit.stages.viz import run_viz
+    from toolkit.workspace import Workspace
+
+    ws = Workspace(workspace).require()
+    cfg = ws.read_config()
+    # Shared: learn and evaluate cannot replace the scores or the model mid-read.
+    with ws.lock(shared=True):
+        result = run_viz(ws, log_id, out_path, cfg, overwrite=overwrite)
+    click.echo(result.summary())
+
+
+@main.command()
+@_WORKSPACE_OPTION
+@click.option(
+    "--out",
+    "out_dir",
+    required=True,
+    type=click.Path(file_okay=False, path_type=Path),
+    help="The dataset folder to write (Hugging Face layout, dataset card, croissant.json).",
+)
+@click.option("--overwrite", is_flag=True, help="Replace an earlier export in that folder.")
+def export(workspace: Path, out_dir: Path, overwrite: bool) -> None:
+    """The labelled training and test tables as a dataset other teams load (datasets, Croissant)."""
+    from toolkit.stages.export import run_export
+    from toolkit.workspace import Workspace
+
+    ws = Workspace(workspace).require()
+    cfg = ws.read_config()
+    with ws.lock(shared=True):
+        result = run_export(ws, out_dir, cfg, overwrite=overwrite)
+    click.echo(result.summary())

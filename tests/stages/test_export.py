@@ -1,0 +1,574 @@
+"""``terrain export`` on the bundled sample log: the tables -> a dataset another team loads
+with its own tools (Hugging Face ``datasets``, MLCommons ``mlcroissant``, polars, pyarrow).
+
+The workspace is the pipeline run ``test_learn.py`` builds (label, tables, learn, evaluate on
+the projected sample, once per session, see :func:`tests.stages.test_learn.build_pipeline`).
+Every client must give back the tables exactly: per split, the same rows, in the tables'
+order, with the same values (floats bit for bit). What each split must hold is derived here
+from ``tables/events.parquet``, ``tables/event_points.parquet`` and ``report/scores.parquet``
+independently of the export's code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import subprocess
+import sys
+from collections.abc import Iterator, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import polars as pl
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+import yaml
+
+from tests.stages.test_learn import (
+    Pipeline,
+    build_pipeline,
+    copy_workspace,
+    rewrite_events_table,
+    with_rough,
+)
+from toolkit import __version__
+from toolkit.config import PipelineConfig
+from toolkit.errors import StageError, WorkspaceError
+from toolkit.generations import host_name
+from toolkit.stages import export as export_stage
+from toolkit.stages.export import ExportResult, data_file, run_export
+from toolkit.tableio import load_table_schema, read_table, read_table_metadata, write_table
+from toolkit.workspace import Manifest, file_sha256
+
+CONFIGS = ("events", "event_points")
+SPLITS = ("train", "test")
+POINT_COLUMNS = (
+    "log_id",
+    "event_id",
+    "wheel",
+    "x",
+    "y",
+    "z",
+    "tau",
+    "roll_rate",
+    "pitch_rate",
+    "laser",
+    "t_ns",
+)
+ARROW_TYPES = {
+    "string": pa.string(),
+    "int64": pa.int64(),
+    "float64": pa.float64(),
+    "bool": pa.bool_(),
+}
+POLARS_TYPES = {"string": pl.String, "int64": pl.Int64, "float64": pl.Float64, "bool": pl.Boolean}
+
+
+@pytest.fixture(scope="module")
+def pipeline(
+    sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
+) -> Pipeline:
+    return build_pipeline(sample_projected, tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def config(pipeline: Pipeline) -> PipelineConfig:
+    return pipeline.ws.read_config()
+
+
+@pytest.fixture(scope="module")
+def exported(
+    pipeline: Pipeline, config: PipelineConfig, tmp_path_factory: pytest.TempPathFactory
+) -> tuple[Path, ExportResult]:
+    """The export of the shared pipeline's workspace (into a folder that does not exist)."""
+    out = tmp_path_factory.mktemp("export") / "dataset"
+    return out, run_export(pipeline.ws, out, config)
+
+
+@pytest.fixture(scope="module")
+def expected(pipeline: Pipeline) -> dict[str, dict[str, pa.Table]]:
+    """config -> split -> the rows the export must hold: the tables' rows of that split in
+    the tables' order, the events with the model's ``r_combined`` and ``predicted`` (joined
+    on log and event), each point in the split of its event."""
+    ws = pipeline.ws
+    schema = load_table_schema("tables_events")
+    events = read_table(ws.events_table, "tables_events", columns=schema.column_names)
+    scores = read_table(ws.scores_table, "scores")
+    score_row = {key: i for i, key in enumerate(event_keys(scores))}
+    take = pa.array([score_row[k] for k in event_keys(events)])
+    events = events.append_column(
+        "r_combined", scores.column("r_combined").take(take)
+    ).append_column("predicted", scores.column("predicted").take(take))
+    split_of = dict(zip(event_keys(events), events.column("split").to_pylist(), strict=True))
+    points = read_table(ws.event_points_table, "event_points", columns=list(POINT_COLUMNS))
+    point_split = np.array([split_of[k] for k in event_keys(points)], dtype=object)
+    event_split = np.asarray(events.column("split").to_pylist(), dtype=object)
+    return {
+        "events": {s: events.filter(pa.array(event_split == s)) for s in SPLITS},
+        "event_points": {s: points.filter(pa.array(point_split == s)) for s in SPLITS},
+    }
+
+
+def event_keys(table: pa.Table) -> list[tuple[str, int]]:
+    """(log_id, event_id) of every row."""
+    return list(
+        zip(table.column("log_id").to_pylist(), table.column("event_id").to_pylist(), strict=True)
+    )
+
+
+def column_values(values: Any) -> np.ndarray:
+    """A column of any client as a numpy array (strings as str objects)."""
+    if isinstance(values, pa.ChunkedArray | pa.Array):
+        values = values.to_pylist()
+    elif isinstance(values, pl.Series):
+        values = values.to_list()
+    out = [v.decode("utf-8") if isinstance(v, bytes) else v for v in values]
+    return np.asarray(out, dtype=object if out and isinstance(out[0], str) else None)
+
+
+def assert_same_rows(columns: Mapping[str, Any], table: pa.Table, what: str) -> None:
+    """``columns`` (name -> values, as a client gave them) are ``table``'s columns, in
+    order, with the same values (floats bit for bit, NaN equal to NaN)."""
+    assert list(columns) == table.column_names, what
+    for name in table.column_names:
+        got = column_values(columns[name])
+        want = column_values(table.column(name))
+        assert got.shape == want.shape, (what, name, got.shape, want.shape)
+        if want.dtype.kind == "f":
+            assert got.dtype.kind == "f", (what, name, got.dtype)
+            assert np.array_equal(got.view(np.int64), want.view(np.int64)), (what, name)
+        else:
+            assert np.array_equal(got, want), (what, name)
+
+
+def tree_digest(root: Path) -> dict[str, str]:
+    """Relative path -> sha256 of every file under ``root``."""
+    return {
+        str(p.relative_to(root)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
+
+
+def card_header(out: Path) -> dict[str, Any]:
+    """The YAML metadata of the dataset card."""
+    text = (out / "README.md").read_text(encoding="utf-8")
+    assert text.startswith("---\n")
+    header = yaml.safe_load(text.split("---\n", 2)[1])
+    assert isinstance(header, dict)
+    return header
+
+
+def leftovers(out: Path) -> list[str]:
+    """Hidden directories an export to ``out`` may leave beside it."""
+    return sorted(p.name for p in out.parent.iterdir() if p.name.startswith(f".{out.name}."))
+
+
+@pytest.fixture()
+def hf_offline(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[Path]:
+    """``datasets`` kept off the network and out of the home directory; yields its cache."""
+    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
+    monkeypatch.setenv("HF_DATASETS_OFFLINE", "1")
+    monkeypatch.setenv("HF_HOME", str(tmp_path / "hf_home"))
+    yield tmp_path / "hf_cache"
+
+
+# -- the layout ---------------------------------------------------------------------------
+
+
+def test_the_export_holds_the_card_the_croissant_and_one_file_per_config_and_split(
+    exported: tuple[Path, ExportResult], expected: dict[str, dict[str, pa.Table]]
+) -> None:
+    """README.md, croissant.json and data/<config>/<split>-00000-of-00001.parquet, nothing
+    else; the result's counts are the tables' and its summary says where and how many."""
+    out, result = exported
+    files = sorted(str(p.relative_to(out)) for p in out.rglob("*") if p.is_file())
+    assert files == sorted(
+        ["README.md", "croissant.json", *(data_file(c, s) for c in CONFIGS for s in SPLITS)]
+    )
+    assert list(result.files) == files
+    assert result.out_dir == out and result.scores and not result.warnings
+    for split in SPLITS:
+        events = expected["events"][split]
+        counts = result.splits[split]
+        assert counts.events == events.num_rows > 0
+        assert counts.rough == sum(events.column("rough").to_pylist()) > 0
+        assert counts.points == expected["event_points"][split].num_rows > 0
+    summary = result.summary()
+    assert "\n" not in summary and str(out) in summary
+    for split in SPLITS:
+        c = result.splits[split]
+        assert f"{split} {c.events} events ({c.rough} rough), {c.points} point rows" in summary
+    assert not leftovers(out)
+
+
+# -- the clients ----------------------------------------------------------------------------
+
+
+def test_datasets_loads_both_configs_and_splits_as_the_tables_hold_them(
+    exported: tuple[Path, ExportResult],
+    expected: dict[str, dict[str, pa.Table]],
+    hf_offline: Path,
+) -> None:
+    """``datasets.load_dataset(OUT, config)``, as a team that knows nothing of the toolkit
+    loads it: train and test splits, the card's features (dtypes of the Parquet files), and
+    every row of the tables, in order; without a config it loads ``events``."""
+    import datasets
+
+    out, _ = exported
+    for config in CONFIGS:
+        loaded = datasets.load_dataset(str(out), config, cache_dir=str(hf_offline))
+        assert sorted(loaded) == sorted(SPLITS)
+        for split in SPLITS:
+            ds = loaded[split]
+            want = expected[config][split]
+            assert ds.num_rows == want.num_rows
+            assert {n: f.dtype for n, f in ds.features.items()} == {
+                f.name: {"double": "float64"}.get(str(f.type), str(f.type)) for f in want.schema
+            }
+            table = ds.with_format("arrow")[:]
+            assert_same_rows({n: table.column(n) for n in table.column_names}, want, config)
+    default = datasets.load_dataset(str(out), cache_dir=str(hf_offline))
+    assert default["train"].num_rows == expected["events"]["train"].num_rows
+    assert default["train"].column_names == expected["events"]["train"].column_names
+
+
+def test_croissant_validates_and_its_records_are_the_tables_rows(
+    exported: tuple[Path, ExportResult], expected: dict[str, dict[str, pa.Table]]
+) -> None:
+    """``mlcroissant.Dataset(jsonld=OUT/croissant.json)`` validates without an error; every
+    Parquet file is a FileObject with its true sha256 and size; ``records()`` of each record
+    set gives every row of the tables with its split (events: their column; points: their
+    file), in the tables' order within a split, with the same values."""
+    import mlcroissant as mlc
+
+    out, _ = exported
+    doc = json.loads((out / "croissant.json").read_text(encoding="utf-8"))
+    assert doc["@type"] == "sc:Dataset"
+    assert doc["conformsTo"] == "http://mlcommons.org/croissant/1.0"
+    assert doc["license"] == "https://creativecommons.org/licenses/by/4.0/"
+    assert doc["version"] == __version__ and doc["name"] and doc["description"] and doc["url"]
+    objects = {d["contentUrl"]: d for d in doc["distribution"] if d["@type"] == "cr:FileObject"}
+    assert sorted(objects) == sorted(data_file(c, s) for c in CONFIGS for s in SPLITS)
+    for path, obj in objects.items():
+        assert obj["encodingFormat"] == "application/x-parquet"
+        assert obj["sha256"] == file_sha256(out / path)
+        assert obj["contentSize"] == f"{(out / path).stat().st_size} B"
+
+    dataset = mlc.Dataset(jsonld=out / "croissant.json")
+    issues = dataset.metadata.ctx.issues
+    assert not issues.errors, issues.report()
+    assert [rs.name for rs in dataset.metadata.record_sets] == list(CONFIGS)
+    for config in CONFIGS:
+        names = expected[config]["train"].column_names
+        fields = [*names, "split"] if config == "event_points" else names
+        columns: dict[str, list[Any]] = {name: [] for name in fields}
+        for record in dataset.records(record_set=config):
+            assert sorted(record) == sorted(f"{config}/{n}" for n in fields)
+            for name in fields:
+                columns[name].append(record[f"{config}/{name}"])
+        split = column_values(columns["split"])
+        for name in SPLITS:
+            mine = np.flatnonzero(split == name)
+            want = expected[config][name]
+            assert mine.size == want.num_rows, (config, name)
+            assert_same_rows(
+                {n: [columns[n][i] for i in mine] for n in names}, want, f"croissant {config}"
+            )
+
+
+def test_polars_and_pyarrow_read_each_split_file_as_the_tables_hold_it(
+    exported: tuple[Path, ExportResult],
+    expected: dict[str, dict[str, pa.Table]],
+    pipeline: Pipeline,
+) -> None:
+    """Each split file read by polars and by pyarrow: the schema's types exactly (string,
+    int64, float64, bool; no dictionary or large types leaking out), the tables' rows in
+    order, and the contract's key-value metadata (schema, toolkit version, the source log's
+    sha256, config hash) plus which config and split the file is."""
+    out, _ = exported
+    manifest = Manifest(pipeline.ws.log_manifest_path(pipeline.log_id)).read()
+    log_sha = manifest["source"]["sha256"]
+    events_schema = load_table_schema("tables_events")
+    scores_schema = load_table_schema("scores")
+    types = {c.name: c.type for c in events_schema.columns}
+    types.update({n: scores_schema.column(n).type for n in ("r_combined", "predicted")})
+    types.update({c.name: c.type for c in load_table_schema("event_points").columns})
+    for config in CONFIGS:
+        for split in SPLITS:
+            path = out / data_file(config, split)
+            want = expected[config][split]
+
+            frame = pl.read_parquet(path)
+            assert frame.columns == want.column_names
+            assert [frame.schema[n] for n in frame.columns] == [
+                POLARS_TYPES[types[n]] for n in frame.columns
+            ]
+            assert_same_rows({n: frame[n] for n in frame.columns}, want, f"polars {path}")
+
+            table = pq.read_table(path)
+            assert [(f.name, f.type) for f in table.schema] == [
+                (n, ARROW_TYPES[types[n]]) for n in want.column_names
+            ]
+            assert_same_rows(
+                {n: table.column(n) for n in table.column_names}, want, f"pyarrow {path}"
+            )
+            meta = read_table_metadata(path)
+            assert meta["schema_name"] == ("tables_events" if config == "events" else config)
+            assert meta["toolkit_version"] == __version__
+            assert meta["source_sha256"] == log_sha
+            assert meta["config_hash"] == export_stage.stage_config_hash(pipeline.ws.read_config())
+            assert meta["dataset_config"] == config and meta["dataset_split"] == split
+            source = pipeline.ws.tables_dir / f"{config}.parquet"
+            assert meta["tables_sha256"] == file_sha256(source)
+
+
+# -- the card -------------------------------------------------------------------------------
+
+
+def test_the_card_maps_configs_to_files_and_states_the_data_s_numbers(
+    exported: tuple[Path, ExportResult],
+    expected: dict[str, dict[str, pa.Table]],
+    pipeline: Pipeline,
+    config: PipelineConfig,
+) -> None:
+    """The YAML header: license, pretty name, configs -> split files that exist, features
+    equal to the files' columns and types, split sizes; the prose: the toolkit's version,
+    the source log's id and sha256, that it is simulated, the label's definition with the
+    configured threshold, the split's fraction, and per split the events, rough events and
+    point rows counted from the tables."""
+    out, _ = exported
+    header = card_header(out)
+    assert header["license"] == "cc-by-4.0" and header["pretty_name"]
+    assert "tabular-classification" in header["task_categories"]
+    assert "simulated" in header["tags"]
+    assert [c["config_name"] for c in header["configs"]] == list(CONFIGS)
+    for entry in header["configs"]:
+        files = {f["split"]: f["path"] for f in entry["data_files"]}
+        assert files == {s: data_file(entry["config_name"], s) for s in SPLITS}
+        assert all((out / p).is_file() for p in files.values())
+    info = {i["config_name"]: i for i in header["dataset_info"]}
+    for config_name in CONFIGS:
+        schema = pq.read_schema(out / data_file(config_name, "train"))
+        features = [(f["name"], f["dtype"]) for f in info[config_name]["features"]]
+        assert features == [
+            (f.name, {"double": "float64"}.get(str(f.type), str(f.type))) for f in schema
+        ]
+        splits = {s["name"]: s["num_examples"] for s in info[config_name]["splits"]}
+        assert splits == {s: expected[config_name][s].num_rows for s in SPLITS}
+        assert info[config_name]["download_size"] == sum(
+            (out / data_file(config_name, s)).stat().st_size for s in SPLITS
+        )
+
+    text = (out / "README.md").read_text(encoding="utf-8")
+    manifest = Manifest(pipeline.ws.log_manifest_path(pipeline.log_id)).read()
+    assert f"version {__version__}" in text
+    assert pipeline.log_id in text and manifest["source"]["sha256"] in text
+    assert "simulated" in text.lower()
+    threshold = config.label.rough_threshold_g_per_mph
+    assert f"`rough` = `ruggedness` >= {threshold:g} G/mph" in text
+    assert f"{config.label.fir_taps}-tap" in text and f"0-{config.label.fir_stop_hz:g} Hz" in text
+    assert f"the first {100 * config.tables.train_fraction:g} % of the driven distance" in text
+    for split in SPLITS:
+        events = expected["events"][split]
+        rough = sum(events.column("rough").to_pylist())
+        points = expected["event_points"][split].num_rows
+        assert f"| {split} | {events.num_rows} | {rough} | " in text
+        assert f" | {points} | " in text
+    assert "r_combined" in text and "## The model's scores" in text
+    for path in (data_file(c, s) for c in CONFIGS for s in SPLITS):
+        assert f"`{path}`" in text and file_sha256(out / path) in text
+
+
+# -- behaviour ------------------------------------------------------------------------------
+
+
+def test_the_same_workspace_exports_the_same_bytes(
+    exported: tuple[Path, ExportResult],
+    pipeline: Pipeline,
+    config: PipelineConfig,
+    tmp_path: Path,
+) -> None:
+    """Another export of the same workspace, elsewhere: byte-identical files (no time, no
+    path in any of them); replacing the first export with ``overwrite`` gives the same bytes
+    again and leaves nothing beside it."""
+    out, _ = exported
+    again = tmp_path / "again"
+    run_export(pipeline.ws, again, config)
+    assert tree_digest(again) == tree_digest(out)
+
+    run_export(pipeline.ws, again, config, overwrite=True)
+    assert tree_digest(again) == tree_digest(out)
+    assert not leftovers(again)
+
+
+def test_a_non_empty_destination_is_refused_without_overwrite_and_left_as_it_was(
+    pipeline: Pipeline, config: PipelineConfig, tmp_path: Path
+) -> None:
+    """An existing folder with files in it: StageError naming it, in one line, and the
+    folder untouched. With ``overwrite``, only an earlier export is replaced, never a folder
+    of other files; the workspace itself (or a folder holding it) never."""
+    out = tmp_path / "taken"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine\n")
+    before = tree_digest(out)
+    with pytest.raises(StageError, match="exists and is not empty") as err:
+        run_export(pipeline.ws, out, config)
+    assert err.value.path == out and "\n" not in str(err.value)
+    assert tree_digest(out) == before and not leftovers(out)
+
+    with pytest.raises(StageError, match="is not an earlier export") as err:
+        run_export(pipeline.ws, out, config, overwrite=True)
+    assert tree_digest(out) == before and not leftovers(out)
+
+    for target in (pipeline.ws.root, pipeline.ws.root.parent):
+        with pytest.raises(StageError, match="holds the workspace"):
+            run_export(pipeline.ws, target, config, overwrite=True)
+    assert pipeline.ws.events_table.is_file()
+
+    # An empty folder is as good as none.
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    run_export(pipeline.ws, empty, config)
+    assert (empty / "croissant.json").is_file()
+
+
+def test_a_failure_leaves_no_export_and_nothing_beside_it(
+    pipeline: Pipeline, config: PipelineConfig, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The export fails after its Parquet files are written: no OUT, nothing hidden beside
+    it; an earlier export being replaced stays whole. A hidden directory a killed export
+    left (its process gone) is removed by the next one."""
+    out = tmp_path / "dataset"
+
+    def broken(_: object) -> dict[str, Any]:
+        raise OSError("disk full")
+
+    monkeypatch.setattr(export_stage, "croissant_metadata", broken)
+    with pytest.raises(OSError, match="disk full"):
+        run_export(pipeline.ws, out, config)
+    assert not out.exists() and not leftovers(out)
+    monkeypatch.undo()
+
+    run_export(pipeline.ws, out, config)
+    before = tree_digest(out)
+    monkeypatch.setattr(export_stage, "croissant_metadata", broken)
+    with pytest.raises(OSError, match="disk full"):
+        run_export(pipeline.ws, out, config, overwrite=True)
+    assert tree_digest(out) == before and not leftovers(out)
+    monkeypatch.undo()
+
+    dead = subprocess.run(
+        [sys.executable, "-c", "import os; print(os.getpid())"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    pid = int(dead.stdout)
+    stale = tmp_path / f".{out.name}.{host_name()}-{pid}-0123456789ab.export"
+    (stale / "data").mkdir(parents=True)
+    run_export(pipeline.ws, out, config, overwrite=True)
+    assert not stale.exists() and tree_digest(out) == before
+
+
+def test_tables_not_written_by_terrain_tables_are_refused(
+    pipeline: Pipeline, config: PipelineConfig, tmp_path: Path
+) -> None:
+    """Tables changed after the last finished ``terrain tables`` (here the events rewritten
+    without a row), or never made: one-line errors naming the file and the verb to run; no
+    export is made."""
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    events = read_table(ws.events_table, "tables_events")
+    meta = read_table_metadata(ws.events_table)
+    write_table(
+        ws.events_table,
+        events.slice(1),
+        "tables_events",
+        source_sha256=meta["source_sha256"].split(","),
+        config_hash=meta["config_hash"],
+    )
+    out = tmp_path / "dataset"
+    with pytest.raises(WorkspaceError, match="run `terrain tables` again") as err:
+        run_export(ws, out, config)
+    assert err.value.path == ws.events_table and "\n" not in str(err.value)
+    assert not out.exists() and not leftovers(out)
+
+    ws.event_points_table.unlink()
+    with pytest.raises(StageError, match="run `terrain tables` first") as err:
+        run_export(ws, out, config)
+    assert err.value.path == ws.event_points_table
+    assert not out.exists()
+
+
+def test_tables_of_another_configuration_or_label_rule_are_refused(
+    pipeline: Pipeline, config: PipelineConfig, tmp_path: Path
+) -> None:
+    """The card states the threshold and the split from the configuration: tables made with
+    another one, or whose rough labels are not ``ruggedness >= threshold``, are refused
+    (one line naming the file) rather than described wrongly."""
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    out = tmp_path / "dataset"
+    other = dataclasses.replace(
+        config, tables=dataclasses.replace(config.tables, train_fraction=0.6)
+    )
+    with pytest.raises(StageError, match="another configuration") as err:
+        run_export(ws, out, other)
+    assert err.value.path == ws.manifest_path
+
+    relabelled = dataclasses.replace(
+        config, label=dataclasses.replace(config.label, rough_threshold_g_per_mph=0.5)
+    )
+    with pytest.raises(StageError, match="labelled with another configuration"):
+        run_export(ws, out, relabelled)
+
+    events = read_table(ws.events_table, "tables_events")
+    rough = np.asarray(events.column("rough").to_pylist(), dtype=bool)
+    flipped = rough.copy()
+    flipped[0] = not flipped[0]
+    rewrite_events_table(ws, with_rough(events, flipped))
+    with pytest.raises(StageError, match="rough label is not ruggedness >=") as err:
+        run_export(ws, out, config)
+    assert err.value.path == ws.events_table
+    assert not out.exists()
+
+
+def test_scores_of_other_tables_are_left_out_with_a_warning(
+    pipeline: Pipeline, config: PipelineConfig, tmp_path: Path
+) -> None:
+    """The model's scores are optional: after the tables change (one event's end time moved
+    by 1 ns, recorded as a finished tables run), ``report/scores.parquet`` scored other
+    tables, so the events go out without ``r_combined`` and ``predicted`` (card and features
+    say nothing of them) and the result warns why."""
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    events = read_table(ws.events_table, "tables_events")
+    t_end = events.column("t_end_ns").to_numpy().copy()
+    t_end[0] += 1
+    i = events.schema.get_field_index("t_end_ns")
+    rewrite_events_table(ws, events.set_column(i, "t_end_ns", pa.array(t_end, pa.int64())))
+    out = tmp_path / "dataset"
+    result = run_export(ws, out, config)
+    assert not result.scores
+    assert len(result.warnings) == 1 and "scores" in result.warnings[0]
+    names = load_table_schema("tables_events").column_names
+    for split in SPLITS:
+        assert pq.read_schema(out / data_file("events", split)).names == list(names)
+    info = {i["config_name"]: i for i in card_header(out)["dataset_info"]}
+    assert [f["name"] for f in info["events"]["features"]] == list(names)
+    assert "r_combined" not in (out / "README.md").read_text(encoding="utf-8")
+    assert "r_combined" not in (out / "croissant.json").read_text(encoding="utf-8")
+
+
+def test_a_workspace_without_a_report_exports_without_scores(
+    pipeline: Pipeline, config: PipelineConfig, tmp_path: Path
+) -> None:
+    """No ``report/scores.parquet`` (learn and evaluate never ran): the export is the tables
+    alone, quietly."""
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    ws.scores_table.unlink()
+    result = run_export(ws, tmp_path / "dataset", config)
+    assert not result.scores and not result.warnings
+    assert os.path.isfile(tmp_path / "dataset" / "croissant.json")
