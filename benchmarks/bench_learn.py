@@ -47,7 +47,9 @@ def main() -> None:
     for verb in ("learn",) if args.learn_only else ("learn", "evaluate"):
         wall, peak_mb, out = run_stage(verb, ws)
         record = json.loads((ws / "manifest.json").read_text())["stages"][verb]
-        print(f"{verb}: {wall:.1f} s wall, peak RSS <= {peak_mb:.0f} MB; rows {record['row_counts']}")
+        print(
+            f"{verb}: {wall:.1f} s wall, peak RSS <= {peak_mb:.0f} MB; rows {record['row_counts']}"
+        )
         print(f"    timings {record['timings_s']}")
         print("    " + out.replace("\n", "\n    "))
     print(f"load average after: {os.getloadavg()}")
