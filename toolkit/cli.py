@@ -251,6 +251,45 @@ def info(log: Path, as_json: bool, full: bool) -> None:
         click.echo(render_table(log_info))
 
 
+def _logs_options(f: Callable[..., Any]) -> Callable[..., Any]:
+    """The logs, workspace and configuration of the verbs that start from MCAP files."""
+    f = click.option(
+        "-c",
+        "--config",
+        "config_path",
+        type=click.Path(dir_okay=False, path_type=Path),
+        default=None,
+        help="Pipeline configuration (TOML). Default: the workspace's config.toml if it has "
+        "one, else the built-in default (pipelines/stanley2005.toml).",
+    )(f)
+    f = click.option(
+        "-w",
+        "--workspace",
+        required=True,
+        type=click.Path(file_okay=False, path_type=Path),
+        help="Workspace directory (created if missing).",
+    )(f)
+    return click.argument(
+        "logs", metavar="LOG.mcap...", nargs=-1, required=True, type=click.Path(path_type=Path)
+    )(f)
+
+
+def _check_executor_options(
+    ctx: click.Context, executor_kind: str, scheduler: str | None, shard_index: int, num_shards: int
+) -> None:
+    """Usage errors among the executor and shard options (exit 2)."""
+    if executor_kind == "dask" and not scheduler:
+        raise click.UsageError("--executor dask needs --scheduler ADDR", ctx)
+    if executor_kind != "dask" and scheduler is not None:
+        raise click.UsageError("--scheduler applies only with --executor dask", ctx)
+    if shard_index >= num_shards:
+        raise click.BadParameter(
+            f"{shard_index} is not below --num-shards {num_shards}",
+            ctx,
+            param_hint="'--shard-index'",
+        )
+
+
 def _executor_options(f: Callable[..., Any]) -> Callable[..., Any]:
     """The options of every verb that runs logs in parallel: executor, workers, shards."""
     for option in reversed(_EXECUTOR_OPTIONS):
@@ -294,25 +333,7 @@ _EXECUTOR_OPTIONS = [
 
 
 @main.command()
-@click.argument(
-    "logs", metavar="LOG.mcap...", nargs=-1, required=True, type=click.Path(path_type=Path)
-)
-@click.option(
-    "-w",
-    "--workspace",
-    required=True,
-    type=click.Path(file_okay=False, path_type=Path),
-    help="Workspace directory (created if missing).",
-)
-@click.option(
-    "-c",
-    "--config",
-    "config_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=None,
-    help="Pipeline configuration (TOML). Default: the workspace's config.toml if it has "
-    "one, else the built-in default (pipelines/stanley2005.toml).",
-)
+@_logs_options
 @click.option("--overwrite", is_flag=True, help="Re-ingest logs that are already up to date.")
 @_executor_options
 @click.pass_context
@@ -334,16 +355,7 @@ def ingest(
     cannot be ingested does not stop the others; each failure is one line on stderr and
     the exit code is 1.
     """
-    if executor_kind == "dask" and not scheduler:
-        raise click.UsageError("--executor dask needs --scheduler ADDR", ctx)
-    if executor_kind != "dask" and scheduler is not None:
-        raise click.UsageError("--scheduler applies only with --executor dask", ctx)
-    if shard_index >= num_shards:
-        raise click.BadParameter(
-            f"{shard_index} is not below --num-shards {num_shards}",
-            ctx,
-            param_hint="'--shard-index'",
-        )
+    _check_executor_options(ctx, executor_kind, scheduler, shard_index, num_shards)
     from toolkit.batch import run_ingest_batch
 
     summary = run_ingest_batch(
@@ -554,24 +566,7 @@ def evaluate(workspace: Path, overwrite: bool) -> None:
 
 
 @main.command()
-@click.argument(
-    "logs", metavar="LOG.mcap...", nargs=-1, required=True, type=click.Path(path_type=Path)
-)
-@click.option(
-    "-w",
-    "--workspace",
-    required=True,
-    type=click.Path(file_okay=False, path_type=Path),
-    help="Workspace directory (created if missing).",
-)
-@click.option(
-    "-c",
-    "--config",
-    "config_path",
-    type=click.Path(dir_okay=False, path_type=Path),
-    default=None,
-    help="Pipeline configuration (TOML). Default: the workspace's, else the built-in one.",
-)
+@_logs_options
 @click.option(
     "--from",
     "first",
@@ -609,16 +604,7 @@ def run(
     reported and left out of the later ones. Killed at any moment and run again, it finishes
     with the outputs an uninterrupted run gives.
     """
-    if executor_kind == "dask" and not scheduler:
-        raise click.UsageError("--executor dask needs --scheduler ADDR", ctx)
-    if executor_kind != "dask" and scheduler is not None:
-        raise click.UsageError("--scheduler applies only with --executor dask", ctx)
-    if shard_index >= num_shards:
-        raise click.BadParameter(
-            f"{shard_index} is not below --num-shards {num_shards}",
-            ctx,
-            param_hint="'--shard-index'",
-        )
+    _check_executor_options(ctx, executor_kind, scheduler, shard_index, num_shards)
     from toolkit.pipeline import run_pipeline
 
     summary = run_pipeline(

@@ -80,6 +80,7 @@ from toolkit import __version__
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError, WorkspaceError
 from toolkit.generations import fsync_dir, host_name
+from toolkit.model.patches import POINT_COLUMNS as EVENT_POINT_COLUMNS
 from toolkit.stages import label as label_stage
 from toolkit.stages import tables as tables_stage
 from toolkit.tableio import (
@@ -110,20 +111,8 @@ EVENT_POINTS = "event_points"
 LICENSE = "cc-by-4.0"
 PRETTY_NAME = "Self-supervised terrain roughness: shock-labelled events and laser points"
 DATASET_NAME = "terrain-roughness-self-supervised"
-#: The columns of a point row, in order (the ``event_points`` schema's).
-POINT_COLUMNS = (
-    "log_id",
-    "event_id",
-    "wheel",
-    "x",
-    "y",
-    "z",
-    "tau",
-    "roll_rate",
-    "pitch_rate",
-    "laser",
-    "t_ns",
-)
+#: The columns of a point row, in order (the ``event_points`` schema's, as the model reads them).
+POINT_COLUMNS = EVENT_POINT_COLUMNS
 #: The model's columns added to the events when ``report/scores.parquet`` scored these tables.
 SCORE_COLUMNS = ("r_combined", "predicted")
 #: Rows per batch when streaming the event points.

@@ -127,6 +127,7 @@ from toolkit.config import PipelineConfig
 from toolkit.errors import StageError
 from toolkit.frames import ORIGIN_MIN_STATUS, valid_fixes
 from toolkit.generations import fsync_dir
+from toolkit.stages.tables import EVENT_COLUMNS
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
 from toolkit.workspace import (
     Manifest,
@@ -207,17 +208,7 @@ def _point_fields() -> list[PackedElementField]:
 POINT_FIELDS = _point_fields()
 
 POSE_COLUMNS = ("t_ns", "x", "y", "z", "roll", "pitch", "yaw")
-EVENT_COLUMNS = (
-    "event_id",
-    "t_start_ns",
-    "t_end_ns",
-    "s_start_m",
-    "s_end_m",
-    "speed_mph",
-    "shock_g",
-    "ruggedness",
-    "rough",
-)
+
 POINT_COLUMNS = ("t_ns", "scan_t_ns", "x", "y", "z")
 GPS_COLUMNS = ("t_ns", "latitude", "longitude", "altitude", "status", "position_covariance")
 
