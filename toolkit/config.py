@@ -522,6 +522,13 @@ def _validate(cfg: PipelineConfig, source: str | Path) -> None:
     fpr = cfg.evaluate.fpr_points
     if list(fpr) != sorted(fpr):
         raise ConfigError(f"evaluate.fpr_points: must be increasing (got {list(fpr)!r})", source)
+    for i in (1, 3, 5, 7, 9):  # eq. 4's exponents: |0|^a is infinite for a <= 0
+        if not cfg.learn.initial_alpha[i] > 0.0:
+            raise ConfigError(
+                f"learn.initial_alpha: alpha_{i + 1} is an exponent of eq. 4 and must be "
+                f"positive (got {cfg.learn.initial_alpha[i]!r})",
+                path=source,
+            )
     closest = cfg.evaluate.baseline_closest_laser
     if closest is not None and closest not in cfg.topics.lasers:
         raise ConfigError(

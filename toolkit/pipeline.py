@@ -55,7 +55,7 @@ from toolkit.batch import (
     run_batch,
     shard,
 )
-from toolkit.config import dump_toml, parse_config
+from toolkit.config import PipelineConfig, dump_toml, parse_config
 from toolkit.errors import ToolkitError, WorkspaceError
 from toolkit.progress import progress
 from toolkit.workspace import Manifest, Workspace, log_id_for
@@ -295,14 +295,14 @@ def run_pipeline(
                 if pool is None:  # opened above whenever a per-log stage runs
                     raise RuntimeError("no executor for the per-log stages")
                 summary = run_batch(task, items, pool, desc=stage, unit="log", bar=bar)
+                if adopt_config and summary.results:
+                    ws.write_config(config)  # a config becomes the workspace's once it worked
+                    adopt_config = False
                 if stage == "ingest":
                     results = summary.results
                     items = [
                         (p, str(results[(p, i)].log_id)) for p, i in items if (p, i) in results
                     ]
-                    if adopt_config and results:
-                        ws.write_config(config)  # a config becomes the workspace's once it worked
-                        adopt_config = False
                 else:
                     ok = summary.results
                     items = [it for it in items if it in ok]
@@ -313,10 +313,13 @@ def run_pipeline(
             report_path: Path | None = None
             for stage in workspace_stages:
                 t0 = time.perf_counter()
-                if any(r.failures for r in reports) and not items:
+                if any(r.failures for r in reports):
+                    # Tables reads every log of the workspace: one whose stage just failed
+                    # would enter with its older outputs. Stop, as the docstring says.
+                    notes.append("workspace stages not run: a log failed a per-log stage")
                     break
                 try:
-                    result = _run_workspace_stage(stage, ws, overwrite)
+                    result = _run_workspace_stage(stage, ws, config, overwrite)
                 except ToolkitError as exc:
                     reports.append(
                         StageReport(
@@ -341,8 +344,10 @@ def run_pipeline(
                 say(reports[-1].line())
                 if stage == "evaluate":
                     report_path = ws.report_dir / "index.html"
-    if adopt_config and not per_log:
-        ws.write_config(config)
+    if adopt_config and any(
+        r.statuses.get("done") or r.statuses.get("up_to_date") for r in reports
+    ):
+        ws.write_config(config)  # the configuration in force is the one these stages used
     all_ids = tuple(sorted(set(ids) if per_log else ws.log_ids()))
     return RunSummary(
         tuple(reports),
@@ -353,8 +358,7 @@ def run_pipeline(
     )
 
 
-def _run_workspace_stage(stage: str, ws: Workspace, overwrite: bool) -> Any:
-    config = ws.read_config()
+def _run_workspace_stage(stage: str, ws: Workspace, config: PipelineConfig, overwrite: bool) -> Any:
     if stage == "tables":
         from toolkit.stages.tables import run_tables
 

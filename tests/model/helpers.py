@@ -68,16 +68,20 @@ def delta_loop(a: Sequence[float], p: Point, q: Point) -> float:
 
 
 def r_loop(points: Sequence[Point], params: RoughnessParams) -> float:
-    """Eqs. (2) and (3) over the lower triangle of S, with the module's decisions: W holds
-    the omega largest scores ascending, i runs 0..omega-1, ranks no pair fills add 0."""
-    s = [
-        delta_loop(params.alpha, points[r], points[c]) for r in range(len(points)) for c in range(r)
-    ]
-    top = sorted(s, reverse=True)[: params.omega]
-    total = 0.0
-    for j, w in enumerate(top):  # j-th largest is W_{omega-1-j}
-        total += w * params.upsilon ** (params.omega - 1 - j)
-    return total
+    """Eqs. (2) and (3) as sect. 4 words them: the N x N matrix S, times the lower triangular
+    matrix of ones (zeros on and above the diagonal), its omega largest elements ascending,
+    R = sum_i W_i upsilon^i, i = 0..omega-1; with decision 2, zeros without end (a small
+    patch's matrix is padded with zeros to omega elements and beyond)."""
+    n = len(points)
+    masked = [
+        delta_loop(params.alpha, points[r], points[c]) if r > c else 0.0
+        for r in range(n)
+        for c in range(n)
+    ] + [0.0] * params.omega
+    top = sorted(masked, reverse=True)[: params.omega]
+    top += [0.0] * (params.omega - len(top))
+    w = sorted(top)  # ascending
+    return sum(w_i * params.upsilon**i for i, w_i in enumerate(w))
 
 
 def combined_loop(left: float, right: float, zeta: float) -> float:

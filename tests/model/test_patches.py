@@ -72,3 +72,10 @@ def test_the_freshest_sample_keeps_the_points_seen_last() -> None:
     events = events_table(1).append_column("t_start_ns", pa.array([40_000_000_000], pa.int64()))
     p = build_patches(events, points_table(pts), 10, sample="freshest")
     assert {tau for _, tau in _kept(p, 0)} == {float(i) for i in range(20, 30)}
+
+
+def test_a_non_finite_feature_is_refused_naming_the_column() -> None:
+    """A NaN roll rate would silently change the scores: the file and column are named."""
+    t = points_table([[[(0.0, 0, 0, 1.0, float("nan"), 0), (0.1, 0, 0, 2.0, 0, 0)], []]])
+    with pytest.raises(StageError, match="'roll_rate': 1 non-finite"):
+        build_patches(events_table(1), t, 0)

@@ -93,6 +93,19 @@ def test_a_patch_with_fewer_than_two_points_scores_zero() -> None:
     assert got.r_left[1] > 0.0 and got.r_right[1] == 0.0
 
 
+def test_negative_scores_lose_to_the_masks_zeros() -> None:
+    """Sect. 4 extracts W from S times the lower-triangular mask, whose zeros are elements:
+    a patch whose every pair scores below zero has W all zeros, R = 0; a single positive
+    pair among negative ones is W's largest entry and the rest are zeros."""
+    flat = [(0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (0.5, 0.0, 0.0, 3.0, 0.0, 0.0), (1.0, 0, 0, 6.0, 0, 0)]
+    step = [(0.0, 0.0, 0.0, 0.0, 0.0, 0.0), (0.05, 0.0, 0.1, 0.0, 0.0, 0.0)]
+    p = RoughnessParams((1.0, 1.0, 0.5, 1.0, 0.1, 1.0, 0, 1, 0, 1), 2.0, 3, 1.0, 0.0)
+    got = score_events(PairTable(make_patches([[flat, step + flat[1:]]])), p)
+    assert got.r_left[0] == 0.0
+    # step pair: 0.1 - 0.1 x 0.05 = 0.095, the largest of W, weighs upsilon^2; the rest 0.
+    assert got.r_right[0] == pytest.approx(0.095 * 4.0, rel=1e-5)
+
+
 def test_negative_r_under_a_fractional_zeta_is_a_signed_power() -> None:
     """Decision 4: sign(R) |R|^zeta: real, odd, increasing in R."""
     r = np.array([-4.0, -1.0, 0.0, 1.0, 4.0])

@@ -105,7 +105,8 @@ def best_threshold(r_combined: FloatArray, rough: BoolArray, lambda_fp: float) -
     auc = float(np.sum(np.diff(f) * (t[1:] + t[:-1]) * 0.5))
     best = int(np.argmax(j))  # argmax takes the first maximum: the fewest predicted rough
     if j[best] <= 0.0:
-        return Threshold(float(r_sorted[0]), 0.0, 0.0, 0.0, auc)
+        # Nothing called rough beats calling nothing rough: mu just above the highest score.
+        return Threshold(float(np.nextafter(r_sorted[0], np.inf)), 0.0, 0.0, 0.0, auc)
     i = cut_at[best]
     if i + 1 < r.size:
         mu = 0.5 * (r_sorted[i] + r_sorted[i + 1])

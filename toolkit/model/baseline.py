@@ -9,22 +9,27 @@ with the time between the two scans (a Markov chain model of pose error, so a ra
 variance linear in time). Here, for points i and j of one patch in the same cell::
 
     sigma^2(dt) = sigma0^2 + q |tau_i - tau_j|
-    s_ij        = (|z_i - z_j| - delta) / sigma(dt)
+    p_ij        = Phi((|z_i - z_j| - delta) / sigma(dt))
 
-``Phi(s_ij)`` is the probability that the true height difference exceeds ``delta`` when the
-measured one is Gaussian around it with that standard deviation, so a pair is *flagged* when
-``s_ij > Phi^-1(confidence)``; the continuous ``s_ij`` is the pair's score. As in sect. 7.1
-("we use the method in (Thrun et al., 2006a) to generate a vector W"), the scores of a
-patch's same-cell pairs replace Delta of eq. (4); eqs. (3) and (5) and the threshold then
-apply with their own upsilon, omega, zeta and mu, trained separately
+``p_ij`` is the probability that the true height difference exceeds ``delta`` when the
+measured one is Gaussian around it with that standard deviation; a pair is *flagged* when
+``p_ij > confidence``. The probability itself is the pair's score: as in sect. 7.1 ("we use
+the method in (Thrun et al., 2006a) to generate a vector W"), the scores of a patch's
+same-cell pairs replace Delta of eq. (4); eqs. (3) and (5) and the threshold then apply with
+their own upsilon, omega, zeta and mu, trained separately
 (:func:`toolkit.model.ascent.coordinate_ascent` with the alphas frozen). Pairs in different
 cells are not compared (score -inf, an absent pair).
 
 The constants (``[evaluate]`` in the configuration): ``delta`` 15 cm, the race's obstacle
-height (Thrun et al. 2006, sect. 6); the cell, ``sigma0`` and ``q`` are not given in the
-sources at hand and are set a priori (not tuned on any result): a 25 cm cell, the range
-noise of the closest laser for ``sigma0``, and ``q`` from this toolkit's Fig. 4 analogue
-(z-differences between scans growing by a few cm per second of separation).
+height (Thrun et al. 2006, sect. 6); the cell, ``sigma0``, ``q`` and the confidence are not
+given in the sources at hand and are set a priori (not tuned on any result): a 25 cm cell;
+``sigma0`` 3 cm, near the spread of the z difference of two scans of one flat cell taken
+at no time apart in this toolkit's Fig. 4 analogue (intercept 1.4-1.8 cm of mean |dz|, a
+standard deviation of about 2 cm), rounded up; ``q`` 0.0025 m^2/s, so that sigma reaches
+about 10 cm after 4 s, as Fig. 4's |dz| grows by a few cm per second; the conventional 95 %
+confidence. A probability is never negative, so eq. (3)'s zeros (see
+:mod:`toolkit.model.roughness`) do not erase the ranking of pairs below the test's
+threshold: the baseline keeps a continuous score, as Fig. 6's curves for it have.
 """
 
 from __future__ import annotations
@@ -56,12 +61,12 @@ class BaselineParams:
 
     @property
     def flag_score(self) -> float:
-        """The score above which a pair is flagged: ``Phi^-1(confidence)``."""
-        return float(norm.ppf(self.confidence))
+        """The score (a probability) above which a pair is flagged."""
+        return self.confidence
 
 
 def pair_scores(patches: TyrePatches, params: BaselineParams) -> Float32Array:
-    """(G, P) float32: ``s_ij`` for the pairs ``np.tril_indices(n_max, -1)`` of every patch
+    """(G, P) float32: ``p_ij`` for the pairs ``np.tril_indices(n_max, -1)`` of every patch
     (the layout of :class:`toolkit.model.roughness.PairTable`), -inf where the two points are
     not both real or not in the same cell."""
     r, c = np.tril_indices(patches.n_max, -1)
@@ -72,7 +77,7 @@ def pair_scores(patches: TyrePatches, params: BaselineParams) -> Float32Array:
     dz = np.abs(patches.z[:, r] - patches.z[:, c])
     dt = np.abs(patches.tau[:, r] - patches.tau[:, c])
     sigma = np.sqrt(params.sigma0_m**2 + params.growth_m2_per_s * dt)
-    s = ((dz - params.delta_m) / sigma).astype(np.float32)
+    s: Float32Array = norm.cdf((dz - params.delta_m) / sigma).astype(np.float32)
     s[~same] = -np.inf
     return s
 

@@ -45,11 +45,17 @@ class RocCurve:
 
 
 def _finite_scores(scores: FloatArray) -> FloatArray:
+    """Scores sklearn accepts, in the same order: NaN (not scored) below every finite score,
+    -inf and +inf just beyond the finite range."""
     s = np.asarray(scores, np.float64)
-    if np.isnan(s).any():
-        low = np.nanmin(s) if np.isfinite(s).any() else 0.0
-        s = np.where(np.isnan(s), low - 1.0 - abs(low), s)
-    return s
+    if np.isfinite(s).all():
+        return s
+    finite = s[np.isfinite(s)]
+    lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 0.0)
+    span = hi - lo + 1.0
+    s = np.where(np.isposinf(s), hi + span, s)
+    s = np.where(np.isneginf(s), lo - span, s)
+    return np.where(np.isnan(s), lo - 2.0 * span, s)
 
 
 def roc(scores: FloatArray, labels: BoolArray) -> RocCurve:

@@ -6,13 +6,18 @@ in one event (a *patch*, :mod:`toolkit.model.patches`)::
     S[r, c]  = Delta(L_r, L_c)                                                     (eq. 2)
     Delta    = a1 |z_r - z_c|^a2 - a3 |tau_r - tau_c|^a4 - a5 |xy_r - xy_c|^a6
                - a7 |gamma_r|^a8 - a7 |gamma_c|^a8 - a9 |psi_r|^a10 - a9 |psi_c|^a10   (eq. 4)
-    W        = the omega largest entries of S below its diagonal, ascending
+    W        = the omega largest entries of S masked to its lower triangle, ascending
     R        = sum_i W_i upsilon^i                                                 (eq. 3)
     R_comb   = R_left^zeta + R_right^zeta                                           (eq. 5)
     rough   <=> R_comb > mu
 
 Only the ``N (N - 1) / 2`` entries below the diagonal are computed (sect. 4: S is symmetric
-with a zero diagonal). Units: z and xy in m, tau in s, gamma and psi in rad/s.
+with a zero diagonal). Sect. 4 then takes "the element-by-element product of S and the lower
+triangular matrix whose non-zero elements are 1" and extracts "the largest omega elements"
+of that product: the zeros the mask leaves (the diagonal and the upper triangle, N (N + 1) /
+2 of them) are elements too. So W holds the omega largest of the scores *and those zeros*:
+a negative score never enters W while a zero is left, and ``W_i = max(score, 0)``. Units: z
+and xy in m, tau in s, gamma and psi in rad/s.
 
 **Where the paper leaves a gap, this implementation decides** (each tested in
 ``tests/model/test_roughness.py``):
@@ -22,16 +27,18 @@ with a zero diagonal). Units: z and xy in m, tau in s, gamma and psi in rad/s.
    (eq. 3's ``omega`` read as W's last index, else W would need omega + 1 elements). With
    upsilon > 1 the largest score gets the largest weight, ``upsilon^(omega-1)``: "large,
    compelling evidence should win out over the cumulative effect of small evidence".
-2. *Fewer than omega pairs.* The scores are ranked from the top: the k-th largest always
-   gets ``upsilon^(omega-k)``, and the ranks no pair fills contribute 0 (no evidence). A
-   patch's largest score thus weighs the same whether the patch has 3 points or 300.
-3. *A patch with fewer than two points* has no pair: R = 0, by rule 2. (The tables stage
-   drops such events already; a subset of lasers, as for the baseline's closest laser, can
-   still leave one.)
-4. *Negative R under a fractional zeta.* Scores are differences and often negative, and
-   ``R^zeta`` is not real for R < 0. Eq. (5) uses the signed power
-   ``sign(R) |R|^zeta``: equal to ``R^zeta`` for R >= 0, continuous, odd, and increasing in
-   R for any zeta > 0, so a rougher tyre never lowers R_combined.
+2. *Fewer than omega positive scores.* The masked matrix's zeros fill the remaining ranks:
+   the k-th largest always gets ``upsilon^(omega-k)``, so a patch's largest score weighs the
+   same whether the patch has 3 points or 300, and no evidence adds nothing. A patch of N
+   points has N (N + 1) / 2 zeros; where omega exceeds them and the positive scores (a patch
+   of two or three points and a large omega) the literal reading would put negative scores
+   into W, so a sparse patch would score below a flat one for its lack of points. Here the
+   zeros never run out: W_i = max(score, 0) always.
+3. *A patch with fewer than two points* has no pair: its matrix is all zeros, R = 0.
+4. *R is never negative* (W >= 0, upsilon > 0), so ``R^zeta`` of eq. (5) is always real; the
+   code still applies the signed power ``sign(R) |R|^zeta``, equal to it for R >= 0.
+   A non-finite score (NaN from a non-finite feature, an overflow) is not an absent pair:
+   it makes R non-finite, and the learner rejects such parameters.
 5. *Exponents* a2, a4, a6, a8, a10 must be positive: ``|0|^a`` is infinite for a <= 0 (two
    points at the same height, or a still vehicle). With ``a > 0``, ``|0|^a = 0``.
 6. *Where mu sits* between two adjacent R_combined values is decided by the learner
@@ -235,9 +242,9 @@ def total_score(top_desc: FloatArray, upsilon: float, omega: int) -> FloatArray:
     """Eq. (3): R (G,) from each patch's scores ranked from the top (G, >= omega).
 
     The j-th largest (j = 0, 1, ...) is ``W_{omega-1-j}`` and weighs ``upsilon^(omega-1-j)``;
-    ranks without a pair (-inf) add 0 (module docstring, decisions 1-3)."""
-    w = top_desc[:, :omega]
-    w = np.where(np.isfinite(w), w, 0.0)
+    the mask's zeros outrank negative scores and fill ranks without a pair (-inf), so each
+    entry of W is ``max(score, 0)`` (module docstring, decisions 1-3); NaN stays NaN."""
+    w = np.maximum(top_desc[:, :omega], 0.0)
     weights = float(upsilon) ** np.arange(omega - 1, -1, -1, dtype=np.float64)
     return w @ weights[: w.shape[1]]
 

@@ -72,6 +72,7 @@ from toolkit.stages.learn import (
     split_events,
     table_inputs,
 )
+from toolkit.stages.learn import stage_config_hash as learn_config_hash
 from toolkit.tableio import write_table
 from toolkit.workspace import (
     StageRecord,
@@ -321,6 +322,14 @@ def run_evaluate(
         raise StageError(
             "the model was learned from other training tables than the ones here; run "
             "`terrain learn` again",
+            path=model_path,
+        )
+    # ... and with this configuration: the patches evaluate builds ([model]) must be the
+    # ones the model was learned on, and the ablations search as [learn] now says.
+    if learned_from is not None and learned_from.config_hash != learn_config_hash(config):
+        raise StageError(
+            "the model was learned with another [model] or [learn] configuration than the "
+            "one in force; run `terrain learn` again",
             path=model_path,
         )
     inputs["model.json"] = model_sha

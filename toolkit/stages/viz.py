@@ -469,6 +469,19 @@ def _checked_inputs(workspace: Workspace, log_dir: Path, warnings: list[str]) ->
             ws_manifest.stage("learn"), "learn", {workspace.model_path.name: sha}, workspace.root
         )
         hashes["model.json"] = sha
+        # Scores and mu must come from one learning: scores from an earlier model coloured
+        # against a later model's mu would show the wrong verdicts.
+        evaluated = ws_manifest.stage("evaluate")
+        if (
+            "report/scores.parquet" in hashes
+            and evaluated is not None
+            and evaluated.inputs.get("model.json") != sha
+        ):
+            del hashes["report/scores.parquet"]
+            warnings.append(
+                "report/scores.parquet scored an earlier model than model.json: points and "
+                "events shown unscored (run `terrain evaluate`)"
+            )
     return hashes
 
 
