@@ -174,3 +174,26 @@ def test_killed_at_random_moments_then_rerun_gives_the_same_outputs(
         got = state(ws)
         assert got.keys() == want.keys(), k
         assert [p for p in want if got[p] != want[p]] == [], k
+
+
+def test_a_new_configuration_reaches_every_stage_it_runs(
+    uninterrupted: Path, logs: list[Path], tmp_path: Path
+) -> None:
+    """-c NEW --overwrite --from learn: learning uses NEW (its patch size is recorded in
+    model.json), evaluate accepts that model, and NEW becomes the workspace's configuration."""
+    ws = tmp_path / "ws"
+    shutil.copytree(uninterrupted, ws, symlinks=True)
+    new = tmp_path / "new.toml"
+    text = (ws / "config.toml").read_text()
+    assert "max_points_per_wheel = 40" in text
+    new.write_text(text.replace("max_points_per_wheel = 40", "max_points_per_wheel = 30"))
+    subprocess.run(
+        terrain("run", *logs, "-w", ws, "-c", new, "--from", "learn", "--overwrite"),
+        check=True,
+        capture_output=True,
+    )
+    model = json.loads((ws / "model.json").read_text())
+    assert model["training"]["max_points_per_wheel"] == 30
+    assert "max_points_per_wheel = 30" in (ws / "config.toml").read_text()
+    summary = json.loads((ws / "report" / "summary.json").read_text())
+    assert summary["train_events"] == model["training"]["events"]
