@@ -66,6 +66,8 @@ _log = logging.getLogger(__name__)
 STAGES: tuple[str, ...] = ("ingest", "pose", "project", "label", "tables", "learn", "evaluate")
 #: The stages that run per log (the rest run once over the workspace).
 PER_LOG_STAGES: tuple[str, ...] = STAGES[:4]
+#: The per-log stage each per-log stage needs.
+DEPENDS_ON: dict[str, str] = {"pose": "ingest", "project": "pose", "label": "pose"}
 
 
 def stage_range(first: str | None, last: str | None) -> tuple[str, ...]:
@@ -283,7 +285,13 @@ def run_pipeline(
             )
         total = len(items) * len(per_log) + len(workspace_stages)
         with progress(total=total, desc="run", unit="step") as bar:
+            passed: dict[str, list[tuple[str, str]]] = {}
             for stage in per_log:
+                # A stage takes the logs its prerequisite passed: label needs pose, not
+                # project, so a log without lasers is still labelled.
+                before = DEPENDS_ON.get(stage)
+                if before in passed:
+                    items = passed[before]
                 task = functools.partial(
                     log_stage_task,
                     stage=stage,
@@ -306,8 +314,9 @@ def run_pipeline(
                 else:
                     ok = summary.results
                     items = [it for it in items if it in ok]
-                ids = [i for _, i in items]
-                report = _per_log_report(stage, summary, ws, ids)
+                passed[stage] = items
+                ids = sorted({i for done in passed.values() for _, i in done})
+                report = _per_log_report(stage, summary, ws, [i for _, i in items])
                 reports.append(report)
                 say(report.line())
             report_path: Path | None = None

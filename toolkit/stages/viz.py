@@ -506,6 +506,10 @@ def quaternion_zyx(
     )
 
 
+#: Where on the ramp a point not predicted rough stops (orange): only a verdict is red.
+NOT_ROUGH_MAX = 0.9
+
+
 def ramp_rgb(t: FloatArray) -> FloatArray:
     """Colours (N, 3) in [0, 1] for ``t`` in [0, 1] (clipped): green at 0, yellow at 0.5,
     red at 1. Through yellow rather than straight across, whose middle is a muddy brown."""
@@ -528,11 +532,13 @@ def point_colors(
     """RGB (N, 3) of points on scored events: the ramp at ``(R_combined - low) / (mu -
     low)``, predicted rough ones red (R_combined's scale is the model's own, often negative:
     only its threshold mu and the scores themselves say what is low). Without a usable mu
-    or low (None, or low >= mu), green or red by the prediction alone."""
+    or low (None, or low >= mu), green or red by the prediction alone. A point not
+    predicted rough is never redder than orange (:data:`NOT_ROUGH_MAX`), however close to
+    mu: pure red means predicted rough."""
     if low is None or mu is None or not low < mu:
         t = predicted.astype(np.float64)
     else:
-        t = (r_combined - low) / (mu - low)
+        t = np.minimum((r_combined - low) / (mu - low), NOT_ROUGH_MAX)
     rgb = ramp_rgb(t)
     rgb[predicted] = (1.0, 0.0, 0.0)
     return rgb
