@@ -17,7 +17,7 @@ from tests.stages.crafted import record_stage_outputs
 from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.tables import TablesResult, run_tables, tyre_paths
+from toolkit.stages.tables import PathSource, TablesResult, run_tables, tyre_paths
 from toolkit.tableio import read_table, write_table
 from toolkit.workspace import Workspace, file_sha256
 
@@ -246,6 +246,28 @@ def test_tyre_paths_are_dense_and_beside_the_axle() -> None:
     assert np.diff(np.sort(left[:, 0])).max() <= 0.05 + 1e-9
 
 
+def test_paths_of_a_run_of_events_are_those_of_the_whole_log() -> None:
+    """Tables samples the paths of the open events only (bounded memory); they must be bit
+    for bit the whole log's, across yaw wrapping through +-pi and slow and fast stretches."""
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.integers(9_000_000, 11_000_000, 3000)).astype(np.int64)
+    speed = 2.0 + 12.0 * rng.random(t.size)
+    yaw = np.angle(np.exp(1j * np.cumsum(rng.normal(0.0, 0.02, t.size))))  # wraps at +-pi
+    step = np.diff(t, prepend=t[0]) * 1e-9 * speed
+    xy = np.c_[np.cumsum(step * np.cos(yaw)), np.cumsum(step * np.sin(yaw))]
+    bounds = np.sort(rng.integers(t[0], t[-1], 201))
+    t_start, t_end = bounds[:-1], bounds[1:]
+    whole = tyre_paths(t, xy, yaw, t_start, t_end, 1.65)
+    source = PathSource.of(t, xy, yaw, t_start, t_end, 1.65)
+    for first, stop in [(0, 200), (0, 1), (37, 90), (199, 200)]:
+        run = source.paths(first, stop)
+        for w in (0, 1):
+            lo, hi = whole.first[w][first], whole.first[w][stop]
+            mine = run.wheel == w
+            np.testing.assert_array_equal(run.xy[mine], whole.xy[lo:hi])
+            np.testing.assert_array_equal(run.event[mine], whole.event[lo:hi])
+
+
 def test_without_labelled_logs_tables_refuses_in_one_line(tmp_path: Path) -> None:
     ws = Workspace(tmp_path / "ws")
     ingest_log(SAMPLE_LOG, ws, default_config())
@@ -278,12 +300,18 @@ def test_matching_equals_brute_force_also_where_samples_crowd(
     wheel = np.repeat(np.array([0, 1], np.int64), 1428)
     first = np.array([0, 1400, 1428], np.int64)
     paths = TyrePaths(xy, event, wheel, (first, first + 1428))
+
+    class BothEvents:  # the open events here are both, whose paths are the above
+        def paths(self, first: int, stop: int) -> TyrePaths:
+            assert (first, stop) == (0, 2)
+            return paths
+
     n = 5000
     pts = np.c_[rng.uniform(-0.5, 3.3, n), rng.uniform(-2.2, 0.6, n)]
     t = rng.integers(0, 2_000_000_000, n).astype(np.int64)
     t_start = np.array([1_500_000_000, 1_800_000_000], dtype=np.int64)
     batch = pa.RecordBatch.from_pydict({"t_ns": t, "x": pts[:, 0], "y": pts[:, 1]})
-    point, ev, wh = _match_batch(batch, t_start, paths, 0.3, 60_000_000_000)
+    point, ev, wh = _match_batch(batch, t_start, BothEvents(), 0.3, 60_000_000_000)
     got = set(zip(point.tolist(), ev.tolist(), wh.tolist(), strict=True))
     want = set()
     for k in range(n):

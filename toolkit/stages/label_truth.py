@@ -37,7 +37,7 @@ from toolkit.errors import StageError
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.sim.world import Route, WorldParams, make_world
 from toolkit.stages.truth import SIM_RECORD, sim_origin
-from toolkit.tableio import read_table, read_table_metadata
+from toolkit.tableio import iter_table_batches, read_table_metadata
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -64,23 +64,39 @@ def _tuples(value: Any) -> Any:
     return tuple(_tuples(v) for v in value) if isinstance(value, list) else value
 
 
-def _route_coords(route: Route, x: FloatArray, y: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Route (s, d) of a path's points (K,), in path order: the first from the nearest
-    centreline sample, later ones by Newton steps from the previous s plus the distance
-    driven since (within a chunk that is within a few metres, where 3 steps reach mm)."""
+@dataclass
+class _RouteCursor:
+    """Where the last projected point of a path lay: its route distance and position (the
+    running guess :func:`_route_coords` carries from one batch of the path to the next)."""
+
+    s_m: float
+    x_m: float
+    y_m: float
+
+
+def _route_coords(
+    route: Route, x: FloatArray, y: FloatArray, cursor: _RouteCursor | None
+) -> tuple[FloatArray, FloatArray, _RouteCursor | None]:
+    """Route (s, d) of a path's points (K,), in path order, and the cursor to pass with the
+    path's next points: the path's first point from the nearest centreline sample, later
+    ones by Newton steps from the previous s plus the distance driven since (within a chunk
+    that is within a few metres, where 3 steps reach mm). Batches of a multiple of
+    :data:`_CHUNK` points give the same result as the whole path at once."""
     s_out = np.empty(x.size)
     d_out = np.empty(x.size)
     if x.size == 0:
-        return s_out, d_out
-    s_prev = float(route.s_m[int(np.argmin(np.hypot(route.x_m - x[0], route.y_m - y[0])))])
-    x_prev, y_prev = float(x[0]), float(y[0])
+        return s_out, d_out, cursor
+    if cursor is None:
+        nearest = int(np.argmin(np.hypot(route.x_m - x[0], route.y_m - y[0])))
+        cursor = _RouteCursor(float(route.s_m[nearest]), float(x[0]), float(y[0]))
+    s_prev, x_prev, y_prev = cursor.s_m, cursor.x_m, cursor.y_m
     for lo in range(0, x.size, _CHUNK):
         xs, ys = x[lo : lo + _CHUNK], y[lo : lo + _CHUNK]
         step = np.hypot(np.diff(np.r_[x_prev, xs]), np.diff(np.r_[y_prev, ys]))
         s, d = route.to_route(xs, ys, s_prev + np.cumsum(step))
         s_out[lo : lo + xs.size], d_out[lo : lo + xs.size] = s, d
         s_prev, x_prev, y_prev = float(s[-1]), float(xs[-1]), float(ys[-1])
-    return s_out, d_out
+    return s_out, d_out, _RouteCursor(s_prev, x_prev, y_prev)
 
 
 def _origin(text: str | None) -> GeodeticOrigin | None:
@@ -130,41 +146,83 @@ def truth_under_events(
                 f"truth features lie up to {miss:.2f} m from the route rebuilt from the log's "
                 "metadata (another simulator version?); events carry no truth"
             )
-    truth = read_table(truth_path, "truth_pose", columns=["t_ns", "x", "y", "z", "yaw"])
-    t = np.asarray(truth.column("t_ns").to_numpy(), np.int64)
-    xyz = np.stack([truth.column(c).to_numpy(zero_copy_only=False) for c in "xyz"], 1)
-    yaw = np.asarray(truth.column("yaw").to_numpy(zero_copy_only=False), np.float64)
     frame_origin = _origin(read_table_metadata(truth_path).get("enu_origin"))
     sim_o = sim_origin(records)
-    if frame_origin is not None and sim_o is not None and frame_origin != sim_o:
-        lat, lon, alt = enu_to_geodetic(xyz, frame_origin)
-        xyz = np.asarray(geodetic_to_enu(lat, lon, alt, sim_o), np.float64)
-    n_events = bounds_ns.size - 1
-    height = np.zeros(max(n_events, 0))
-    kind: list[str | None] = [None] * max(n_events, 0)
-    ev = np.searchsorted(bounds_ns, t, side="right") - 1
-    keep = (ev >= 0) & (ev < n_events)
-    if n_events <= 0 or not keep.any() or n_feat == 0:
-        return TruthUnder(height, kind), None
-    ev, xyz, yaw = ev[keep], xyz[keep], yaw[keep]
-    left = np.stack([-np.sin(yaw), np.cos(yaw)], 1) * (track_m / 2.0)  # base_link +y in ENU
-    s_lo = np.asarray(feats["s_start_m"], np.float64)
-    s_hi = np.asarray(feats["s_end_m"], np.float64)
-    d_c = np.asarray(feats["d_center_m"], np.float64)
-    half_w = np.asarray(feats["width_m"], np.float64) / 2.0
-    h = np.asarray(feats["height_m"], np.float64)
-    for sign in (1.0, -1.0):
-        s, d = _route_coords(route, xyz[:, 0] + sign * left[:, 0], xyz[:, 1] + sign * left[:, 1])
+    n_events = max(bounds_ns.size - 1, 0)
+    under = _Under(n_events)
+    if n_events == 0 or n_feat == 0:
+        return TruthUnder(under.height_m, under.kind()), None
+    features = _Features(feats)
+    cursors: dict[float, _RouteCursor | None] = {1.0: None, -1.0: None}
+    # The truth is streamed (its rows grow with the log; only a batch is held at once).
+    for batch in iter_table_batches(
+        truth_path, "truth_pose", columns=["t_ns", "x", "y", "z", "yaw"], batch_rows=_BATCH_ROWS
+    ):
+        t = np.asarray(batch.column("t_ns").to_numpy(), np.int64)
+        xyz = np.stack([batch.column(c).to_numpy(zero_copy_only=False) for c in "xyz"], 1)
+        yaw = np.asarray(batch.column("yaw").to_numpy(zero_copy_only=False), np.float64)
+        if frame_origin is not None and sim_o is not None and frame_origin != sim_o:
+            lat, lon, alt = enu_to_geodetic(xyz, frame_origin)
+            xyz = np.asarray(geodetic_to_enu(lat, lon, alt, sim_o), np.float64)
+        ev = np.searchsorted(bounds_ns, t, side="right") - 1
+        left = np.stack([-np.sin(yaw), np.cos(yaw)], 1) * (track_m / 2.0)  # base_link +y
+        for sign in (1.0, -1.0):
+            # Every sample goes through the cursor (the path stays continuous); only those
+            # inside an event are matched.
+            s, d, cursors[sign] = _route_coords(
+                route, xyz[:, 0] + sign * left[:, 0], xyz[:, 1] + sign * left[:, 1], cursors[sign]
+            )
+            inside = (ev >= 0) & (ev < n_events)
+            under.add(features, s[inside], d[inside], ev[inside])
+    return TruthUnder(under.height_m, under.kind()), None
+
+
+#: Truth rows read at once (a multiple of _CHUNK: the same route coordinates as the whole).
+_BATCH_ROWS = 256 * _CHUNK
+
+
+class _Features:
+    """The truth's feature footprints in route coordinates, (F,) each, in the file's order."""
+
+    def __init__(self, feats: dict[str, list[Any]]) -> None:
+        self.s_lo = np.asarray(feats["s_start_m"], np.float64)
+        self.s_hi = np.asarray(feats["s_end_m"], np.float64)
+        self.d_c = np.asarray(feats["d_center_m"], np.float64)
+        self.half_w = np.asarray(feats["width_m"], np.float64) / 2.0
+        self.height = np.asarray(feats["height_m"], np.float64)
+        self.kind = [str(k) for k in feats["kind"]]
+
+
+class _Under:
+    """The tallest feature found under a tyre so far, per event (E,): its height and index
+    (-1 none). Among features of equal height the first in the file wins, so the answer does
+    not depend on the order the tyre samples arrive in."""
+
+    def __init__(self, n_events: int) -> None:
+        self.height_m = np.zeros(n_events)
+        self.feature = np.full(n_events, -1, np.int64)
+        self._kinds: list[str] = []
+
+    def add(self, features: _Features, s: FloatArray, d: FloatArray, ev: IntArray) -> None:
+        """Tyre samples at route ``(s, d)`` (K,) during events ``ev`` (K,)."""
+        if s.size == 0:
+            return
+        self._kinds = features.kind
         order = np.argsort(s, kind="stable")
         s_sorted = s[order]
-        for f in range(n_feat):
-            a, b = np.searchsorted(s_sorted, [s_lo[f], s_hi[f]], side="left")
+        near = (features.s_hi >= s_sorted[0]) & (features.s_lo <= s_sorted[-1])
+        for f in np.flatnonzero(near).tolist():
+            a, b = np.searchsorted(s_sorted, [features.s_lo[f], features.s_hi[f]], side="left")
             rows = order[a:b]
-            rows = rows[np.abs(d[rows] - d_c[f]) <= half_w[f]]
+            rows = rows[np.abs(d[rows] - features.d_c[f]) <= features.half_w[f]]
+            h = features.height[f]
             for e in np.unique(ev[rows]).tolist():
-                if h[f] > height[e]:
-                    height[e], kind[e] = float(h[f]), str(feats["kind"][f])
-    return TruthUnder(height, kind), None
+                best = self.feature[e]
+                if h > self.height_m[e] or (h == self.height_m[e] and best >= 0 and f < best):
+                    self.height_m[e], self.feature[e] = h, f
+
+    def kind(self) -> list[str | None]:
+        return [self._kinds[f] if f >= 0 else None for f in self.feature.tolist()]
 
 
 __all__ = ["ROUTE_CHECK_M", "TruthUnder", "truth_under_events"]

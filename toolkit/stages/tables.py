@@ -27,11 +27,11 @@ Split (sect. 7 trains on miles 60-70 and tests on 70-80): by distance along the 
 split the same way on its own. An event belongs to the side its middle lies on.
 
 Streaming: points are read a batch at a time in time order; only the events whose start lies
-within ``max_lookahead_s`` after the batch are indexed (a KD-tree of their tyre samples,
-rebuilt per batch). The points are never whole in memory; each log's events, pose and tyre
-samples are (about 40 MB per hour of driving at 10 m/s). Both tables are written aside and
-published when both are complete; a kill between the two renames leaves outputs the
-manifest does not match, which the next run redoes.
+within ``max_lookahead_s`` after the batch have their tyre paths sampled and indexed (a
+KD-tree of their samples, rebuilt per batch). The points and the tyre paths are never whole
+in memory; each log's events and pose (x, y, yaw at 100 Hz: about 12 MB per hour) are. Both
+tables are written aside and published when both are complete; a kill between the two
+renames leaves outputs the manifest does not match, which the next run redoes.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import numpy as np
 import pyarrow as pa
@@ -221,6 +222,58 @@ def tyre_paths(
     )
 
 
+class EventPaths(Protocol):
+    """Whatever samples the tyre paths of a run of a log's events (:class:`PathSource`)."""
+
+    def paths(self, first: int, stop: int) -> TyrePaths: ...
+
+
+@dataclass(frozen=True)
+class PathSource:
+    """A log's pose and events, from which the tyre paths of any run of consecutive events
+    are sampled when needed (:meth:`paths`), so a log's paths are never whole in memory.
+
+    ``pose_yaw`` is unwrapped once for the whole log: a slice of it then unwraps to itself,
+    and the paths of a run of events are bit for bit those :func:`tyre_paths` gives over
+    the whole log."""
+
+    pose_t_ns: IntArray
+    pose_xy: FloatArray
+    pose_yaw: FloatArray
+    t_start_ns: IntArray
+    t_end_ns: IntArray
+    track_m: float
+
+    @classmethod
+    def of(
+        cls,
+        pose_t_ns: IntArray,
+        pose_xy: FloatArray,
+        pose_yaw: FloatArray,
+        t_start_ns: IntArray,
+        t_end_ns: IntArray,
+        track_m: float,
+    ) -> PathSource:
+        return cls(pose_t_ns, pose_xy, np.unwrap(pose_yaw), t_start_ns, t_end_ns, track_m)
+
+    def paths(self, first: int, stop: int) -> TyrePaths:
+        """The paths of events ``first .. stop - 1`` (their ``event`` the log's event rows),
+        from the pose rows around them (the row at or before the first start to the row at
+        or after the last end: what the interpolation reads)."""
+        t = self.pose_t_ns
+        lo = max(int(np.searchsorted(t, self.t_start_ns[first], side="right")) - 1, 0)
+        hi = min(int(np.searchsorted(t, self.t_end_ns[stop - 1], side="left")) + 1, t.size)
+        run = tyre_paths(
+            t[lo:hi],
+            self.pose_xy[lo:hi],
+            self.pose_yaw[lo:hi],
+            self.t_start_ns[first:stop],
+            self.t_end_ns[first:stop],
+            self.track_m,
+        )
+        return TyrePaths(run.xy, run.event + first, run.wheel, run.first)
+
+
 # --------------------------------------------------------------------------------------
 # Points under the tyres, one log
 # --------------------------------------------------------------------------------------
@@ -239,7 +292,7 @@ class LogInputs:
 def _match_batch(
     batch: pa.RecordBatch,
     events_t_start: IntArray,
-    paths: TyrePaths,
+    source: EventPaths,
     radius_m: float,
     lookahead_ns: int,
 ) -> tuple[IntArray, IntArray, IntArray]:
@@ -258,17 +311,11 @@ def _match_batch(
     open_events = np.flatnonzero((events_t_start > t_lo) & (events_t_start <= t_hi + lookahead_ns))
     if open_events.size == 0:
         return empty
-    # Events are in time order and each wheel's samples in event order: the open events'
-    # samples are one slice per wheel (a lookup, not a scan of every sample of the log).
-    rows = np.concatenate(
-        [
-            np.arange(paths.first[w][open_events[0]], paths.first[w][open_events[-1] + 1])
-            for w in (0, 1)
-        ]
-    )
-    if rows.size == 0:
+    # Events are in time order: the open ones are a run, and only their paths are sampled.
+    paths = source.paths(int(open_events[0]), int(open_events[-1]) + 1)
+    if paths.event.size == 0:
         return empty
-    sample_xy, sample_event, sample_wheel = paths.xy[rows], paths.event[rows], paths.wheel[rows]
+    sample_xy, sample_event, sample_wheel = paths.xy, paths.event, paths.wheel
     x, y = batch.column("x").to_numpy(), batch.column("y").to_numpy()
     # Sieve 1: grid cells of side r; a point within r of a sample lies in the sample's cell
     # or one of its 8 neighbours.
@@ -371,7 +418,7 @@ def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[
     event_id = events.column("event_id").to_numpy().astype(np.int64)
     if pose_t.size < 2 or t_start.size == 0:
         return
-    paths = tyre_paths(
+    source = PathSource.of(
         pose_t,
         np.c_[pose.column("x").to_numpy(), pose.column("y").to_numpy()],
         pose.column("yaw").to_numpy(),
@@ -379,12 +426,13 @@ def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[
         t_end,
         config.vehicle.track_m,
     )
+    del pose
     radius = config.model.wheel_window_radius_m
     lookahead_ns = int(config.tables.max_lookahead_s * 1e9)
     wheel_names = pa.array(list(WHEELS))
 
     def rows_of(batch: pa.RecordBatch) -> MatchedBatch:
-        point, event, wheel = _match_batch(batch, t_start, paths, radius, lookahead_ns)
+        point, event, wheel = _match_batch(batch, t_start, source, radius, lookahead_ns)
         counts = np.zeros((t_start.size, 2), dtype=np.int64)
         np.add.at(counts, (event, wheel), 1)
         t_all = batch.column("t_ns").to_numpy()
@@ -675,4 +723,12 @@ def run_tables(
     )
 
 
-__all__ = ["STAGE", "SplitTotals", "TablesResult", "TyrePaths", "run_tables", "tyre_paths"]
+__all__ = [
+    "STAGE",
+    "PathSource",
+    "SplitTotals",
+    "TablesResult",
+    "TyrePaths",
+    "run_tables",
+    "tyre_paths",
+]
