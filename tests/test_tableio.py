@@ -134,8 +134,46 @@ def test_unknown_schema() -> None:
 
 def test_parse_arrow_type() -> None:
     assert parse_arrow_type("list<list<int8>>") == pa.list_(pa.list_(pa.int8()))
+    assert parse_arrow_type("dictionary<string>") == pa.dictionary(pa.int32(), pa.string())
     with pytest.raises(ValueError):
         parse_arrow_type("decimal")
+
+
+def test_a_dictionary_column_takes_codes_or_plain_values(tmp_path: Path) -> None:
+    """points' laser is stored as codes into a few names: pieces may come as strings or as
+    codes into dictionaries that differ from piece to piece; read back, the values are the
+    same, as codes, and a column of numbers is still refused."""
+    n = 4
+
+    def piece(laser: pa.Array) -> pa.Table:
+        return pa.table(
+            {
+                "t_ns": pa.array(range(n), pa.int64()),
+                "laser": laser,
+                "beam": pa.array(range(n), pa.int32()),
+                "range": pa.array([1.0] * n, pa.float32()),
+                **{c: pa.array([0.5] * n) for c in ("x", "y", "z", "roll_rate", "pitch_rate")},
+                "scan_t_ns": pa.array([0] * n, pa.int64()),
+                "scan_dt_s": pa.array([0.01] * n),
+            }
+        )
+
+    codes = pa.DictionaryArray.from_arrays(pa.array([0, 1, 1, 0], pa.int32()), pa.array(["b", "a"]))
+    path = tmp_path / "points.parquet"
+    with TableWriter(path, "points", source_sha256=SHA, config_hash=CFG) as writer:
+        writer.write(piece(codes))
+        writer.write(piece(pa.array(["a", "c", "a", "a"])))
+    back = read_table(path, "points")
+    assert pa.types.is_dictionary(back.schema.field("laser").type)
+    assert back.column("laser").cast(pa.string()).to_pylist() == list("baabacaa")
+    with pytest.raises(SchemaError, match="column 'laser': has type int64"):
+        write_table(
+            tmp_path / "bad.parquet",
+            piece(pa.array(range(n), pa.int64())),
+            "points",
+            source_sha256=SHA,
+            config_hash=CFG,
+        )
 
 
 # -- writing ------------------------------------------------------------------------------

@@ -69,12 +69,16 @@ _PRIMITIVES: dict[str, pa.DataType] = {
 
 
 def parse_arrow_type(text: str) -> pa.DataType:
-    """``"list<float32>"`` -> ``pa.list_(pa.float32())``; ValueError on anything unknown."""
+    """``"list<float32>"`` -> ``pa.list_(pa.float32())``, ``"dictionary<string>"`` ->
+    ``pa.dictionary(pa.int32(), pa.string())`` (a column of a few repeated values, stored as
+    codes); ValueError on anything unknown."""
     text = text.strip()
     if text in _PRIMITIVES:
         return _PRIMITIVES[text]
     if text.startswith("list<") and text.endswith(">"):
         return pa.list_(parse_arrow_type(text[5:-1]))
+    if text.startswith("dictionary<") and text.endswith(">"):  # int32 codes into values
+        return pa.dictionary(pa.int32(), parse_arrow_type(text[11:-1]))
     raise ValueError(f"unknown column type {text!r}")
 
 
@@ -204,6 +208,9 @@ def _compatible(actual: pa.DataType, wanted: pa.DataType) -> bool:
         return True
     if pa.types.is_null(actual):
         return True  # an all-null column; the nullability check decides
+    if pa.types.is_dictionary(wanted):  # the plain values or codes into them
+        plain = actual.value_type if pa.types.is_dictionary(actual) else actual
+        return _compatible(plain, wanted.value_type)
     if pa.types.is_dictionary(actual):
         return _compatible(actual.value_type, wanted)
     if pa.types.is_string(wanted):
