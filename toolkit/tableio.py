@@ -314,6 +314,21 @@ ROW_GROUP_ROWS = 65_536
 PARQUET_OPTIONS: dict[str, Any] = {"compression": "zstd", "write_page_checksum": True}
 
 
+#: What :class:`TableWriter` ``bulk=True`` changes, for a table of hundreds of millions of
+#: float rows (the point cloud): floats byte-stream-split (each byte of the values in a run
+#: of its own, which zstd compresses far better than whole doubles) and zstd's fast level
+#: -5 (still zstd, read by every Parquet reader). Measured on 1.9 M points of a race log:
+#: 13.9 M rows/s and 39.0 bytes a point against 10.0 M rows/s and 43.0 with the defaults
+#: (level 1, plain floats); writing the cloud is the projection stage's critical path.
+BULK_COMPRESSION_LEVEL = -5
+
+
+def bulk_options(schema: pa.Schema) -> dict[str, Any]:
+    """The extra writer options of a bulk table (see :data:`BULK_COMPRESSION_LEVEL`)."""
+    floats = [f.name for f in schema if pa.types.is_floating(f.type)]
+    return {"compression_level": BULK_COMPRESSION_LEVEL, "use_byte_stream_split": floats}
+
+
 def dictionary_columns(schema: pa.Schema) -> list[str]:
     """The columns worth dictionary encoding: strings (a laser's topic, a split, a wheel),
     which repeat. Numbers rarely do in these tables (positions, times), and trying a
@@ -349,6 +364,9 @@ class TableWriter:
     at version 1. A table that got no rows is written empty with its schema's columns
     (a schema-less one with no row ever written has no columns to write: :meth:`finish`
     then returns False and nothing is published).
+
+    ``bulk``: a table of hundreds of millions of rows whose writing speed matters (the
+    point cloud): :func:`bulk_options` on top of the usual ones.
     """
 
     def __init__(
@@ -361,8 +379,10 @@ class TableWriter:
         extra_metadata: Mapping[str, str] | None = None,
         table_name: str | None = None,
         sort_by: str | None = None,
+        bulk: bool = False,
     ) -> None:
         self.path = Path(path)
+        self.bulk = bulk
         self.schema = load_table_schema(schema_name) if schema_name is not None else None
         if self.schema is None and not table_name:
             raise ValueError("a table without a schema needs a table_name")
@@ -464,6 +484,7 @@ class TableWriter:
                 self._arrow_schema.with_metadata(self._stamped),
                 use_dictionary=dictionary_columns(self._arrow_schema),
                 **PARQUET_OPTIONS,
+                **(bulk_options(self._arrow_schema) if self.bulk else {}),
             )
         except (OSError, pa.ArrowException) as exc:
             raise WorkspaceError(
@@ -522,7 +543,11 @@ class TableWriter:
             )
             schema = pq.read_schema(self._tmp)
             with pq.ParquetWriter(
-                final, schema, use_dictionary=dictionary_columns(schema), **PARQUET_OPTIONS
+                final,
+                schema,
+                use_dictionary=dictionary_columns(schema),
+                **PARQUET_OPTIONS,
+                **(bulk_options(schema) if self.bulk else {}),
             ) as writer:
                 for batch in pq.ParquetFile(scratch, pre_buffer=False).iter_batches(
                     batch_size=ROW_GROUP_ROWS

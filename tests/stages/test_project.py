@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
@@ -101,6 +102,27 @@ def test_every_return_is_a_point_or_a_counted_reject(projected) -> None:  # type
     # A second run finds everything up to date and does nothing.
     again = run_project(ws, log_id, default_config())
     assert again.status == "up_to_date" and again.points == result.points
+
+
+def test_the_cloud_is_written_as_a_bulk_table(projected) -> None:  # type: ignore[no-untyped-def]
+    """The cloud's floats are byte-stream-split under zstd and its laser column is codes into
+    the topic names (what makes writing it fast; see tableio.BULK_COMPRESSION_LEVEL)."""
+    ws, log_id, _ = projected
+    path = ws.log_table(log_id, "points")
+    row_group = pq.ParquetFile(path).metadata.row_group(0)
+    by_name = {row_group.column(i).path_in_schema: row_group.column(i) for i in range(11)}
+    for name in ("x", "y", "z", "range", "roll_rate", "pitch_rate"):
+        assert "BYTE_STREAM_SPLIT" in by_name[name].encodings
+        assert by_name[name].compression == "ZSTD"
+    assert "BYTE_STREAM_SPLIT" not in by_name["t_ns"].encodings
+    lasers = read_table(path, "points", columns=["laser"]).column("laser")
+    assert pa.types.is_dictionary(lasers.type)
+    assert set(lasers.cast(pa.string()).unique().to_pylist()) == set(_laser_topics(ws, log_id))
+
+
+def _laser_topics(ws: Workspace, log_id: str) -> list[str]:
+    laser = read_table(ws.log_table(log_id, "laser"), "laser", columns=["laser"])
+    return [str(v) for v in laser.column("laser").unique().to_pylist()]
 
 
 def _laser_meta(ws: Workspace, log_id: str) -> dict[str, str]:

@@ -258,7 +258,7 @@ def test_paths_of_a_run_of_events_are_those_of_the_whole_log() -> None:
     bounds = np.sort(rng.integers(t[0], t[-1], 201))
     t_start, t_end = bounds[:-1], bounds[1:]
     whole = tyre_paths(t, xy, yaw, t_start, t_end, 1.65)
-    source = PathSource.of(t, xy, yaw, t_start, t_end, 1.65)
+    source = PathSource(t, xy, yaw, t_start, t_end, 1.65)
     for first, stop in [(0, 200), (0, 1), (37, 90), (199, 200)]:
         run = source.paths(first, stop)
         for w in (0, 1):

@@ -735,7 +735,12 @@ def _project_in(
     fig4_until_ns: int | None = None
     batches = iter_table_batches(laser_path, "laser", columns=LASER_COLUMNS, batch_rows=SCAN_BATCH)
     with TableWriter(
-        out_path, "points", source_sha256=sha, config_hash=cfg_hash, extra_metadata=frame_meta
+        out_path,
+        "points",
+        source_sha256=sha,
+        config_hash=cfg_hash,
+        extra_metadata=frame_meta,
+        bulk=True,
     ) as writer:
         # Batches are prepared in order here (the pose stream and each laser's previous
         # scan are sequential), projected by a pool of threads (numpy and the truth lookup

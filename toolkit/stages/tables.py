@@ -233,9 +233,9 @@ class PathSource:
     """A log's pose and events, from which the tyre paths of any run of consecutive events
     are sampled when needed (:meth:`paths`), so a log's paths are never whole in memory.
 
-    ``pose_yaw`` is unwrapped once for the whole log: a slice of it then unwraps to itself,
-    and the paths of a run of events are bit for bit those :func:`tyre_paths` gives over
-    the whole log."""
+    ``pose_yaw`` is unwrapped once, for the whole log, when made: a slice of it then
+    unwraps to itself, and the paths of a run of events are bit for bit those
+    :func:`tyre_paths` gives over the whole log."""
 
     pose_t_ns: IntArray
     pose_xy: FloatArray
@@ -244,17 +244,8 @@ class PathSource:
     t_end_ns: IntArray
     track_m: float
 
-    @classmethod
-    def of(
-        cls,
-        pose_t_ns: IntArray,
-        pose_xy: FloatArray,
-        pose_yaw: FloatArray,
-        t_start_ns: IntArray,
-        t_end_ns: IntArray,
-        track_m: float,
-    ) -> PathSource:
-        return cls(pose_t_ns, pose_xy, np.unwrap(pose_yaw), t_start_ns, t_end_ns, track_m)
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "pose_yaw", np.unwrap(self.pose_yaw))
 
     def paths(self, first: int, stop: int) -> TyrePaths:
         """The paths of events ``first .. stop - 1`` (their ``event`` the log's event rows),
@@ -418,7 +409,7 @@ def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[
     event_id = events.column("event_id").to_numpy().astype(np.int64)
     if pose_t.size < 2 or t_start.size == 0:
         return
-    source = PathSource.of(
+    source = PathSource(
         pose_t,
         np.c_[pose.column("x").to_numpy(), pose.column("y").to_numpy()],
         pose.column("yaw").to_numpy(),
