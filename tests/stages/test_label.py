@@ -13,7 +13,14 @@ import pytest
 from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.label import FIG5_CSV, FIG5_PNG, LabelResult, path_events, run_label
+from toolkit.stages.label import (
+    FIG5_CSV,
+    FIG5_PNG,
+    LabelResult,
+    path_events,
+    path_events_step,
+    run_label,
+)
 from toolkit.stages.pose import run_pose
 from toolkit.tableio import read_table, write_table
 from toolkit.workspace import Manifest, StageRecord, Workspace, digest_files, file_sha256
@@ -279,6 +286,36 @@ def test_path_events_times() -> None:
     np.testing.assert_allclose((bounds - T0_NS) * 1e-9, expected, atol=1e-9)
     empty, _ = path_events(t[:1], x[:1], np.zeros(1), 1.4)
     assert empty.size == 0
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_path_events_fed_in_runs_equal_the_whole_path(seed: int) -> None:
+    """The stage feeds the pose a batch at a time: any split into runs gives the whole
+    path's boundaries bit for bit, across stops and rows that land exactly on a boundary."""
+    rng = np.random.default_rng(seed)
+    n = 3_000
+    step = rng.uniform(0.0, 0.3, n - 1)
+    step[rng.random(n - 1) < 0.1] = 0.0  # standstills, some across a run's edge
+    step[500:540] = 0.35  # 0.35 m steps: every fourth row is exactly on a 1.4 m boundary
+    heading = np.cumsum(rng.normal(0.0, 0.05, n - 1))
+    x = np.concatenate([[5.0], 5.0 + np.cumsum(step * np.cos(heading))])
+    y = np.concatenate([[-2.0], -2.0 + np.cumsum(step * np.sin(heading))])
+    t = T0_NS + np.cumsum(rng.integers(9_000_000, 11_000_000, n)).astype(np.int64)
+    whole_t, whole_s = path_events(t, x, y, 1.4)
+    cuts = np.sort(rng.choice(np.arange(1, n), size=40, replace=False))
+    carry = None
+    parts_t, parts_s = [], []
+    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, n], strict=True):
+        t_b, s_b, carry = path_events_step(t[lo:hi], x[lo:hi], y[lo:hi], 1.4, carry)
+        parts_t.append(t_b)
+        parts_s.append(s_b)
+    assert whole_t.size > 100
+    np.testing.assert_array_equal(np.concatenate(parts_t), whole_t)
+    np.testing.assert_array_equal(np.concatenate(parts_s), whole_s)
+    # Each boundary lies within the pose rows that bracket its distance.
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(y)))])
+    i = np.searchsorted(s, whole_s[1:], side="left")
+    assert np.all((t[i - 1] <= whole_t[1:]) & (whole_t[1:] <= t[i]))
 
 
 # --------------------------------------------------------------------------------------

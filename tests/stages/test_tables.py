@@ -17,7 +17,13 @@ from tests.stages.crafted import record_stage_outputs
 from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.tables import PathSource, TablesResult, run_tables, tyre_paths
+from toolkit.stages.tables import (
+    PathSource,
+    RunningUnwrap,
+    TablesResult,
+    run_tables,
+    tyre_paths,
+)
 from toolkit.tableio import read_table, write_table
 from toolkit.workspace import Workspace, file_sha256
 
@@ -258,14 +264,39 @@ def test_paths_of_a_run_of_events_are_those_of_the_whole_log() -> None:
     bounds = np.sort(rng.integers(t[0], t[-1], 201))
     t_start, t_end = bounds[:-1], bounds[1:]
     whole = tyre_paths(t, xy, yaw, t_start, t_end, 1.65)
-    source = PathSource(t, xy, yaw, t_start, t_end, 1.65)
+    unwrapped = np.unwrap(yaw)
     for first, stop in [(0, 200), (0, 1), (37, 90), (199, 200)]:
+        # The pose rows around the run only, as the stage's pose window hands them over.
+        lo = max(int(np.searchsorted(t, t_start[first], side="right")) - 1, 0)
+        hi = min(int(np.searchsorted(t, t_end[stop - 1], side="left")) + 1, t.size)
+        source = PathSource(t[lo:hi], xy[lo:hi], unwrapped[lo:hi], t_start, t_end, 1.65)
         run = source.paths(first, stop)
         for w in (0, 1):
             lo, hi = whole.first[w][first], whole.first[w][stop]
             mine = run.wheel == w
             np.testing.assert_array_equal(run.xy[mine], whole.xy[lo:hi])
             np.testing.assert_array_equal(run.event[mine], whole.event[lo:hi])
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_running_unwrap_is_np_unwrap_of_the_whole_column(seed: int) -> None:
+    """The stage unwraps the pose's yaw batch by batch: bit for bit np.unwrap of the whole
+    column, for any split (batches of one row, steps of exactly pi, many turns)."""
+    rng = np.random.default_rng(seed)
+    raw = np.cumsum(rng.normal(0.0, 0.8, 5_000))
+    raw[100:110] = np.cumsum(np.full(10, np.pi))  # steps of exactly +pi
+    yaw = np.angle(np.exp(1j * raw))  # wrapped to (-pi, pi]
+    yaw[200:205] = [np.pi, -np.pi, np.pi, -np.pi, 0.0]
+    cuts = np.sort(rng.choice(np.arange(1, yaw.size), size=60, replace=False))
+    cuts = np.unique(np.r_[1, 2, cuts])  # batches of one row at the start
+    unwrap = RunningUnwrap("yaw")
+    parts = [
+        unwrap({"yaw": yaw[lo:hi]})["yaw"]
+        for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, yaw.size], strict=True)
+    ]
+    mine = np.concatenate(parts)
+    np.testing.assert_array_equal(mine, np.unwrap(yaw))
+    assert np.abs(np.diff(mine)).max() <= np.pi + 1e-12  # steps within pi, to rounding
 
 
 def test_without_labelled_logs_tables_refuses_in_one_line(tmp_path: Path) -> None:

@@ -30,8 +30,9 @@ and a header section ``label`` with the IMU rate, the filter's taps and measured
 the counts, and the truth and Fig. 5 summaries. Idempotent: an up-to-date label is not
 recomputed. Memory: the IMU is streamed in batches of :data:`BATCH_ROWS` and only the
 filtered samples of the event being labelled (plus the interpolation margin) are kept; the
-truth (simulated logs) is streamed too; the pose (t, x, y at 100 Hz: ~9 MB per hour) and the
-events' arrays are held whole.
+pose (cut into events run by run, :func:`path_events_step`) and the truth (simulated logs)
+are streamed too. Only the events' own arrays are held whole (a dozen numbers an event,
+~4 MB for an hour's 28,000 events: 1/14 of the pose's rows at 10 m/s).
 """
 
 from __future__ import annotations
@@ -62,7 +63,7 @@ from toolkit.errors import StageError
 from toolkit.mounts import sensor_mounts
 from toolkit.stages.label_truth import truth_under_events
 from toolkit.stages.per_log import run_on_log
-from toolkit.tableio import TableWriter, iter_table_batches, read_table
+from toolkit.tableio import TableWriter, iter_table_batches
 from toolkit.workspace import (
     Manifest,
     StageRecord,
@@ -153,28 +154,79 @@ def stage_config_hash(config: PipelineConfig) -> str:
     return config_hash(config, sections=CONFIG_SECTIONS)
 
 
+@dataclass(frozen=True)
+class PathCarry:
+    """Where the rear-axle path stood after the pose rows seen so far: what
+    :func:`path_events_step` needs of them to go on with the next rows."""
+
+    #: The path's first pose time (the origin of the interpolation's float times), ns.
+    t0_ns: int
+    #: The last row: time (ns), position (m) and distance along the path (m).
+    t_ns: int
+    x_m: float
+    y_m: float
+    s_m: float
+    #: The index of the next boundary to find (boundaries ``< next_k`` were returned).
+    next_k: int
+
+
+def path_events_step(
+    t_ns: IntArray, x: FloatArray, y: FloatArray, length_m: float, carry: PathCarry | None
+) -> tuple[IntArray, FloatArray, PathCarry | None]:
+    """The event boundaries a run of the path's pose rows holds, for a path fed in
+    consecutive runs: (times (B,) ns, distances (B,) m, the carry for the next run).
+
+    The boundaries are where the path ``(t_ns, x, y)`` (K,) reaches ``s = k * length_m``;
+    boundary 0 is the path's first row. Between rows the time is linear in s; where s
+    stands still (a stop) the boundary is the first time it is reached. ``carry`` is None for
+    the first run. The distances are summed in the order of the rows (``np.cumsum`` with the
+    last distance prepended), so any split of the path into runs gives, bit for bit, the
+    boundaries of the whole path at once (:func:`path_events`), while only a run of the pose
+    is held: the label stage's memory does not grow with the log."""
+    empty = (np.zeros(0, np.int64), np.zeros(0))
+    if t_ns.size == 0:
+        return *empty, carry
+    if carry is None:
+        t, xs, ys, s_first, next_k = t_ns, x, y, 0.0, 0
+        t0 = int(t_ns[0])
+    else:
+        t = np.concatenate([[carry.t_ns], t_ns])
+        xs, ys = np.concatenate([[carry.x_m], x]), np.concatenate([[carry.y_m], y])
+        s_first, next_k, t0 = carry.s_m, carry.next_k, carry.t0_ns
+    s = np.cumsum(np.concatenate([[s_first], np.hypot(np.diff(xs), np.diff(ys))]))
+    # The last boundary the run reaches, k L <= s: decided on the products themselves (the
+    # quotient s / L may round up to k while k L > s), so each run's boundaries lie
+    # strictly after its first row and at or before its last.
+    last_k = int(np.floor(s[-1] / length_m))
+    while last_k * length_m > s[-1]:
+        last_k -= 1
+    while (last_k + 1) * length_m <= s[-1]:
+        last_k += 1
+    k = np.arange(next_k, last_k + 1)
+    s_b = k * length_m
+    t_b = np.empty(k.size, np.int64)
+    # Boundaries after the run's first row: s[i-1] < s_b <= s[i], time linear in s between.
+    after = k > 0
+    if after.any():
+        i = np.searchsorted(s, s_b[after], side="left")
+        ds = s[i] - s[i - 1]
+        frac = np.where(ds > 0, (s_b[after] - s[i - 1]) / np.where(ds > 0, ds, 1.0), 1.0)
+        rel = (t - t0).astype(np.float64)
+        t_b[after] = t0 + np.round(rel[i - 1] + frac * (rel[i] - rel[i - 1])).astype(np.int64)
+    t_b[~after] = t0  # boundary 0: the path's first row
+    new_carry = PathCarry(t0, int(t[-1]), float(xs[-1]), float(ys[-1]), float(s[-1]), last_k + 1)
+    return t_b, np.asarray(s_b, np.float64), new_carry
+
+
 def path_events(
     t_ns: IntArray, x: FloatArray, y: FloatArray, length_m: float
 ) -> tuple[IntArray, FloatArray]:
-    """Event boundaries along a path: (times (E + 1,) ns, distances (E + 1,) m) where the
-    path ``(t_ns, x, y)`` (K,) reaches ``s = k * length_m``, k = 0..E, E the whole events
-    it holds. Between samples the time is linear in s; where s stands still (a stop) the
-    boundary is the first time it is reached."""
-    if t_ns.size < 2:
-        return np.zeros(0, np.int64), np.zeros(0)
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(y)))])
-    n_events = int(np.floor(s[-1] / length_m))
-    if n_events < 1:
-        return np.zeros(0, np.int64), np.zeros(0)
-    s_b = np.arange(n_events + 1) * length_m
-    i = np.clip(np.searchsorted(s, s_b, side="left"), 1, s.size - 1)  # s[i-1] < s_b <= s[i]
-    ds = s[i] - s[i - 1]
-    frac = np.where(ds > 0, (s_b - s[i - 1]) / np.where(ds > 0, ds, 1.0), 1.0)
-    t0 = t_ns[0]
-    rel = (t_ns - t0).astype(np.float64)
-    t_b = t0 + np.round(rel[i - 1] + frac * (rel[i] - rel[i - 1])).astype(np.int64)
-    t_b[0] = t_ns[0]
-    return np.asarray(t_b, np.int64), np.asarray(s_b, np.float64)
+    """Event boundaries along a whole path: (times (E + 1,) ns, distances (E + 1,) m) where
+    the path ``(t_ns, x, y)`` (K,) reaches ``s = k * length_m``, k = 0..E, E the whole events
+    it holds (none, and no boundary, when it is shorter than one event). See
+    :func:`path_events_step`, which the stage feeds the pose a batch at a time."""
+    t_b, s_b, _ = path_events_step(t_ns, x, y, length_m, None)
+    return (t_b, s_b) if t_b.size >= 2 else (np.zeros(0, np.int64), np.zeros(0))
 
 
 def _imu_period_ns(imu_path: Path) -> int:
@@ -202,6 +254,26 @@ def _vertical_accel(imu_path: Path, row_z: FloatArray) -> Iterator[tuple[IntArra
         t = np.asarray(b.column(0).to_numpy(), np.int64)
         a = [np.asarray(b.column(i).to_numpy(zero_copy_only=False), np.float64) for i in (1, 2, 3)]
         yield t, row_z[0] * a[0] + row_z[1] * a[1] + row_z[2] * a[2]
+
+
+def _streamed_path_events(pose_path: Path, length_m: float) -> tuple[IntArray, FloatArray]:
+    """:func:`path_events` over the pose table read a batch at a time (only the boundaries,
+    ~1/14 of the pose's rows at 10 m/s, are kept)."""
+    carry: PathCarry | None = None
+    times: list[IntArray] = []
+    distances: list[FloatArray] = []
+    for b in iter_table_batches(
+        pose_path, "pose", columns=["t_ns", "x", "y"], batch_rows=BATCH_ROWS
+    ):
+        t = np.asarray(b.column(0).to_numpy(), np.int64)
+        x, y = (np.asarray(b.column(i).to_numpy(zero_copy_only=False), np.float64) for i in (1, 2))
+        t_b, s_b, carry = path_events_step(t, x, y, length_m, carry)
+        times.append(t_b)
+        distances.append(s_b)
+    bounds_ns = np.concatenate([np.zeros(0, np.int64), *times])
+    if bounds_ns.size < 2:  # shorter than one event: no boundary at all
+        return np.zeros(0, np.int64), np.zeros(0)
+    return bounds_ns, np.concatenate(distances)
 
 
 @dataclass(frozen=True)
@@ -344,11 +416,7 @@ def _label_in(
     period_ns = _imu_period_ns(imu_path)
     rate_hz = 1e9 / period_ns
     fir = design_shock_fir(rate_hz, cfg.fir_taps, cfg.fir_stop_hz, cfg.fir_pass_hz, where=imu_path)
-    pose = read_table(log_dir / "pose.parquet", "pose", columns=["t_ns", "x", "y"])
-    pose_t = np.asarray(pose.column("t_ns").to_numpy(), np.int64)
-    px, py = (np.asarray(pose.column(c).to_numpy(zero_copy_only=False), np.float64) for c in "xy")
-    del pose
-    bounds_ns, s_b = path_events(pose_t, px, py, cfg.event_length_m)
+    bounds_ns, s_b = _streamed_path_events(log_dir / "pose.parquet", cfg.event_length_m)
     n_events = max(bounds_ns.size - 1, 0)
     duration_s = np.diff(bounds_ns) * 1e-9
     # Every event has a positive duration (s rises through each boundary); a zero one (two
@@ -482,4 +550,12 @@ def _label_in(
     )
 
 
-__all__ = ["STAGE", "LabelResult", "path_events", "run_label", "stage_config_hash"]
+__all__ = [
+    "STAGE",
+    "LabelResult",
+    "PathCarry",
+    "path_events",
+    "path_events_step",
+    "run_label",
+    "stage_config_hash",
+]

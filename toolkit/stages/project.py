@@ -37,7 +37,6 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -58,6 +57,7 @@ from toolkit.fusion.rotations import euler_to_rot
 from toolkit.mounts import Mount, frame_mounts
 from toolkit.stages.per_log import run_on_log
 from toolkit.tableio import TableWriter, iter_table_batches, read_table_metadata
+from toolkit.timewindow import TimeWindow
 from toolkit.workspace import (
     Manifest,
     StageRecord,
@@ -277,23 +277,8 @@ class PoseStream:
         """Stream ``path`` (a ``pose`` or ``truth_pose`` table)."""
         self._path = path
         # truth_pose has the pose's columns and frame: a check can project with the truth.
-        self._batches: Iterator[pa.RecordBatch] = iter_table_batches(
-            path, schema_name, columns=POSE_COLUMNS, batch_rows=POSE_BATCH
-        )
-        self._cols: dict[str, NDArray[Any]] = {c: np.zeros(0) for c in POSE_COLUMNS}
-        self._cols["t_ns"] = np.zeros(0, dtype=np.int64)
-        self._done = False
+        self._rows = TimeWindow(path, schema_name, columns=POSE_COLUMNS, batch_rows=POSE_BATCH)
         self._last_lo: int | None = None
-
-    def _pull(self) -> bool:
-        batch = next(self._batches, None)
-        if batch is None:
-            self._done = True
-            return False
-        for c in POSE_COLUMNS:
-            v = batch.column(c).to_numpy(zero_copy_only=False)
-            self._cols[c] = np.concatenate([self._cols[c], v])
-        return True
 
     def window(self, t_lo_ns: int, t_hi_ns: int) -> PoseWindow:
         """Pose rows from the last one at or before ``t_lo_ns`` to the first at or after
@@ -305,18 +290,11 @@ class PoseStream:
                 path=self._path,
             )
         self._last_lo = t_lo_ns if self._last_lo is None else max(self._last_lo, t_lo_ns)
-        while not self._done and (self._cols["t_ns"].size == 0 or self._cols["t_ns"][-1] < t_hi_ns):
-            self._pull()
-        t = self._cols["t_ns"]
         # Rows are let go only KEEP_BEHIND_NS behind the request: beam times of the next
         # batch may start a little before this one's (a negative time_increment, lasers
         # whose stamps are not quite in order).
-        first = max(int(np.searchsorted(t, t_lo_ns - KEEP_BEHIND_NS, side="right")) - 1, 0)
-        if first:
-            self._cols = {c: v[first:] for c, v in self._cols.items()}
-            t = self._cols["t_ns"]
-        last = min(int(np.searchsorted(t, t_hi_ns, side="left")) + 1, t.size)
-        c = {k: v[:last] for k, v in self._cols.items()}
+        self._rows.forget_before(self._last_lo - KEEP_BEHIND_NS)
+        c = self._rows.rows(t_lo_ns, t_hi_ns)
         rpy = np.stack([c["roll"], c["pitch"], c["yaw"]], axis=1).astype(np.float64)
         rotation = Rotation.from_matrix(euler_to_rot(rpy)) if rpy.shape[0] else Rotation.identity(0)
         return PoseWindow(

@@ -28,10 +28,13 @@ split the same way on its own. An event belongs to the side its middle lies on.
 
 Streaming: points are read a batch at a time in time order; only the events whose start lies
 within ``max_lookahead_s`` after the batch have their tyre paths sampled and indexed (a
-KD-tree of their samples, rebuilt per batch). The points and the tyre paths are never whole
-in memory; each log's events and pose (x, y, yaw at 100 Hz: about 12 MB per hour) are. Both
-tables are written aside and published when both are complete; a kill between the two
-renames leaves outputs the manifest does not match, which the next run redoes.
+KD-tree of their samples, rebuilt per batch), from the pose rows around them (the pose is
+read forward a batch at a time, :class:`~toolkit.timewindow.TimeWindow`, its yaw unwrapped
+as over the whole log, :class:`RunningUnwrap`). The points, the pose and the tyre paths are
+never whole in memory; each log's events are (a dozen numbers an event, ~4 MB for an
+hour's 28,000). Both tables are written aside and published when both are complete; a kill
+between the two renames leaves outputs the manifest does not match, which the next run
+redoes.
 """
 
 from __future__ import annotations
@@ -53,7 +56,8 @@ from scipy.spatial import cKDTree
 
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
-from toolkit.tableio import TableWriter, iter_table_batches, read_table
+from toolkit.tableio import TableWriter, iter_table_batches, read_table, table_num_rows
+from toolkit.timewindow import Columns, TimeWindow
 from toolkit.workspace import (
     Manifest,
     StageRecord,
@@ -75,6 +79,8 @@ CONFIG_SECTIONS = ("tables", "model", "vehicle")
 PATH_STEP_M = 0.05
 #: Points per read batch.
 POINT_BATCH = 262_144
+#: Pose rows per read batch (the pose is streamed; 65,536 rows are 11 minutes at 100 Hz).
+POSE_BATCH = 65_536
 #: Largest bitmap of grid cells sieve 1 marks (32 M cells, 32 MB: open tyre paths 1.7 km
 #: across at 30 cm cells; larger ones use sorted cell keys).
 MAX_BITMAP_CELLS = 1 << 25
@@ -230,12 +236,15 @@ class EventPaths(Protocol):
 
 @dataclass(frozen=True)
 class PathSource:
-    """A log's pose and events, from which the tyre paths of any run of consecutive events
-    are sampled when needed (:meth:`paths`), so a log's paths are never whole in memory.
+    """Pose rows and a log's events, from which the tyre paths of any run of consecutive
+    events the rows cover are sampled when needed (:meth:`paths`), so a log's paths are
+    never whole in memory.
 
-    ``pose_yaw`` is unwrapped once, for the whole log, when made: a slice of it then
-    unwraps to itself, and the paths of a run of events are bit for bit those
-    :func:`tyre_paths` gives over the whole log."""
+    ``pose_yaw`` is unwrapped as over the whole log (:class:`RunningUnwrap`, the stage's
+    pose stream): a slice of it then unwraps to itself, and the paths of a run of events
+    are bit for bit those :func:`tyre_paths` gives over the whole log. The rows may be a
+    window of the log's pose (the stage passes the rows around the open events), the
+    events are the log's."""
 
     pose_t_ns: IntArray
     pose_xy: FloatArray
@@ -243,9 +252,6 @@ class PathSource:
     t_start_ns: IntArray
     t_end_ns: IntArray
     track_m: float
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "pose_yaw", np.unwrap(self.pose_yaw))
 
     def paths(self, first: int, stop: int) -> TyrePaths:
         """The paths of events ``first .. stop - 1`` (their ``event`` the log's event rows),
@@ -263,6 +269,48 @@ class PathSource:
             self.track_m,
         )
         return TyrePaths(run.xy, run.event + first, run.wheel, run.first)
+
+
+class RunningUnwrap:
+    """``np.unwrap`` of a table's ``yaw`` column read batch by batch (a
+    :data:`~toolkit.timewindow.BatchTransform`): bit for bit the unwrap of the whole column.
+
+    ``np.unwrap`` (period 2 pi) adds to each sample the running sum of the corrections its
+    steps need, ``c_k = ((d_k + pi) mod 2 pi) - pi - d_k`` for a step ``d_k`` of at least
+    pi (0 otherwise; a step of exactly +pi stays +pi). It has no way to go on from an
+    earlier call, so the step into each batch and the running sum are carried here and
+    summed in the same order (``np.cumsum`` with the carried sum prepended): a test checks
+    the result against ``np.unwrap`` over the whole column for random splits."""
+
+    def __init__(self, column: str = "yaw") -> None:
+        self.column = column
+        self._last_raw: float | None = None
+        self._correction: float | None = None
+
+    def __call__(self, cols: Columns) -> Columns:
+        p = np.asarray(cols[self.column], np.float64)
+        if p.size == 0:
+            return cols
+        first = self._last_raw is None
+        dd = np.diff(p) if first else np.diff(np.concatenate([[self._last_raw], p]))
+        # np.unwrap's own steps, for a float array and its default period 2 pi.
+        ddmod = np.mod(dd + np.pi, 2 * np.pi) - np.pi
+        np.copyto(ddmod, np.pi, where=(ddmod == -np.pi) & (dd > 0))
+        ph_correct = ddmod - dd
+        np.copyto(ph_correct, 0, where=np.abs(dd) < np.pi)
+        up = np.array(p, copy=True)
+        if first:
+            running = ph_correct.cumsum()
+            up[1:] = p[1:] + running
+        else:
+            running = np.concatenate([[self._correction], ph_correct]).cumsum()[1:]
+            up = p + running
+        if running.size:
+            self._correction = float(running[-1])
+        elif self._correction is None:  # a first batch of one row: nothing to carry yet
+            self._correction = 0.0
+        self._last_raw = float(p[-1])
+        return {**cols, self.column: up}
 
 
 # --------------------------------------------------------------------------------------
@@ -402,28 +450,62 @@ def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[
     """The event-point rows of one log, batch by batch, in the order of the points."""
     log_dir = inputs.log_dir
     events = read_table(log_dir / "events.parquet", "events", columns=list(EVENT_COLUMNS))
-    pose = read_table(log_dir / "pose.parquet", "pose", columns=["t_ns", "x", "y", "yaw"])
-    pose_t = pose.column("t_ns").to_numpy()
     t_start = events.column("t_start_ns").to_numpy().astype(np.int64)
     t_end = events.column("t_end_ns").to_numpy().astype(np.int64)
     event_id = events.column("event_id").to_numpy().astype(np.int64)
-    if pose_t.size < 2 or t_start.size == 0:
+    pose_path = log_dir / "pose.parquet"
+    if table_num_rows(pose_path, "pose") < 2 or t_start.size == 0:
         return
-    source = PathSource(
-        pose_t,
-        np.c_[pose.column("x").to_numpy(), pose.column("y").to_numpy()],
-        pose.column("yaw").to_numpy(),
-        t_start,
-        t_end,
-        config.vehicle.track_m,
+    # The pose is streamed: each batch of points gets the rows around its open events.
+    poses = TimeWindow(
+        pose_path,
+        "pose",
+        columns=("t_ns", "x", "y", "yaw"),
+        batch_rows=POSE_BATCH,
+        transform=RunningUnwrap("yaw"),
     )
-    del pose
     radius = config.model.wheel_window_radius_m
     lookahead_ns = int(config.tables.max_lookahead_s * 1e9)
     wheel_names = pa.array(list(WHEELS))
 
-    def rows_of(batch: pa.RecordBatch) -> MatchedBatch:
-        point, event, wheel = _match_batch(batch, t_start, source, radius, lookahead_ns)
+    latest_lo = [np.iinfo(np.int64).min + FINAL_MARGIN_NS]  # the latest batch start yet
+
+    def source_for(batch: pa.RecordBatch) -> PathSource | None:
+        """The pose rows the batch's open events need (see :func:`_match_batch`), read
+        here, in the order of the batches; those further back than any later batch can
+        reach (points are in time order to within :data:`FINAL_MARGIN_NS`) let go."""
+        t = batch.column("t_ns").to_numpy()
+        if t.size == 0:
+            return None
+        t_lo, t_hi = int(t.min()), int(t.max())
+        if t_lo < latest_lo[0] - FINAL_MARGIN_NS:  # the rows it needs may be let go
+            raise StageError(
+                f"points are not in time order (a batch reaches back "
+                f"{(latest_lo[0] - t_lo) * 1e-9:.3f} s); run `terrain project --overwrite` "
+                f"on {inputs.log_id}",
+                path=log_dir / "points.parquet",
+            )
+        latest_lo[0] = max(latest_lo[0], t_lo)
+        open_events = np.flatnonzero((t_start > t_lo) & (t_start <= t_hi + lookahead_ns))
+        poses.forget_before(latest_lo[0] - FINAL_MARGIN_NS)
+        if open_events.size == 0:
+            return None
+        rows = poses.rows(int(t_start[open_events[0]]), int(t_end[open_events[-1]]))
+        return PathSource(
+            rows["t_ns"],
+            np.c_[rows["x"], rows["y"]],
+            rows["yaw"],
+            t_start,
+            t_end,
+            config.vehicle.track_m,
+        )
+
+    def rows_of(batch: pa.RecordBatch, source: PathSource | None) -> MatchedBatch:
+        point, event, wheel = (
+            _match_batch(batch, t_start, source, radius, lookahead_ns)
+            if source is not None
+            else (np.zeros(0, np.int64),) * 3
+        )
         counts = np.zeros((t_start.size, 2), dtype=np.int64)
         np.add.at(counts, (event, wheel), 1)
         t_all = batch.column("t_ns").to_numpy()
@@ -463,7 +545,7 @@ def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[
     with ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="tables") as pool:
         try:
             for batch in batches:
-                pending.append(pool.submit(rows_of, batch))
+                pending.append(pool.submit(rows_of, batch, source_for(batch)))
                 if len(pending) > WORKERS:
                     yield pending.popleft().result()
             while pending:
@@ -717,6 +799,7 @@ def run_tables(
 __all__ = [
     "STAGE",
     "PathSource",
+    "RunningUnwrap",
     "SplitTotals",
     "TablesResult",
     "TyrePaths",
