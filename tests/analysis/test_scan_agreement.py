@@ -143,6 +143,32 @@ def test_the_result_does_not_depend_on_how_the_stream_is_batched() -> None:
         np.testing.assert_allclose(a.mean_abs_dz_m, b.mean_abs_dz_m, rtol=1e-12)
 
 
+@pytest.mark.parametrize("seed", [0, 1])
+def test_the_two_key_search_equals_a_joint_sort(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The window's search (first row of a cell at or after a time, by one searchsorted on
+    a joint int64 key) against the joint sort it replaced, on stamps near 1.7e18 ns, repeated
+    stamps and queries before, at and after the cell's rows; and its fallback to the sort
+    where the joint key would overflow."""
+    from toolkit.analysis import scan_agreement as sa
+
+    rng = np.random.default_rng(seed)
+    n = 5_000
+    key = np.sort(rng.integers(-(2**40), 2**40, 300))[rng.integers(0, 300, n)]
+    t = 1_700_000_000_000_000_000 + rng.integers(0, 10**10, n)
+    t[rng.random(n) < 0.2] = t[0]  # repeated stamps
+    order = np.lexsort((t, key))
+    key, t = key[order], t[order]
+    p = np.sort(rng.choice(n, 800, replace=False))
+    q = t[p] - rng.choice([0, 1, 10**9, 10**10, 10**12], p.size)
+    expected = sa._lower_bound(key, t, key[p], q)
+    np.testing.assert_array_equal(sa._first_at_or_after(key, t, p, q), expected)
+    assert np.all(expected <= p) and np.all(key[expected] == key[p])
+    monkeypatch.setattr(sa, "_lower_bound", lambda *args: np.full(p.size, -7))
+    wide = t.copy()
+    wide[-1] = t[0] + 2**61  # span too wide for rank * span in int64: the sort answers
+    assert sa._first_at_or_after(key, wide, p, q).tolist() == [-7] * p.size
+
+
 def test_cells_older_than_the_window_are_evicted() -> None:
     """A cell seen at 0 s, then ground elsewhere for 20 s, then the cell again: its first
     observation is gone after 10 s, and no pair spans the gap. Memory stays at one window."""

@@ -268,13 +268,19 @@ class _Observations:
         )
 
     @staticmethod
-    def concat(a: _Observations, b: _Observations) -> _Observations:
-        return _Observations(
-            *(
-                np.concatenate([getattr(a, n), getattr(b, n)])
-                for n in ("key", "seq", "scan_t_ns", "t_ns", "z_m", "laser")
-            )
-        )
+    def merge(a: _Observations, b: _Observations, at: IntArray) -> _Observations:
+        """``a`` and ``b`` as one, ``b``'s rows at positions ``at`` (ascending, (len(b),))
+        of the result and ``a``'s rows, in their order, everywhere else."""
+        from_a = np.ones(a.size + b.size, bool)
+        from_a[at] = False
+        fields = []
+        for n in ("key", "seq", "scan_t_ns", "t_ns", "z_m", "laser"):
+            va, vb = getattr(a, n), getattr(b, n)
+            out = np.empty(from_a.size, va.dtype)
+            out[at] = vb
+            out[from_a] = va
+            fields.append(out)
+        return _Observations(*fields)
 
 
 @dataclass
@@ -483,21 +489,22 @@ class ScanAgreement:
         """Pair the new observations with the window's and with each other, accumulate the
         pairs, and add the new ones to the window (kept sorted by cell, then scan)."""
         c = self.config
-        n_old = self._window.size
-        both = _Observations.concat(self._window, new)
-        order = np.lexsort((both.seq, both.key))
-        both = both.take(order)
-        is_new = order >= n_old
+        # Every new observation is of a later scan than every held one (seq grows with the
+        # stream), so within its cell it sorts after them: the sorted window and the sorted
+        # new ones merge, each new one going after the held ones of its cell (no sort of
+        # the whole window per batch: that was most of Fig. 4's cost).
+        new = new.take(np.lexsort((new.seq, new.key)))
+        p = np.searchsorted(self._window.key, new.key, side="right") + np.arange(new.size)
+        both = _Observations.merge(self._window, new, p)
         self._window = both
         self.max_live_observations = max(self.max_live_observations, both.size)
 
         # For each new observation at position p: the first position lo of its cell whose
         # scan is less than max_dt older. Sorted by (key, seq), stamps are non-decreasing
         # within a cell, so its candidates are exactly positions lo..p-1.
-        p = np.flatnonzero(is_new)
         # Strictly less (the bins cover [0, max_dt)).
         q = both.scan_t_ns[p] - self._max_dt_ns + 1
-        lo = _lower_bound(both.key, both.scan_t_ns, both.key[p], q)
+        lo = _first_at_or_after(both.key, both.scan_t_ns, p, q)
         n = p - lo
         m = np.minimum(n, c.pairs_per_observation)
         total = int(m.sum())
@@ -663,6 +670,26 @@ def _observe(p: _Points, seq: IntArray, keep: IntArray, cell_m: float) -> _Obser
         z_m=np.add.reduceat(p.z[rows], start) / count,
         laser=p.laser[rows[start]],
     )
+
+
+def _first_at_or_after(key: IntArray, t: IntArray, p: IntArray, q_t: IntArray) -> IntArray:
+    """For rows sorted by (key, t) (W,) and queries at rows ``p`` (Q,): the first row of row
+    ``p``'s key whose ``t`` is at least ``q_t`` (Q,), ``q_t <= t[p]`` (a searchsorted on two
+    keys, exact in int64).
+
+    The two keys become one sorted int64, ``rank(key) * span + (t - t_min)`` with ``span``
+    more than the range of ``t``, so one ``searchsorted`` answers every query: linear in the
+    rows, where sorting rows and queries together cost ``(W + Q) log (W + Q)`` per batch."""
+    if key.size == 0:
+        return np.zeros(p.size, np.int64)
+    rank = np.cumsum(np.r_[0, (np.diff(key) != 0).astype(np.int64)])
+    t_min = int(t.min())
+    span = int(t.max()) - t_min + 1
+    if int(rank[-1]) + 1 > (2**62) // span:  # the joint key would overflow: sort instead
+        return _lower_bound(key, t, key[p], q_t)
+    joint = rank * span + (t - t_min)
+    wanted = rank[p] * span + np.maximum(q_t - t_min, 0)
+    return np.searchsorted(joint, wanted, side="left").astype(np.int64)
 
 
 def _lower_bound(key: IntArray, t: IntArray, q_key: IntArray, q_t: IntArray) -> IntArray:
