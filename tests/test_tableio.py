@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
@@ -15,6 +16,7 @@ import toolkit
 import toolkit.tableio as tableio
 from toolkit.errors import SchemaError, WorkspaceError
 from toolkit.tableio import (
+    ROW_GROUP_ROWS,
     TableWriter,
     load_table_schema,
     parse_arrow_type,
@@ -324,15 +326,38 @@ def test_failed_write_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyP
         real(self, table, **kwargs)
 
     monkeypatch.setattr(pq.ParquetWriter, "write_table", filling_disk)
+    rows = ROW_GROUP_ROWS  # pieces of a whole row group are written as they come
     with (
         pytest.raises(WorkspaceError, match="No space left"),
         TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG) as writer,
     ):
-        writer.write(_heading([5, 6]))
-        writer.write(_heading([7, 8]))
+        writer.write(_heading(list(range(rows))))
+        writer.write(_heading(list(range(rows, 2 * rows))))
     assert calls["n"] == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["heading.parquet"]
     assert path.read_bytes() == before
+
+
+@pytest.mark.parametrize("bulk", [False, True])
+def test_small_pieces_are_gathered_into_row_groups(tmp_path: Path, bulk: bool) -> None:
+    """Pieces of a few rows are written as whole row groups (each row group costs a reader
+    footer memory), the rows as they came; a bulk table's big pieces stay one group each."""
+    path = tmp_path / "heading.parquet"
+    sizes = [7, 1, 3_000, 20_000, 50_000, 9, 70_000, 2]
+    with TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG, bulk=bulk) as writer:
+        first = 0
+        for n in sizes:
+            writer.write(_heading(list(range(first, first + n))))
+            first += n
+    meta = pq.ParquetFile(path).metadata
+    assert meta.num_rows == sum(sizes) == writer.rows
+    groups = [meta.row_group(i).num_rows for i in range(meta.num_row_groups)]
+    # 7 + 1 + 3,000 + 20,000 + 50,000 gathered; 9 + 70,000 one piece; 2 left at the end
+    expected = [73_008, 70_009, 2] if bulk else [65_536, 7_472, 65_536, 4_473, 2]
+    assert groups == expected
+    np.testing.assert_array_equal(
+        read_table(path, "heading").column("t_ns").to_numpy(), np.arange(sum(sizes))
+    )
 
 
 def test_interrupted_writer_leaves_nothing(tmp_path: Path) -> None:

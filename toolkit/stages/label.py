@@ -236,7 +236,10 @@ def _imu_period_ns(imu_path: Path) -> int:
     window is symmetric so that trimming does not bias it (a window of [median / 1.5,
     median x 1.5] cut jittered short steps but not long ones: 99.35 Hz for a 100 Hz IMU
     with +-2 ms jitter)."""
-    first = next(iter_table_batches(imu_path, "imu", columns=["t_ns"], batch_rows=BATCH_ROWS), None)
+    first = next(
+        iter_table_batches(imu_path, "imu", columns=["t_ns"], batch_rows=BATCH_ROWS, lean=True),
+        None,
+    )
     t = np.asarray(first.column(0).to_numpy(), np.int64) if first is not None else np.zeros(0)
     dt = np.diff(t)
     dt = dt[dt > 0]
@@ -250,7 +253,9 @@ def _imu_period_ns(imu_path: Path) -> int:
 def _vertical_accel(imu_path: Path, row_z: FloatArray) -> Iterator[tuple[IntArray, FloatArray]]:
     """(t_ns (M,), base_link z specific force (M,) m/s^2) batch by batch: ``row_z`` (3,) is
     the mount rotation's last row, so ``a_z = row_z . a_imu``."""
-    for b in iter_table_batches(imu_path, "imu", columns=IMU_COLUMNS, batch_rows=BATCH_ROWS):
+    for b in iter_table_batches(
+        imu_path, "imu", columns=IMU_COLUMNS, batch_rows=BATCH_ROWS, lean=True
+    ):
         t = np.asarray(b.column(0).to_numpy(), np.int64)
         a = [np.asarray(b.column(i).to_numpy(zero_copy_only=False), np.float64) for i in (1, 2, 3)]
         yield t, row_z[0] * a[0] + row_z[1] * a[1] + row_z[2] * a[2]
@@ -263,7 +268,7 @@ def _streamed_path_events(pose_path: Path, length_m: float) -> tuple[IntArray, F
     times: list[IntArray] = []
     distances: list[FloatArray] = []
     for b in iter_table_batches(
-        pose_path, "pose", columns=["t_ns", "x", "y"], batch_rows=BATCH_ROWS
+        pose_path, "pose", columns=["t_ns", "x", "y"], batch_rows=BATCH_ROWS, lean=True
     ):
         t = np.asarray(b.column(0).to_numpy(), np.int64)
         x, y = (np.asarray(b.column(i).to_numpy(zero_copy_only=False), np.float64) for i in (1, 2))

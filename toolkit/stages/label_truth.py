@@ -156,7 +156,11 @@ def truth_under_events(
     cursors: dict[float, _RouteCursor | None] = {1.0: None, -1.0: None}
     # The truth is streamed (its rows grow with the log; only a batch is held at once).
     for batch in iter_table_batches(
-        truth_path, "truth_pose", columns=["t_ns", "x", "y", "z", "yaw"], batch_rows=_BATCH_ROWS
+        truth_path,
+        "truth_pose",
+        columns=["t_ns", "x", "y", "z", "yaw"],
+        batch_rows=_BATCH_ROWS,
+        lean=True,
     ):
         t = np.asarray(batch.column("t_ns").to_numpy(), np.int64)
         xyz = np.stack([batch.column(c).to_numpy(zero_copy_only=False) for c in "xyz"], 1)
