@@ -338,6 +338,59 @@ def test_failed_write_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyP
     assert path.read_bytes() == before
 
 
+def test_a_failed_write_of_gathered_pieces_leaves_nothing(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Small pieces are written when the table is finished: the disk filling up then is an
+    error there, and no partial file is left beside an older table."""
+    path = tmp_path / "heading.parquet"
+    write_table(path, _heading([1, 2]), "heading", source_sha256=SHA, config_hash=CFG)
+    before = path.read_bytes()
+
+    def full_disk(self: pq.ParquetWriter, table: pa.Table, **kwargs: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(pq.ParquetWriter, "write_table", full_disk)
+    writer = TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG)
+    writer.write(_heading([5, 6]))  # gathered: nothing written yet
+    writer.write(_heading([7, 8]))
+    with pytest.raises(WorkspaceError, match="No space left"), writer:
+        pass
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["heading.parquet"]
+    assert path.read_bytes() == before
+
+
+def test_gathered_pieces_share_one_dictionary(tmp_path: Path) -> None:
+    """Pieces whose dictionary columns carry different dictionaries are written with one
+    (a column chunk mixing dictionaries falls back to plain encoding, 4x larger)."""
+    path = tmp_path / "points.parquet"
+    names = pa.array(["/laser/a", "/laser/b", "/laser/c"])
+    schema = load_table_schema("heading")
+    pieces = []
+    for k in range(4):
+        codes = pa.array(np.arange(1_000) % 3, pa.int32())
+        order = np.roll(np.arange(3), k)
+        laser = pa.DictionaryArray.from_arrays(codes, names.take(pa.array(order)))
+        pieces.append(
+            _heading(list(range(k * 1_000, (k + 1) * 1_000))).append_column("laser", laser)
+        )
+    with TableWriter(path, schema.name, source_sha256=SHA, config_hash=CFG) as writer:
+        for piece in pieces:
+            writer.write(piece)
+
+    def laser_bytes(p: Path) -> int:
+        f = pq.ParquetFile(p)
+        assert f.metadata.num_row_groups == 1
+        index = f.schema_arrow.get_field_index("laser")
+        return int(f.metadata.row_group(0).column(index).total_compressed_size)
+
+    mixed = tmp_path / "mixed.parquet"  # the pieces as they came, one dictionary each
+    pq.write_table(pa.concat_tables(pieces), mixed, compression="zstd")
+    assert laser_bytes(path) < laser_bytes(mixed) / 2
+    expected = pa.concat_tables(pieces).column("laser").cast(pa.string())
+    assert pq.read_table(path).column("laser").cast(pa.string()).equals(expected)
+
+
 @pytest.mark.parametrize("bulk", [False, True])
 def test_small_pieces_are_gathered_into_row_groups(tmp_path: Path, bulk: bool) -> None:
     """Pieces of a few rows are written as whole row groups (each row group costs a reader

@@ -312,6 +312,9 @@ def contract_metadata(
 #: ~10 kB of footer metadata held in memory for the whole read (measured on the point cloud
 #: with 11 columns: 43 MB for 4,104 row groups), which would grow with the log.
 ROW_GROUP_ROWS = 65_536
+#: ... or up to this many bytes (a few rows of a wide table, such as the laser scans at
+#: ~800 bytes a row, make a row group's worth of memory long before 65,536 rows).
+GATHER_BYTES = 8 << 20
 #: Rows per row group at most in a bulk table (:class:`TableWriter` ``bulk=True``): the
 #: point cloud's pieces (a batch of 2,000 scans, ~340 k points) each become one row group,
 #: 700 for an hour of Stanley's five lasers instead of 3,700.
@@ -351,6 +354,13 @@ def dictionary_columns(schema: pa.Schema) -> list[str]:
     ]
 
 
+def _concat_pieces(pieces: list[pa.Table]) -> pa.Table:
+    """Gathered pieces as one table, their dictionaries unified: a column chunk whose pieces
+    carry different dictionaries falls back to plain encoding in Parquet (4x larger,
+    measured on a laser column)."""
+    return pa.concat_tables(pieces).unify_dictionaries()
+
+
 class TableWriter:
     """The one way a table reaches the disk: streamed aside, checked, then published whole.
 
@@ -373,8 +383,9 @@ class TableWriter:
     (a schema-less one with no row ever written has no columns to write: :meth:`finish`
     then returns False and nothing is published).
 
-    Pieces of fewer than :data:`ROW_GROUP_ROWS` rows are gathered (checked as they arrive)
-    and written together once they make a row group, or at :meth:`finish`.
+    Pieces of fewer than :data:`ROW_GROUP_ROWS` rows (and :data:`GATHER_BYTES`) are gathered
+    (checked as they arrive) and written together once they make a row group, or at
+    :meth:`finish`; an error writing them is raised there.
 
     ``bulk``: a table of hundreds of millions of rows whose writing speed matters (the
     point cloud): :func:`bulk_options` on top of the usual ones, and row groups of up to
@@ -464,12 +475,15 @@ class TableWriter:
             return
         self._track_order(table)
         self.rows += table.num_rows
-        if self._gathered_rows + table.num_rows < ROW_GROUP_ROWS:
+        if (
+            self._gathered_rows + table.num_rows < ROW_GROUP_ROWS
+            and sum(t.nbytes for t in self._gathered) + table.nbytes < GATHER_BYTES
+        ):
             self._gathered.append(table)
             self._gathered_rows += table.num_rows
             return
         if self._gathered:
-            table = pa.concat_tables([*self._gathered, table])
+            table = _concat_pieces([*self._gathered, table])
             self._gathered, self._gathered_rows = [], 0
         self._write_rows(writer, table)
 
@@ -541,7 +555,7 @@ class TableWriter:
                     return False
                 writer = self._open(self.schema.arrow_schema())
             if self._gathered:
-                self._write_rows(writer, pa.concat_tables(self._gathered))
+                self._write_rows(writer, _concat_pieces(self._gathered))
                 self._gathered, self._gathered_rows = [], 0
             late = {k: v for k, v in self._metadata().items() if k not in self._stamped}
             if late:
@@ -785,13 +799,15 @@ def iter_table_batches(
     stored them (:func:`dictionary_columns`), instead of a string per row: for a column of
     five laser names, ~15x faster to read (measured on a points table).
 
-    ``lean``: decode on the calling thread and hand the memory of each consumed batch back
-    (``MemoryPool.release_unused``) before reading the next. Arrow's default allocator
+    ``lean``: decode on the calling thread and hand back the memory of the batches consumed
+    so far (``MemoryPool.release_unused``) whenever the next is asked for. Arrow's default allocator
     (mimalloc) otherwise keeps pages its decoding threads used: streaming an hour's truth
     pose (365 k rows, 15 MB of values) grew the process by 34 MB, ten minutes' by 14 MB;
     lean, 13 MB both (measured). It costs time on big batches (the point cloud read 7.0 ->
     17.8 s an hour), so it is for the many small batches of a stage's side tables."""
     path = Path(path)
+    if lean and as_dictionary:
+        raise ValueError("iter_table_batches: lean reading does not regroup dictionary batches")
     schema = load_table_schema(schema_name)
     _check_contract(path, schema)
     try:

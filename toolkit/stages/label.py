@@ -195,8 +195,8 @@ def path_events_step(
         s_first, next_k, t0 = carry.s_m, carry.next_k, carry.t0_ns
     s = np.cumsum(np.concatenate([[s_first], np.hypot(np.diff(xs), np.diff(ys))]))
     # The last boundary the run reaches, k L <= s: decided on the products themselves (the
-    # quotient s / L may round up to k while k L > s), so each run's boundaries lie
-    # strictly after its first row and at or before its last.
+    # quotient s / L may round up to k while k L > s), so each run's boundaries (but the
+    # path's boundary 0) lie strictly after its first row and at or before its last.
     last_k = int(np.floor(s[-1] / length_m))
     while last_k * length_m > s[-1]:
         last_k -= 1

@@ -241,8 +241,10 @@ class PathSource:
     never whole in memory.
 
     ``pose_yaw`` is unwrapped as over the whole log (:class:`RunningUnwrap`, the stage's
-    pose stream): a slice of it then unwraps to itself, and the paths of a run of events
-    are bit for bit those :func:`tyre_paths` gives over the whole log. The rows may be a
+    pose stream): its steps are within pi, so :func:`tyre_paths` unwrapping a slice of it
+    leaves it as it is, and the paths of a run of events are bit for bit those
+    :func:`tyre_paths` gives over the whole log (but where rounding puts an unwrapped step
+    a hair past pi, which the second unwrap would move by 2 pi). The rows may be a
     window of the log's pose (the stage passes the rows around the open events), the
     events are the log's."""
 
@@ -594,8 +596,12 @@ def _log_inputs(workspace: Workspace) -> tuple[list[LogInputs], list[str]]:
                     f"{stage} -w {workspace.root} --log {log_id}` again",
                     path=log_dir / "pose.parquet",
                 )
-        pose = read_table(log_dir / "pose.parquet", "pose", columns=["t_ns"])
-        first = int(pc.min(pose.column("t_ns")).as_py() or 0) if pose.num_rows else 0
+        # The pose is in time order: its first row is its first time (read alone).
+        head = next(
+            iter_table_batches(log_dir / "pose.parquet", "pose", columns=["t_ns"], batch_rows=1),
+            None,
+        )
+        first = int(head.column(0)[0].as_py()) if head is not None and head.num_rows else 0
         usable.append(LogInputs(log_id, log_dir, hashes, first))
     usable.sort(key=lambda li: (li.first_t_ns, li.log_id))
     return usable, warnings
