@@ -6,9 +6,9 @@ and pose wrote it. Prints wall time, events and IMU rows per second, and the pro
 RSS (``VmHWM``) before and after the stage, measured in a fresh process that only runs the
 stage: the stage streams the IMU, so its increment should not grow with the log's IMU table
 (compare ``--minutes 10`` and ``60``). Measured 2026-11-23: 10 min +33 MB, 60 min +65 MB
-(the difference is the pose, 100 Hz x 3 columns, which the stage holds whole by design);
-60 min labelled in 9.5 s (25,710 events, 2,700 events/s, the band-limited peak per event
-being most of it).
+(the difference was the pose, then held whole). Measured 2026-11-26, the pose streamed too:
+10 min +47.0 MB, 60 min +50.5 MB (peak 203.6 / 207.1 MB): flat; 60 min labelled in 6.6 s
+(25,710 events, 3,900 events/s).
 
 Usage: python benchmarks/bench_label.py [--minutes 60] [--keep DIR]
 """
