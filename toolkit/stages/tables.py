@@ -470,26 +470,27 @@ def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[
     lookahead_ns = int(config.tables.max_lookahead_s * 1e9)
     wheel_names = pa.array(list(WHEELS))
 
-    latest_lo = [np.iinfo(np.int64).min + FINAL_MARGIN_NS]  # the latest batch start yet
+    latest_lo = int(np.iinfo(np.int64).min) + FINAL_MARGIN_NS  # the latest batch start yet
 
     def source_for(batch: pa.RecordBatch) -> PathSource | None:
         """The pose rows the batch's open events need (see :func:`_match_batch`), read
         here, in the order of the batches; those further back than any later batch can
         reach (points are in time order to within :data:`FINAL_MARGIN_NS`) let go."""
+        nonlocal latest_lo
         t = batch.column("t_ns").to_numpy()
         if t.size == 0:
             return None
         t_lo, t_hi = int(t.min()), int(t.max())
-        if t_lo < latest_lo[0] - FINAL_MARGIN_NS:  # the rows it needs may be let go
+        if t_lo < latest_lo - FINAL_MARGIN_NS:  # the rows it needs may be let go
             raise StageError(
                 f"points are not in time order (a batch reaches back "
-                f"{(latest_lo[0] - t_lo) * 1e-9:.3f} s); run `terrain project --overwrite` "
+                f"{(latest_lo - t_lo) * 1e-9:.3f} s); run `terrain project --overwrite` "
                 f"on {inputs.log_id}",
                 path=log_dir / "points.parquet",
             )
-        latest_lo[0] = max(latest_lo[0], t_lo)
+        latest_lo = max(latest_lo, t_lo)
         open_events = np.flatnonzero((t_start > t_lo) & (t_start <= t_hi + lookahead_ns))
-        poses.forget_before(latest_lo[0] - FINAL_MARGIN_NS)
+        poses.forget_before(latest_lo - FINAL_MARGIN_NS)
         if open_events.size == 0:
             return None
         rows = poses.rows(int(t_start[open_events[0]]), int(t_end[open_events[-1]]))
