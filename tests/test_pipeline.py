@@ -69,13 +69,20 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
 
 
 @pytest.fixture(scope="module")
-def uninterrupted(logs: list[Path], tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """One `terrain run` to the end on the two logs."""
+def first_run(logs: list[Path], tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
+    """One `terrain run` to the end on the two logs: its workspace and how long it took (s)."""
     ws = tmp_path_factory.mktemp("run") / "ws"
+    t0 = time.perf_counter()
     subprocess.run(
         terrain("run", *logs, "-w", ws, "--workers", "2"), check=True, capture_output=True
     )
-    return ws
+    return ws, time.perf_counter() - t0
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(first_run: tuple[Path, float]) -> Path:
+    """The workspace of one `terrain run` to the end on the two logs."""
+    return first_run[0]
 
 
 def test_the_stage_list_is_the_pipelines() -> None:
@@ -143,17 +150,13 @@ def test_from_and_to_run_only_their_stages(
 
 
 def test_killed_at_random_moments_then_rerun_gives_the_same_outputs(
-    uninterrupted: Path, logs: list[Path], tmp_path: Path
+    first_run: tuple[Path, float], logs: list[Path], tmp_path: Path
 ) -> None:
-    """SIGKILL at a random moment of a run (seeded, spread over a whole run's duration),
-    then `terrain run` again: the workspace equals the uninterrupted run's, file for file."""
+    """SIGKILL at a random moment of a run (seeded, spread over a whole run's duration: that
+    of the uninterrupted run), then `terrain run` again: the workspace equals the
+    uninterrupted run's, file for file."""
     rng = random.Random(SEED)
-    t0 = time.perf_counter()
-    probe = tmp_path / "probe"
-    subprocess.run(
-        terrain("run", *logs, "-w", probe, "--workers", "2"), check=True, capture_output=True
-    )
-    duration = time.perf_counter() - t0
+    uninterrupted, duration = first_run
     want = state(uninterrupted)
     for k in range(KILLS):
         ws = tmp_path / f"ws{k}"
