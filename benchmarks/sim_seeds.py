@@ -9,6 +9,9 @@ feature's kind, or background roughness). Prints one line per seed and a summary
 Usage: python benchmarks/sim_seeds.py --out DIR [--seeds 601 602 603 604 605 606]
        [--distance-m 6000] [--no-lasers] [--jobs 2]
 
+Each seed also prints its band-edge sensitivity (:func:`_edge_sensitivity`): how much one
+event's reading changes from 9 to 11 Hz, and how steep the tail is at the threshold.
+
 ``--no-lasers`` simulates without laser scans (the drive and the IMU are the same, so are the
 labels): several times faster, for tuning the vehicle.
 """
@@ -27,6 +30,7 @@ from collections import Counter
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
+import numpy as np
 import polars as pl
 
 from toolkit.config import default_config
@@ -48,17 +52,22 @@ def label_rates(log: Path) -> dict[str, object]:
         run_pose(ws, log_id, cfg)
         by_edge: dict[str, float] = {}
         kinds_by_edge: dict[str, dict[str, int]] = {}
+        ruggedness_by_edge: dict[float, np.ndarray] = {}
         for stop in STOP_EDGES_HZ:
             label = dataclasses.replace(cfg.label, fir_stop_hz=stop, fir_pass_hz=stop + 5.0)
             r = run_label(ws, log_id, dataclasses.replace(cfg, label=label), overwrite=True)
             by_edge[f"{stop:g}"] = round(100.0 * r.rough / max(r.events, 1), 4)
             edge_events = read_table(ws.log_dir(log_id) / "events.parquet", "events")
+            ruggedness_by_edge[stop] = edge_events.column("ruggedness").to_numpy()
             kinds_by_edge[f"{stop:g}"] = dict(
                 Counter(
                     str(row.get("truth_feature_kind") or "background")
                     for row in edge_events.filter(edge_events.column("rough")).to_pylist()
                 )
             )
+        edge_sensitivity = _edge_sensitivity(
+            ruggedness_by_edge, cfg.label.rough_threshold_g_per_mph
+        )
         result = run_label(ws, log_id, cfg, overwrite=True)
         events = read_table(ws.log_dir(log_id) / "events.parquet", "events")
         rough = events.filter(events.column("rough")).to_pylist()
@@ -84,10 +93,37 @@ def label_rates(log: Path) -> dict[str, object]:
         "rough_percent_by_stop_edge_hz": by_edge,
         "positives_by_kind_by_stop_edge_hz": kinds_by_edge,
         "positives_by_kind": dict(kinds),
+        "edge_sensitivity": edge_sensitivity,
         "ruggedness_by_kind": {
             r["kind"]: [r["n"], round(r["p50"], 4), round(r["p90"], 4), round(r["max"], 4)]
             for r in spread.to_dicts()
         },
+    }
+
+
+def _edge_sensitivity(
+    ruggedness_by_edge: dict[float, np.ndarray], threshold: float
+) -> dict[str, float]:
+    """Why the rate moves with the band edge, in two numbers and their product.
+
+    ``gain_9_over_11``: the median over events near or above the threshold (ruggedness at
+    10 Hz at least half of it) of ruggedness with the 9 Hz edge over that with the 11 Hz one:
+    how much one event's shock reading changes with the edge. ``tail_exponent``: the local
+    slope ``k = -d log(rate) / d log(threshold)`` of the 10 Hz ruggedness's upper tail,
+    from the rates at threshold / 1.2 and threshold x 1.2: how much the rate changes for a
+    given change of every reading. If every event's reading scaled alike, the rate would
+    move by ``gain ** k`` from 9 to 11 Hz (``expected_ratio``).
+    """
+    r9, r10, r11 = (ruggedness_by_edge[e] for e in STOP_EDGES_HZ)
+    near = np.isfinite(r10) & (r10 >= threshold / 2) & (r11 > 0)
+    gain = float(np.median(r9[near] / r11[near])) if near.any() else float("nan")
+    lo = float(np.mean(r10 >= threshold / 1.2))
+    hi = float(np.mean(r10 >= threshold * 1.2))
+    k = float(np.log(lo / hi) / np.log(1.2**2)) if lo > 0 and hi > 0 else float("nan")
+    return {
+        "gain_9_over_11": round(gain, 3),
+        "tail_exponent": round(k, 2),
+        "expected_ratio": round(gain**k, 2),
     }
 
 
@@ -133,6 +169,7 @@ def main() -> None:
                 flush=True,
             )
             print(f"  ruggedness [n, p50, p90, max] by kind: {row['ruggedness_by_kind']}")
+            print(f"  band-edge sensitivity: {row['edge_sensitivity']}")
             print(
                 f"  positives by kind at stop edge 9/10/11 Hz: {row['positives_by_kind_by_stop_edge_hz']}"
             )
