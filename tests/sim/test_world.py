@@ -334,3 +334,24 @@ def test_on_a_race_some_features_are_met_by_one_wheel_some_by_both_many_missed()
     rock_met = 1 - table["rock"][0] / sum(table["rock"].values())
     pothole_met = 1 - table["pothole"][0] / sum(table["pothole"].values())
     assert rock_met < 0.5 < pothole_met
+
+
+def test_a_one_off_height_query_builds_only_the_tiles_it_needs() -> None:
+    """``Terrain.height`` (the truth lookups) takes a window without the simulator's spare
+    tile, and reads the same heights as the simulator's window: everywhere in the queried
+    stretch, up to the last fine row before a tile's end, where interpolation reaches into
+    the next tile."""
+    params = replace(make_profile("race").world, length_m=400.0)
+    terrain = make_world(params, SEED).terrain
+    tile = terrain.tile_length_m
+    rng = np.random.default_rng(5)
+    for s_hi in (2 * tile - 0.3, 2 * tile - 0.01, 2 * tile + 0.01, 3 * tile - 1e-9):
+        s = np.r_[rng.uniform(10.0, s_hi, 400), s_hi, s_hi - 0.049]
+        d = rng.uniform(-40.0, 40.0, s.size)
+        spare = terrain.window(float(s.min()), float(s.max()))
+        tight = terrain.window(float(s.min()), float(s.max()), spare=False)
+        # One tile fewer of each grid, unless s_hi is within a coarse step of a tile's end.
+        near_end = (np.floor(s_hi / tile) + 1) * tile - s_hi <= terrain.coarse_spacing_m
+        fewer = 0 if near_end else round(tile / terrain.fine_spacing_m)
+        assert spare.fine.heights_m.shape[0] - tight.fine.heights_m.shape[0] == fewer
+        np.testing.assert_array_equal(terrain.height(s, d), spare.height(s, d))

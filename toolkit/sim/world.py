@@ -607,10 +607,22 @@ class Terrain:
 
     # -- queries ----------------------------------------------------------------------------
 
-    def window(self, s_lo_m: float, s_hi_m: float) -> TerrainWindow:
-        """Contiguous fine and coarse grids covering ``[s_lo, s_hi]``."""
+    def window(self, s_lo_m: float, s_hi_m: float, *, spare: bool = True) -> TerrainWindow:
+        """Contiguous fine and coarse grids covering ``[s_lo, s_hi]``.
+
+        With ``spare`` (the simulator's :class:`WindowCache`) the window always takes the
+        tile after ``s_hi``'s as well, so it serves any later request up to the end of
+        ``s_hi``'s tile. Without it, only the tiles the interval's interpolation needs: the
+        next tile only when ``s_hi`` lies within a coarse grid step of its tile's end (a
+        point there interpolates towards the next tile's first row). The heights inside
+        ``[s_lo, s_hi]`` are the same either way; a one-off query (the truth lookups of
+        :mod:`toolkit.analysis.truth_terrain`) then synthesises a tile less.
+        """
         k0 = int(np.floor(s_lo_m / self.tile_length_m))
-        k1 = int(np.floor(s_hi_m / self.tile_length_m)) + 1
+        if spare:
+            k1 = int(np.floor(s_hi_m / self.tile_length_m)) + 1
+        else:
+            k1 = int(np.floor((s_hi_m + self.coarse_spacing_m) / self.tile_length_m))
         grids = []
         for kind in ("fine", "coarse"):
             tiles = [self.tile(kind, k) for k in range(k0, k1 + 1)]
@@ -627,7 +639,7 @@ class Terrain:
         flat_s, flat_d = s_m.ravel(), d_m.ravel()
         if flat_s.size == 0:
             return np.zeros(s_m.shape)
-        win = self.window(float(flat_s.min()), float(flat_s.max()))
+        win = self.window(float(flat_s.min()), float(flat_s.max()), spare=False)
         return win.height(flat_s, flat_d).reshape(s_m.shape)
 
 
