@@ -52,13 +52,19 @@ def label_rates(log: Path) -> dict[str, object]:
         run_pose(ws, log_id, cfg)
         by_edge: dict[str, float] = {}
         kinds_by_edge: dict[str, dict[str, int]] = {}
-        ruggedness_by_edge: dict[float, np.ndarray] = {}
+        ruggedness_by_edge: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         for stop in STOP_EDGES_HZ:
             label = dataclasses.replace(cfg.label, fir_stop_hz=stop, fir_pass_hz=stop + 5.0)
             r = run_label(ws, log_id, dataclasses.replace(cfg, label=label), overwrite=True)
             by_edge[f"{stop:g}"] = round(100.0 * r.rough / max(r.events, 1), 4)
             edge_events = read_table(ws.log_dir(log_id) / "events.parquet", "events")
-            ruggedness_by_edge[stop] = edge_events.column("ruggedness").to_numpy()
+            # By event id: the same events at every edge (the edge changes the filter, not
+            # which events exist), checked in _edge_sensitivity.
+            order = np.argsort(edge_events.column("event_id").to_numpy(), kind="stable")
+            ruggedness_by_edge[stop] = (
+                edge_events.column("event_id").to_numpy()[order],
+                edge_events.column("ruggedness").to_numpy()[order],
+            )
             kinds_by_edge[f"{stop:g}"] = dict(
                 Counter(
                     str(row.get("truth_feature_kind") or "background")
@@ -102,9 +108,12 @@ def label_rates(log: Path) -> dict[str, object]:
 
 
 def _edge_sensitivity(
-    ruggedness_by_edge: dict[float, np.ndarray], threshold: float
+    ruggedness_by_edge: dict[float, tuple[np.ndarray, np.ndarray]], threshold: float
 ) -> dict[str, float]:
     """Why the rate moves with the band edge, in two numbers and their product.
+
+    ``ruggedness_by_edge``: per stop edge, the event ids (E,) and their ruggedness (E,),
+    sorted by id.
 
     ``gain_9_over_11``: the median over events near or above the threshold (ruggedness at
     10 Hz at least half of it) of ruggedness with the 9 Hz edge over that with the 11 Hz one:
@@ -114,8 +123,12 @@ def _edge_sensitivity(
     given change of every reading. If every event's reading scaled alike, the rate would
     move by ``gain ** k`` from 9 to 11 Hz (``expected_ratio``).
     """
-    r9, r10, r11 = (ruggedness_by_edge[e] for e in STOP_EDGES_HZ)
-    near = np.isfinite(r10) & (r10 >= threshold / 2) & (r11 > 0)
+    ids = [ruggedness_by_edge[e][0] for e in STOP_EDGES_HZ]
+    if not all(np.array_equal(ids[0], other) for other in ids[1:]):
+        raise SystemExit("sim_seeds: the stop edges labelled different events")
+    r9, r10, r11 = (ruggedness_by_edge[e][1] for e in STOP_EDGES_HZ)
+    near = np.isfinite(r9) & np.isfinite(r10) & np.isfinite(r11) & (r10 >= threshold / 2)
+    near &= r11 > 0
     gain = float(np.median(r9[near] / r11[near])) if near.any() else float("nan")
     lo = float(np.mean(r10 >= threshold / 1.2))
     hi = float(np.mean(r10 >= threshold * 1.2))

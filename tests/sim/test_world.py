@@ -345,13 +345,20 @@ def test_a_one_off_height_query_builds_only_the_tiles_it_needs() -> None:
     terrain = make_world(params, SEED).terrain
     tile = terrain.tile_length_m
     rng = np.random.default_rng(5)
-    for s_hi in (2 * tile - 0.3, 2 * tile - 0.01, 2 * tile + 0.01, 3 * tile - 1e-9):
-        s = np.r_[rng.uniform(10.0, s_hi, 400), s_hi, s_hi - 0.049]
+    # s_hi well inside a tile, within a fine step, within a coarse step (beyond a fine
+    # one) and a hair before a tile's end, just past a tile's start.
+    for s_hi in (2 * tile - 0.9, 2 * tile - 0.1, 2 * tile - 0.01, 3 * tile - 1e-9, 2 * tile + 0.01):
+        s = np.r_[rng.uniform(10.0, s_hi, 400), [s_hi] * 4, s_hi - 0.049, s_hi - 0.19]
         d = rng.uniform(-40.0, 40.0, s.size)
+        d[400:404] = (-30.0, -3.0, 3.0, 30.0)  # the last rows of both grids at s_hi
         spare = terrain.window(float(s.min()), float(s.max()))
         tight = terrain.window(float(s.min()), float(s.max()), spare=False)
-        # One tile fewer of each grid, unless s_hi is within a coarse step of a tile's end.
-        near_end = (np.floor(s_hi / tile) + 1) * tile - s_hi <= terrain.coarse_spacing_m
-        fewer = 0 if near_end else round(tile / terrain.fine_spacing_m)
-        assert spare.fine.heights_m.shape[0] - tight.fine.heights_m.shape[0] == fewer
+        assert tight.fine.heights_m.shape[0] <= spare.fine.heights_m.shape[0]
         np.testing.assert_array_equal(terrain.height(s, d), spare.height(s, d))
+    # Well inside a tile the tight window is one tile shorter than the spare one.
+    s = np.array([60.0, 90.0])
+    spare, tight = terrain.window(60.0, 90.0), terrain.window(60.0, 90.0, spare=False)
+    assert spare.fine.heights_m.shape[0] - tight.fine.heights_m.shape[0] == round(
+        tile / terrain.fine_spacing_m
+    )
+    np.testing.assert_array_equal(tight.height(s, s * 0), spare.height(s, s * 0))

@@ -613,16 +613,18 @@ class Terrain:
         With ``spare`` (the simulator's :class:`WindowCache`) the window always takes the
         tile after ``s_hi``'s as well, so it serves any later request up to the end of
         ``s_hi``'s tile. Without it, only the tiles the interval's interpolation needs: the
-        next tile only when ``s_hi`` lies within a coarse grid step of its tile's end (a
-        point there interpolates towards the next tile's first row). The heights inside
-        ``[s_lo, s_hi]`` are the same either way; a one-off query (the truth lookups of
-        :mod:`toolkit.analysis.truth_terrain`) then synthesises a tile less.
+        next tile only when ``s_hi`` lies within two coarse grid steps of its tile's end (a
+        point within one step interpolates towards the next tile's first row; the second
+        step keeps such points clear of :meth:`Grid.bilinear`'s clamp at the grid's last
+        row). The heights inside ``[s_lo, s_hi]`` are the same either way; a one-off query
+        (the truth lookups of :mod:`toolkit.analysis.truth_terrain`) then synthesises a tile
+        less.
         """
         k0 = int(np.floor(s_lo_m / self.tile_length_m))
         if spare:
             k1 = int(np.floor(s_hi_m / self.tile_length_m)) + 1
         else:
-            k1 = int(np.floor((s_hi_m + self.coarse_spacing_m) / self.tile_length_m))
+            k1 = int(np.floor((s_hi_m + 2 * self.coarse_spacing_m) / self.tile_length_m))
         grids = []
         for kind in ("fine", "coarse"):
             tiles = [self.tile(kind, k) for k in range(k0, k1 + 1)]
