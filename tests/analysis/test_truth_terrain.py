@@ -228,3 +228,43 @@ def test_stanleys_laser_errors_put_the_true_pose_points_centimetres_off(
     assert all(0.003 < m < budget_m for m in medians), (medians, budget_m)
     csv_path, png_path = write_z_error(estimated, tmp_path, "sample")
     assert csv_path.is_file() and png_path.stat().st_size > 10_000
+
+
+def test_a_checked_stretch_of_road_costs_one_tile_and_reads_the_same_heights(
+    projected: Path,
+) -> None:
+    """The project stage's z-error sample: points on every 8th terrain tile, less its last two
+    coarse steps. Their heights, asked for one stretch at a time, are the ones the whole
+    lookup gives, and asking them builds that stretch's tile alone (of each kind), not the
+    tiles between it and the next stretch."""
+    import pyarrow.parquet as pq
+
+    ground = true_ground(projected)
+    assert isinstance(ground, TrueGround)
+    table = pq.read_table(projected / "points.parquet", columns=["x", "y", "z"])
+    xyz = np.stack([table.column(c).to_numpy() for c in "xyz"], axis=1)[::16]
+    s, d, z = ground.route_coordinates(xyz)
+    terrain = ground.world.terrain
+    tile_m, coarse_m = terrain.tile_length_m, terrain.coarse_spacing_m
+    stretch = ground.checked_stretch(s, 8)
+    on = stretch >= 0
+    assert 0 < on.sum() < on.size
+    k = np.floor(s[on] / tile_m)
+    assert (stretch[on] == k).all() and (k % 8 == 0).all()
+    assert (s[on] - k * tile_m < tile_m - 2 * coarse_m).all()
+    near_end = (np.floor(s / tile_m) % 8 == 0) & (
+        s - np.floor(s / tile_m) * tile_m > tile_m - 2 * coarse_m
+    )
+    assert (stretch[near_end] == -1).all()
+    assert (ground.checked_stretch(np.array([-1.0, terrain.route.length_m + 1.0]), 1) == -1).all()
+    everything, _ = ground.height_m(xyz[on])
+    for tile in np.unique(stretch[on]):
+        rows = np.flatnonzero(stretch == tile)
+        terrain.__dict__.pop("_tiles", None)  # a cold cache: count what this stretch builds
+        heights = ground.terrain_height_m(s[rows], d[rows])
+        assert sorted(terrain.__dict__["_tiles"]) == [("coarse", int(tile)), ("fine", int(tile))]
+        # The same heights, to rounding (a window starting at another tile: 1e-14 m).
+        np.testing.assert_allclose(
+            heights, everything[np.searchsorted(np.flatnonzero(on), rows)], rtol=0, atol=1e-9
+        )
+        np.testing.assert_array_equal(z[rows], ground.to_sim(xyz[rows])[:, 2])

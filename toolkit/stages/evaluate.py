@@ -206,7 +206,7 @@ def oracle_patches(
         rows = np.flatnonzero(log_of_group == log_id)
         mask = patches.valid[rows]
         xyz = np.c_[patches.x[rows][mask], patches.y[rows][mask], patches.z[rows][mask]]
-        h, _ = ground.height_m(xyz)  # type: ignore[attr-defined]
+        h, _ = ground.height_m(xyz)
         sub = z[rows]
         sub[mask] = h
         z[rows] = sub

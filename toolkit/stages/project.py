@@ -32,7 +32,6 @@ whole in memory. Points are written in scan order (scans by time, beams in order
 
 from __future__ import annotations
 
-import itertools
 import json
 import logging
 import threading
@@ -51,7 +50,12 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from toolkit.analysis.scan_agreement import ScanAgreement, write_fig4
-from toolkit.analysis.truth_terrain import ZErrorAccumulator, true_ground, write_z_error
+from toolkit.analysis.truth_terrain import (
+    TrueGround,
+    ZErrorAccumulator,
+    true_ground,
+    write_z_error,
+)
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.fusion.rotations import euler_to_rot
@@ -100,16 +104,20 @@ MAX_POSE_GAP_S = 0.05
 #: (long-dt pairs lost at every window's edge), so the figure is of one contiguous stretch.
 FIG4_SECONDS = 120.0
 #: The z error against the true terrain (simulated logs) from every this-many-th point: the
-#: truth lookup costs ~1 us per point once the terrain is there, and 1/64 of all the sample
-#: log's points (65 k) gave the same per-laser medians as all of them to within a
-#: millimetre (measured when every batch was sampled; the sample now gives ~11 k points).
+#: route coordinates of a point cost ~0.5 us (measured), so 1/64 of the points of a
+#: 10-minute log (650 k) take ~0.3 s of the two projecting threads; 1/64 of all the sample
+#: log's points gave the same per-laser medians as all of them to within a millimetre.
 Z_ERROR_STRIDE = 64
-#: ... of every this-many-th batch of scans (the first included: ~5 s of driving in 40): the
-#: simulated terrain is synthesised where it is first asked about (~1.5 ms of CPU a metre of
-#: road, measured: 11 of the 21 s the two projecting threads spent on a 10-minute log, under
-#: the lock the lazy terrain needs), so the check samples stretches of the road instead of
-#: all of it, still ~80 k points for ten minutes of driving and ~470 k for an hour.
-Z_ERROR_BATCH_EVERY = 8
+#: ... lying on every this-many-th tile of the simulated terrain (51.2 m of road; a sample of
+#: ~80 k points for ten minutes of driving, ~500 k for an hour). The terrain is synthesised
+#: where it is first asked about (~50 ms a tile, measured, under the lock the lazy terrain
+#: needs), so the check samples *stretches of road*, each seen by every laser at every range
+#: as the vehicle approaches it, at one tile's cost each. Sampling every 8th batch of scans
+#: instead (the points of a batch span three tiles) cost 2.4 s of a 10-minute log's 11 s
+#: projection loop; this costs ~0.8 s.
+Z_ERROR_TILE_EVERY = 8
+#: Batches handed to the Fig. 4 thread that may wait for it (each ~30 MB of points).
+FIGURE_QUEUE = 2
 #: How far behind the latest request the pose stream keeps rows, and how far a request may
 #: reach back before the scans count as out of order, ns.
 KEEP_BEHIND_NS = 1_000_000_000
@@ -399,11 +407,12 @@ class Counts:
 
 
 class _ZSample(NamedTuple):
-    """Every :data:`Z_ERROR_STRIDE`-th point of a batch with the true terrain under it."""
+    """The points of a batch's :data:`Z_ERROR_STRIDE`-th that lie on the checked stretches
+    of road (:data:`Z_ERROR_TILE_EVERY`), with the true terrain height under them."""
 
     laser: pa.Array
     range_m: FloatArray
-    height_m: FloatArray
+    z_error_m: FloatArray
 
 
 @dataclass(frozen=True)
@@ -740,17 +749,13 @@ def _project_in(
         lock = threading.Lock()  # the simulated world builds its tiles lazily
 
         def work(
-            prepared: PreparedBatch, index: int
+            prepared: PreparedBatch,
         ) -> tuple[pa.Table, Counts, _ZSample | None, float]:
             t0 = time.perf_counter()
             table, batch_counts = project_prepared(prepared)
             sample = None
-            if ground is not None and table.num_rows and index % Z_ERROR_BATCH_EVERY == 0:
-                some = table.take(pa.array(np.arange(0, table.num_rows, Z_ERROR_STRIDE)))
-                xyz = np.stack([some.column(c).to_numpy() for c in "xyz"], axis=1)
-                with lock:
-                    height = ground(xyz)
-                sample = _ZSample(some.column("laser"), some.column("range").to_numpy(), height)
+            if ground is not None and table.num_rows:
+                sample = _z_sample(ground, table, lock)
             return table, batch_counts, sample, time.perf_counter() - t0
 
         def finish(future: Future[tuple[pa.Table, Counts, _ZSample | None, float]]) -> None:
@@ -767,16 +772,24 @@ def _project_in(
                 if fig4_until_ns is None:
                     fig4_until_ns = first_ns + int(FIG4_SECONDS * 1e9)
                 if first_ns < fig4_until_ns:
-                    agreement.feed(table)
+                    # Fig. 4 runs beside the writing, on a thread of its own (the batches
+                    # in order, as it needs); at most FIGURE_QUEUE of them wait for it.
+                    figure_jobs.append(figure_pool.submit(agreement.feed, table))
+                    while len(figure_jobs) > FIGURE_QUEUE:
+                        figure_jobs.popleft().result()
             if z_error is not None and sample is not None:
-                z_error.feed(sample.laser, sample.range_m, sample.height_m)
+                z_error.feed(sample.laser, sample.range_m, sample.z_error_m)
             timings["figures"] += time.perf_counter() - t
 
         loop_start = time.perf_counter()
         pending: deque[Future[tuple[pa.Table, Counts, _ZSample | None, float]]] = deque()
-        with ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="project") as pool:
+        figure_jobs: deque[Future[None]] = deque()
+        with (
+            ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="project") as pool,
+            ThreadPoolExecutor(max_workers=1, thread_name_prefix="fig4") as figure_pool,
+        ):
             try:
-                for index in itertools.count():
+                while True:
                     t = time.perf_counter()
                     batch = next(batches, None)
                     if batch is None:
@@ -784,14 +797,18 @@ def _project_in(
                     scans = ScanBatch.from_record_batch(batch)
                     prepared = prepare_batch(scans, mounts, poses, previous_scan_ns)
                     timings["read"] += time.perf_counter() - t
-                    pending.append(pool.submit(work, prepared, index))
+                    pending.append(pool.submit(work, prepared))
                     if len(pending) > WORKERS:
                         finish(pending.popleft())
                 while pending:
                     finish(pending.popleft())
+                while figure_jobs:
+                    figure_jobs.popleft().result()
             finally:
-                for future in pending:  # an error: let no batch run on behind it
+                for future in pending:  # an error: let nothing run on behind it
                     future.cancel()
+                for job in figure_jobs:
+                    job.cancel()
         timings["loop"] = time.perf_counter() - loop_start
     t = time.perf_counter()
     fig4 = agreement.result()
@@ -844,6 +861,28 @@ def _project_in(
         warnings=tuple(warnings),
         points_per_s=counts.points / max(timings["loop"], 1e-9),
         fig4=f"Fig. 4 {fit.describe()}",
+    )
+
+
+def _z_sample(ground: TrueGround, table: pa.Table, lock: threading.Lock) -> _ZSample | None:
+    """The z-error sample of a batch's points ``table``: every :data:`Z_ERROR_STRIDE`-th point
+    on a checked stretch of road, with the true terrain height under it (None: no point
+    there). The terrain is built under ``lock``, one stretch at a time (a window across
+    two stretches would build every tile between them)."""
+    some = table.take(pa.array(np.arange(0, table.num_rows, Z_ERROR_STRIDE)))
+    xyz = np.stack([some.column(c).to_numpy() for c in "xyz"], axis=1)
+    s, d, z = ground.route_coordinates(xyz)
+    stretch = ground.checked_stretch(s, Z_ERROR_TILE_EVERY)
+    rows = np.flatnonzero(stretch >= 0)
+    if rows.size == 0:
+        return None
+    error = np.empty(rows.size)
+    for k in np.unique(stretch[rows]):
+        on = np.flatnonzero(stretch[rows] == k)
+        with lock:
+            error[on] = z[rows[on]] - ground.terrain_height_m(s[rows[on]], d[rows[on]])
+    return _ZSample(
+        some.column("laser").take(pa.array(rows)), some.column("range").to_numpy()[rows], error
     )
 
 
