@@ -255,7 +255,7 @@ def test_a_checked_stretch_of_road_costs_one_tile_and_reads_the_same_heights(
     near_end = (np.floor(s / tile_m) % 8 == 0) & (
         s - np.floor(s / tile_m) * tile_m > tile_m - 2 * coarse_m
     )
-    assert (stretch[near_end] == -1).all()
+    assert near_end.any() and (stretch[near_end] == -1).all()
     assert (ground.checked_stretch(np.array([-1.0, terrain.route.length_m + 1.0]), 1) == -1).all()
     everything, _ = ground.height_m(xyz[on])
     for tile in np.unique(stretch[on]):
@@ -267,4 +267,16 @@ def test_a_checked_stretch_of_road_costs_one_tile_and_reads_the_same_heights(
         np.testing.assert_allclose(
             heights, everything[np.searchsorted(np.flatnonzero(on), rows)], rtol=0, atol=1e-9
         )
-        np.testing.assert_array_equal(z[rows], ground.to_sim(xyz[rows])[:, 2])
+
+
+def test_a_short_route_checks_closer_stretches(projected: Path) -> None:
+    """Every 8th tile on a long route; on the sample log's 0.7 km (14 tiles) that would be two
+    stretches, so the check takes every tile there, and never fewer than one."""
+    ground = true_ground(projected)
+    assert isinstance(ground, TrueGround)
+    tiles = math.ceil(ground.world.route.length_m / ground.world.terrain.tile_length_m)
+    assert 10 <= tiles < 30
+    assert ground.stretch_every(15, 8) == 1
+    assert ground.stretch_every(2, 8) == min(8, tiles // 2)
+    assert ground.stretch_every(1, 8) == 8
+    assert ground.stretch_every(1000, 8) == 1

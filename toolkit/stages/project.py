@@ -104,19 +104,23 @@ MAX_POSE_GAP_S = 0.05
 #: (long-dt pairs lost at every window's edge), so the figure is of one contiguous stretch.
 FIG4_SECONDS = 120.0
 #: The z error against the true terrain (simulated logs) from every this-many-th point: the
-#: route coordinates of a point cost ~0.5 us (measured), so 1/64 of the points of a
-#: 10-minute log (650 k) take ~0.3 s of the two projecting threads; 1/64 of all the sample
-#: log's points gave the same per-laser medians as all of them to within a millimetre.
+#: route coordinates of a point cost ~1 us (measured: 0.6 s of the projecting threads for
+#: the 650 k of a 10-minute log); 1/64 of all the sample log's points gave the same
+#: per-laser medians as all of them to within a millimetre.
 Z_ERROR_STRIDE = 64
-#: ... lying on every this-many-th tile of the simulated terrain (51.2 m of road; a sample of
-#: ~80 k points for ten minutes of driving, ~500 k for an hour). The terrain is synthesised
-#: where it is first asked about (~50 ms a tile, measured, under the lock the lazy terrain
-#: needs), so the check samples *stretches of road*, each seen by every laser at every range
-#: as the vehicle approaches it, at one tile's cost each. Sampling every 8th batch of scans
-#: instead (the points of a batch span three tiles) cost 2.4 s of a 10-minute log's 11 s
-#: projection loop; this costs ~0.8 s.
+#: ... lying on every this-many-th tile of the simulated terrain (51.2 m of road; ~80 k
+#: points for ten minutes of driving, ~470 k for an hour). The terrain is synthesised where
+#: it is first asked about (~115 ms for a tile alone, measured, under the lock the lazy
+#: terrain needs), so the check samples *stretches of road*, each seen by every laser at
+#: every range as the vehicle approaches it, at one tile's cost each: ~1.8 s of terrain for
+#: a 10-minute log, about what sampling every 8th batch of scans cost (their points span
+#: three tiles each), without holding the lock for three tiles at a time.
 Z_ERROR_TILE_EVERY = 8
-#: Batches handed to the Fig. 4 thread that may wait for it (each ~30 MB of points).
+#: ... or closer, so that a short route still has this many checked stretches (the sample
+#: log's 0.7 km: every tile).
+Z_ERROR_FEWEST_STRETCHES = 15
+#: Batches handed to the Fig. 4 thread at most, the one it is working on included (each
+#: ~30 MB of points).
 FIGURE_QUEUE = 2
 #: How far behind the latest request the pose stream keeps rows, and how far a request may
 #: reach back before the scans count as out of order, ns.
@@ -407,8 +411,8 @@ class Counts:
 
 
 class _ZSample(NamedTuple):
-    """The points of a batch's :data:`Z_ERROR_STRIDE`-th that lie on the checked stretches
-    of road (:data:`Z_ERROR_TILE_EVERY`), with the true terrain height under them."""
+    """A batch's z-error sample (:func:`_z_sample`): each point's laser, range and z error
+    against the true terrain, m (K,)."""
 
     laser: pa.Array
     range_m: FloatArray
@@ -726,6 +730,11 @@ def _project_in(
         ground = None
         warnings.append(f"no z error against the true terrain: {exc}")
     z_error = ZErrorAccumulator() if ground is not None else None
+    z_every = (
+        ground.stretch_every(Z_ERROR_FEWEST_STRETCHES, Z_ERROR_TILE_EVERY)
+        if ground is not None
+        else Z_ERROR_TILE_EVERY
+    )
     counts = Counts()
     previous_scan_ns: dict[str, int] = {}
     fig4_until_ns: int | None = None
@@ -744,7 +753,7 @@ def _project_in(
         # thread, in order: the output is the same as projecting one batch after another,
         # and reading, projecting, writing (pyarrow's encoding and compression, also outside
         # the GIL) and Fig. 4 overlap on the machine's cores. At most WORKERS + 1 batches
-        # are in flight and FIGURE_QUEUE wait for Fig. 4, so memory stays bounded. (A
+        # are in flight and FIGURE_QUEUE with Fig. 4, so memory stays bounded. (A
         # separate writer thread was tried: no faster on two cores, measured; Fig. 4 on its
         # own thread took the 10-minute log's loop from 10.9-11.5 s to 10.5-10.9 s.)
         lock = threading.Lock()  # the simulated world builds its tiles lazily
@@ -756,7 +765,7 @@ def _project_in(
             table, batch_counts = project_prepared(prepared)
             sample = None
             if ground is not None and table.num_rows:
-                sample = _z_sample(ground, table, lock)
+                sample = _z_sample(ground, table, lock, z_every)
             return table, batch_counts, sample, time.perf_counter() - t0
 
         def finish(future: Future[tuple[pa.Table, Counts, _ZSample | None, float]]) -> None:
@@ -774,7 +783,9 @@ def _project_in(
                     fig4_until_ns = first_ns + int(FIG4_SECONDS * 1e9)
                 if first_ns < fig4_until_ns:
                     # Fig. 4 runs beside the writing, on a thread of its own (the batches
-                    # in order, as it needs); at most FIGURE_QUEUE of them wait for it.
+                    # in order, as it needs); at most FIGURE_QUEUE of them are handed to
+                    # it at once. (So timings["figures"] is this thread's waiting for it,
+                    # not Fig. 4's own work.)
                     figure_jobs.append(figure_pool.submit(agreement.feed, table))
                     while len(figure_jobs) > FIGURE_QUEUE:
                         figure_jobs.popleft().result()
@@ -865,15 +876,18 @@ def _project_in(
     )
 
 
-def _z_sample(ground: TrueGround, table: pa.Table, lock: threading.Lock) -> _ZSample | None:
-    """The z-error sample of a batch's points ``table``: every :data:`Z_ERROR_STRIDE`-th point
-    on a checked stretch of road, with the true terrain height under it (None: no point
-    there). The terrain is built under ``lock``, one stretch at a time (a window across
-    two stretches would build every tile between them)."""
+def _z_sample(
+    ground: TrueGround, table: pa.Table, lock: threading.Lock, every: int
+) -> _ZSample | None:
+    """The z-error sample of a batch's points ``table``: of every :data:`Z_ERROR_STRIDE`-th
+    point, those on a checked stretch of road (every ``every``-th terrain tile,
+    :meth:`~toolkit.analysis.truth_terrain.TrueGround.checked_stretch`), with their error
+    against the true terrain (None: no point there). The terrain is built under ``lock``,
+    one stretch at a time (a window across two stretches would build every tile between)."""
     some = table.take(pa.array(np.arange(0, table.num_rows, Z_ERROR_STRIDE)))
     xyz = np.stack([some.column(c).to_numpy() for c in "xyz"], axis=1)
     s, d, z = ground.route_coordinates(xyz)
-    stretch = ground.checked_stretch(s, Z_ERROR_TILE_EVERY)
+    stretch = ground.checked_stretch(s, every)
     rows = np.flatnonzero(stretch >= 0)
     if rows.size == 0:
         return None
