@@ -398,7 +398,8 @@ class TableWriter:
 
     ``bulk``: a table of hundreds of millions of rows whose writing speed matters (the
     point cloud): :func:`bulk_options` on top of the usual ones, and row groups of up to
-    :data:`BULK_ROW_GROUP_ROWS` rows.
+    :data:`BULK_ROW_GROUP_ROWS` rows. ``statistics``: the columns whose row groups get
+    min/max statistics (the ones readers select rows by), or None for every column.
     """
 
     def __init__(
@@ -412,9 +413,13 @@ class TableWriter:
         table_name: str | None = None,
         sort_by: str | None = None,
         bulk: bool = False,
+        statistics: Sequence[str] | None = None,
     ) -> None:
         self.path = Path(path)
         self.bulk = bulk
+        self._statistics: dict[str, Any] = (
+            {} if statistics is None else {"write_statistics": list(statistics)}
+        )
         self.schema = load_table_schema(schema_name) if schema_name is not None else None
         if self.schema is None and not table_name:
             raise ValueError("a table without a schema needs a table_name")
@@ -534,6 +539,7 @@ class TableWriter:
                 use_dictionary=dictionary_columns(self._arrow_schema),
                 **PARQUET_OPTIONS,
                 **(bulk_options(self._arrow_schema) if self.bulk else {}),
+                **self._statistics,
             )
         except (OSError, pa.ArrowException) as exc:
             raise WorkspaceError(
@@ -600,6 +606,7 @@ class TableWriter:
                 use_dictionary=dictionary_columns(schema),
                 **PARQUET_OPTIONS,
                 **(bulk_options(schema) if self.bulk else {}),
+                **self._statistics,
             ) as writer:
                 for batch in pq.ParquetFile(scratch, pre_buffer=False).iter_batches(
                     batch_size=ROW_GROUP_ROWS

@@ -118,6 +118,10 @@ def test_the_cloud_is_written_as_a_bulk_table(projected) -> None:  # type: ignor
     for name in ("t_ns", "scan_t_ns"):  # times: delta-encoded, 13 % smaller files
         assert "DELTA_BINARY_PACKED" in by_name[name].encodings
         assert "BYTE_STREAM_SPLIT" not in by_name[name].encodings
+    # Min/max statistics on what points are selected by (time, laser, place) alone.
+    with_statistics = {name for name, column in by_name.items() if column.is_stats_set}
+    assert with_statistics == {"t_ns", "scan_t_ns", "laser", "x", "y"}
+    assert by_name["x"].statistics.min <= by_name["x"].statistics.max
     lasers = read_table(path, "points", columns=["laser"]).column("laser")
     assert pa.types.is_dictionary(lasers.type)
     assert set(lasers.cast(pa.string()).unique().to_pylist()) == set(_laser_topics(ws, log_id))
