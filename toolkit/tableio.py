@@ -340,8 +340,9 @@ def bulk_options(schema: pa.Schema) -> dict[str, Any]:
     row to row) delta-encoded (DELTA_BINARY_PACKED: each value as its difference from the
     one before, bit-packed). On 2.9 M points of a race log the deltas made the cloud 13 %
     smaller (33.9 against 39.1 bytes a point) at the same writing speed (9.4 M rows/s) and
-    reading speed (measured); a 60-minute log's cloud is 9 GB, and writing it is bound by
-    the disk. Both are standard Parquet encodings every reader decodes."""
+    reading speed (measured); on a 60-minute log (a 9 GB cloud before, 7.8 GB now, where the
+    page cache's writeback throttled the writer) the projection went from 3.99 to 4.57 M
+    points/s. Both are standard Parquet encodings every reader decodes."""
     encoding = {
         **{f.name: "BYTE_STREAM_SPLIT" for f in schema if pa.types.is_floating(f.type)},
         **{f.name: "DELTA_BINARY_PACKED" for f in schema if pa.types.is_int64(f.type)},
