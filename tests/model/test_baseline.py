@@ -2,10 +2,15 @@
 
 from __future__ import annotations
 
-import numpy as np
+import math
 
-from tests.model.helpers import Point, make_patches
+import numpy as np
+import pytest
+from scipy.stats import norm
+
+from tests.model.helpers import Point, make_patches, random_patches
 from toolkit.model.baseline import BaselineParams, FixedScores, flagged, pair_scores
+from toolkit.model.roughness import CHUNK_GROUPS
 
 PARAMS = BaselineParams(
     cell_m=0.25, delta_m=0.15, sigma0_m=0.03, growth_m2_per_s=0.0025, confidence=0.95
@@ -50,3 +55,32 @@ def test_fixed_scores_rank_and_subset() -> None:
     np.testing.assert_array_equal(
         fixed.subset(keep).top_scores((), 1), fixed.top_scores((), 1)[keep]
     )
+
+
+def test_pair_scores_in_chunks_equal_a_loop_over_pairs() -> None:
+    """More patches than one chunk (CHUNK_GROUPS): each pair's score is Phi((|dz| - delta) /
+    sigma(dt)) where both points are real and share a cell, -inf elsewhere, pair by pair."""
+    rng = np.random.default_rng(5)
+    raw = random_patches(rng, CHUNK_GROUPS // 2 + 40, 6)
+    # Heights spread enough that some same-cell pairs pass delta.
+    raw = [[[(x, y, 3 * z, t, g, q) for (x, y, z, t, g, q) in w] for w in ev] for ev in raw]
+    p = make_patches(raw)
+    assert p.groups > CHUNK_GROUPS
+    got = pair_scores(p, PARAMS)
+    r, c = np.tril_indices(p.n_max, -1)
+    for g in range(0, p.groups, 7):  # every 7th patch, both chunks
+        for k, (i, j) in enumerate(zip(r, c, strict=True)):
+            a, b = (p.x[g, i], p.y[g, i]), (p.x[g, j], p.y[g, j])
+            same = all(
+                np.floor(u / PARAMS.cell_m) == np.floor(v / PARAMS.cell_m)
+                for u, v in zip(a, b, strict=True)
+            )
+            if not (p.valid[g, i] and p.valid[g, j] and same):
+                assert np.isneginf(got[g, k])
+                continue
+            sigma = math.sqrt(
+                PARAMS.sigma0_m**2 + PARAMS.growth_m2_per_s * abs(p.tau[g, i] - p.tau[g, j])
+            )
+            want = norm.cdf((abs(p.z[g, i] - p.z[g, j]) - PARAMS.delta_m) / sigma)
+            assert got[g, k] == pytest.approx(want, rel=1e-6, abs=1e-7)
+    assert (got > 0.5).any()

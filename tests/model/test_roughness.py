@@ -10,6 +10,7 @@ import pytest
 
 from tests.model.helpers import combined_loop, make_patches, r_loop, random_patches
 from toolkit.model.roughness import (
+    CHUNK_GROUPS,
     PairTable,
     RoughnessParams,
     score_events,
@@ -151,4 +152,38 @@ def test_subset_scores_equal_the_whole_tables_rows() -> None:
     alpha = (1.0, 1.5, 0.1, 1.0, 0.2, 1.0, 0.05, 1.0, 0.05, 1.0)
     np.testing.assert_array_equal(
         table.subset(keep).top_scores(alpha, 5), table.top_scores(alpha, 5)[keep]
+    )
+
+
+def test_pair_table_built_in_chunks_equals_all_pairs_at_once() -> None:
+    """More patches than one chunk (CHUNK_GROUPS): every array equals the differences of all
+    pairs taken at once, as eq. (2) lays them out."""
+    rng = np.random.default_rng(11)
+    patches = make_patches(random_patches(rng, CHUNK_GROUPS + 77, 7))
+    assert patches.groups > 2 * CHUNK_GROUPS
+    table = PairTable(patches)
+    r, c = np.tril_indices(patches.n_max, -1)
+    with np.errstate(divide="ignore"):
+        want_dz = np.log(np.abs(patches.z[:, r] - patches.z[:, c])).astype(np.float32)
+        want_dtau = np.log(np.abs(patches.tau[:, r] - patches.tau[:, c])).astype(np.float32)
+        dxy = np.hypot(patches.x[:, r] - patches.x[:, c], patches.y[:, r] - patches.y[:, c])
+        want_dxy = np.log(dxy).astype(np.float32)
+    np.testing.assert_array_equal(table.log_dz, want_dz)
+    np.testing.assert_array_equal(table.log_dtau, want_dtau)
+    np.testing.assert_array_equal(table.log_dxy, want_dxy)
+    np.testing.assert_array_equal(table.pair_valid, patches.valid[:, r] & patches.valid[:, c])
+
+
+def test_total_score_does_not_depend_on_where_the_scores_sit_in_memory() -> None:
+    """The same scores, once aligned and once at an odd offset in a larger buffer, give
+    bit-identical R (a stage is deterministic run to run, whatever the allocator does)."""
+    rng = np.random.default_rng(3)
+    top = rng.normal(0.0, 1.0, size=(4000, 17))
+    buffer = np.empty(top.size + 1)
+    shifted = buffer[1:].reshape(top.shape)
+    shifted[...] = top
+    assert shifted.ctypes.data % 16 != top.ctypes.data % 16
+    np.testing.assert_array_equal(total_score(shifted, 1.3, 17), total_score(top, 1.3, 17))
+    assert total_score(top, 1.3, 17)[0] == pytest.approx(
+        sum(max(v, 0.0) * 1.3 ** (16 - k) for k, v in enumerate(top[0])), rel=1e-12
     )

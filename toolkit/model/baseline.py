@@ -72,14 +72,20 @@ def pair_scores(patches: TyrePatches, params: BaselineParams) -> Float32Array:
     r, c = np.tril_indices(patches.n_max, -1)
     cx = np.floor(patches.x / params.cell_m)
     cy = np.floor(patches.y / params.cell_m)
-    same = (cx[:, r] == cx[:, c]) & (cy[:, r] == cy[:, c])
-    same &= patches.valid[:, r] & patches.valid[:, c]
-    dz = np.abs(patches.z[:, r] - patches.z[:, c])
-    dt = np.abs(patches.tau[:, r] - patches.tau[:, c])
-    sigma = np.sqrt(params.sigma0_m**2 + params.growth_m2_per_s * dt)
-    s: Float32Array = norm.cdf((dz - params.delta_m) / sigma).astype(np.float32)
-    s[~same] = -np.inf
-    return s
+    out: Float32Array = np.empty((patches.groups, r.size), np.float32)
+    # A chunk of patches at a time, so the float64 temporaries stay small (all pairs at once:
+    # several (G, P) float64 arrays, gigabytes on an hour's log).
+    for lo in range(0, patches.groups, CHUNK_GROUPS):
+        rows = slice(lo, lo + CHUNK_GROUPS)
+        same = (cx[rows][:, r] == cx[rows][:, c]) & (cy[rows][:, r] == cy[rows][:, c])
+        same &= patches.valid[rows][:, r] & patches.valid[rows][:, c]
+        dz = np.abs(patches.z[rows][:, r] - patches.z[rows][:, c])
+        dt = np.abs(patches.tau[rows][:, r] - patches.tau[rows][:, c])
+        sigma = np.sqrt(params.sigma0_m**2 + params.growth_m2_per_s * dt)
+        s = norm.cdf((dz - params.delta_m) / sigma).astype(np.float32)
+        s[~same] = -np.inf
+        out[rows] = s
+    return out
 
 
 def flagged(patches: TyrePatches, params: BaselineParams) -> NDArray[np.bool_]:

@@ -397,6 +397,9 @@ def run_evaluate(
         methods[name] = MethodScores(
             EventScores(s.r_left, s.r_right, r_comb, s.predicted & ~none), got.trained, got.params
         )
+        # Each method's pair scores are as large as the model's pair table: let them go
+        # before the next method builds its own (peak memory on an hour's log).
+        del p, fixed
     tell("training the oracle")
     truth = oracle_patches(workspace, events, patches) if learnable else None
     if truth is None:
@@ -408,6 +411,7 @@ def run_evaluate(
         methods["oracle"] = _train_and_score(
             oracle_pairs, oracle_pairs.subset, train, rough, config
         )
+        del oracle_pairs, truth
     for name, (fixed_values, frozen) in ABLATIONS.items():
         tell(f"training the ablation {name}")
         if not learnable:
