@@ -162,7 +162,7 @@ class PairTable:
         self.log_dtau = np.empty(shape, np.float32)
         self.log_dxy = np.empty(shape, np.float32)
         # A chunk of patches at a time: the float64 differences of all pairs at once would
-        # be (G, P) x 8 bytes each, several of them alive together (2.8 GB at 60 minutes).
+        # be (G, P) x 8 bytes each (347 MB on a 60-minute log), up to three alive together.
         for lo in range(0, patches.groups, CHUNK_GROUPS):
             rows = slice(lo, lo + CHUNK_GROUPS)
             self.pair_valid[rows] = patches.valid[rows][:, self.r] & patches.valid[rows][:, self.c]
