@@ -17,6 +17,7 @@ from toolkit.analysis.truth_terrain import (
     CSV_HEADER,
     CSV_NAME,
     PNG_NAME,
+    TILES_PER_QUERY,
     TrueGround,
     ZErrorAccumulator,
     ZErrorConfig,
@@ -267,6 +268,33 @@ def test_a_checked_stretch_of_road_costs_one_tile_and_reads_the_same_heights(
         np.testing.assert_allclose(
             heights, everything[np.searchsorted(np.flatnonzero(on), rows)], rtol=0, atol=1e-9
         )
+
+
+def test_heights_along_a_whole_route_are_asked_a_few_tiles_at_a_time(projected: Path) -> None:
+    """Points along the whole sample route (14 tiles): the same heights as one query over
+    all of them (to rounding), NaN off the modelled terrain, and no single query of the
+    simulator's terrain spans more than TILES_PER_QUERY tiles (an hour's route at once
+    was gigabytes of grid)."""
+    ground = true_ground(projected)
+    assert isinstance(ground, TrueGround)
+    terrain = ground.world.terrain
+    length_m = terrain.route.length_m
+    rng = np.random.default_rng(0)
+    s = np.r_[rng.uniform(0.0, length_m, 4000), -1.0, length_m + 1.0, np.nan, 10.0]
+    d = np.r_[rng.uniform(-5.0, 5.0, 4000), 0.0, 0.0, 0.0, 1e3]
+    spans: list[float] = []
+    real = terrain.height
+
+    def spy(s_m: np.ndarray, d_m: np.ndarray) -> np.ndarray:
+        spans.append(float(np.max(s_m) - np.min(s_m)))
+        return real(s_m, d_m)
+
+    with mock.patch.object(terrain, "height", spy):
+        got = ground.terrain_height_m(s, d)
+    assert len(spans) >= 2
+    assert max(spans) <= TILES_PER_QUERY * terrain.tile_length_m
+    np.testing.assert_allclose(got[:4000], real(s[:4000], d[:4000]), rtol=0, atol=1e-9)
+    assert np.isnan(got[4000:]).all()
 
 
 def test_a_short_route_checks_closer_stretches(projected: Path) -> None:

@@ -10,7 +10,7 @@ from scipy.stats import norm
 
 from tests.model.helpers import Point, make_patches, random_patches
 from toolkit.model.baseline import BaselineParams, FixedScores, flagged, pair_scores
-from toolkit.model.roughness import CHUNK_GROUPS
+from toolkit.model.roughness import CHUNK_GROUPS, Blockwise
 
 PARAMS = BaselineParams(
     cell_m=0.25, delta_m=0.15, sigma0_m=0.03, growth_m2_per_s=0.0025, confidence=0.95
@@ -46,15 +46,13 @@ def test_points_in_different_cells_are_not_compared() -> None:
     assert np.isneginf(pair_scores(p, PARAMS)).all()
 
 
-def test_fixed_scores_rank_and_subset() -> None:
+def test_fixed_scores_rank_and_score_blockwise_as_whole() -> None:
     p = make_patches([[_pair(0.30, 0.01), _pair(0.2, 0.01)], [_pair(0.1, 0.01), _pair(0.0, 0.01)]])
     fixed = FixedScores(pair_scores(p, PARAMS))
     top = fixed.top_scores((), 1)[:, 0]
     assert top[0] > top[1] > top[2] > top[3]
-    keep = np.array([False, False, True, True])
-    np.testing.assert_array_equal(
-        fixed.subset(keep).top_scores((), 1), fixed.top_scores((), 1)[keep]
-    )
+    blocks = Blockwise(p, lambda b: FixedScores(pair_scores(b, PARAMS)), block_groups=3)
+    np.testing.assert_array_equal(blocks.top_scores((), 2), fixed.top_scores((), 2))
 
 
 def test_pair_scores_in_chunks_equal_a_loop_over_pairs() -> None:

@@ -79,3 +79,45 @@ def test_a_non_finite_feature_is_refused_naming_the_column() -> None:
     t = points_table([[[(0.0, 0, 0, 1.0, float("nan"), 0), (0.1, 0, 0, 2.0, 0, 0)], []]])
     with pytest.raises(StageError, match="'roll_rate': 1 non-finite"):
         build_patches(events_table(1), t, 0)
+
+
+def test_dictionary_columns_several_logs_and_float32_give_the_same_patches() -> None:
+    """Rows of two logs read as Arrow dictionaries (as the stages stream them), in batches
+    whose dictionaries differ, give the same patches as plain columns; float32 features are
+    read as their float64 values."""
+    rng = np.random.default_rng(4)
+    a = points_table(random_patches(rng, 4, 7), laser="/a", log_id="log_a")
+    b = points_table(random_patches(rng, 4, 7), laser="/b", log_id="log_b")
+    plain = pa.concat_tables([a, b]).take(pa.array(rng.permutation(a.num_rows + b.num_rows)))
+    events = pa.concat_tables([events_table(4, "log_b"), events_table(3, "log_a")])
+    want = build_patches(events, plain, 5)
+
+    def encoded(t: pa.Table) -> pa.Table:
+        for name in ("log_id", "wheel", "laser"):
+            i = t.schema.get_field_index(name)
+            t = t.set_column(i, name, t.column(name).dictionary_encode())
+        return t
+
+    # Each batch encoded on its own, rows ordered so that their dictionaries differ.
+    first = encoded(plain.slice(0, 9).sort_by([("log_id", "descending")]))
+    rest = encoded(plain.slice(9).sort_by("log_id"))
+    dictionaries = [t.column("log_id").chunk(0).dictionary.to_pylist() for t in (first, rest)]
+    assert dictionaries == [["log_b", "log_a"], ["log_a", "log_b"]]
+    got = build_patches(events, [first, rest], 5)
+    for name in ("x", "y", "z", "tau", "gamma", "psi", "valid", "count", "laser"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name))
+    assert got.lasers == want.lasers == ("/a", "/b")
+    assert want.count[:8].sum() > 0 and want.count[8:].sum() > 0  # both logs matched
+    z32 = plain.set_column(
+        plain.schema.get_field_index("z"), "z", plain.column("z").cast(pa.float32())
+    )
+    np.testing.assert_array_equal(
+        build_patches(events, z32, 5).z, want.z.astype(np.float32).astype(np.float64)
+    )
+
+
+def test_an_event_listed_twice_is_refused() -> None:
+    """Two events with the same (log_id, event_id) would share points ambiguously."""
+    events = pa.concat_tables([events_table(2), events_table(1)])
+    with pytest.raises(StageError, match="lists event 0 twice"):
+        build_patches(events, points_table([[[(0.0, 0, 0, 1.0, 0, 0)], []]]), 0)

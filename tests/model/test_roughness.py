@@ -11,8 +11,10 @@ import pytest
 from tests.model.helpers import combined_loop, make_patches, r_loop, random_patches
 from toolkit.model.roughness import (
     CHUNK_GROUPS,
+    Blockwise,
     PairTable,
     RoughnessParams,
+    model_pairs,
     score_events,
     signed_power,
     top_k_desc,
@@ -144,14 +146,30 @@ def test_predicted_is_r_combined_above_mu() -> None:
     assert score_events(table, below).predicted[0]
 
 
-def test_subset_scores_equal_the_whole_tables_rows() -> None:
-    """PairTable.subset (training events only) scores its patches as the whole table does."""
+def test_the_pairs_of_some_patches_score_them_as_the_whole_table_does() -> None:
+    """PairTable of TyrePatches.take (training events only) scores its patches as the whole
+    table does."""
     rng = np.random.default_rng(7)
-    table = PairTable(make_patches(random_patches(rng, 10, 6)))
+    patches = make_patches(random_patches(rng, 10, 6))
     keep = np.repeat(np.arange(10) % 3 == 0, 2)
     alpha = (1.0, 1.5, 0.1, 1.0, 0.2, 1.0, 0.05, 1.0, 0.05, 1.0)
     np.testing.assert_array_equal(
-        table.subset(keep).top_scores(alpha, 5), table.top_scores(alpha, 5)[keep]
+        PairTable(patches.take(keep)).top_scores(alpha, 5),
+        PairTable(patches).top_scores(alpha, 5)[keep],
+    )
+
+
+@pytest.mark.parametrize("block_groups", [1, 7, 64, 10_000])
+def test_blockwise_scores_equal_the_whole_table(block_groups: int) -> None:
+    """Blocks of any size, a last one short or the only one: the same top scores, bit for
+    bit, as one PairTable of every patch."""
+    rng = np.random.default_rng(5)
+    patches = make_patches(random_patches(rng, 45, 8))
+    alpha = (1.0, 1.5, 0.1, 1.0, 0.2, 1.0, 0.05, 1.0, 0.05, 1.0)
+    got = Blockwise(patches, PairTable, block_groups).top_scores(alpha, 6)
+    np.testing.assert_array_equal(got, PairTable(patches).top_scores(alpha, 6))
+    np.testing.assert_array_equal(
+        model_pairs(patches).top_scores(alpha, 6), PairTable(patches).top_scores(alpha, 6)
     )
 
 

@@ -59,6 +59,9 @@ CSV_NAME = "z_error_by_laser_and_range.csv"
 PNG_NAME = "z_error_by_laser_and_range.png"
 #: ``laser`` of the rows over every laser.
 ALL_LASERS = "all"
+#: Terrain tiles one height query spans at most (:meth:`TrueGround.terrain_height_m`): the
+#: simulator's window over them is a few MB, where all of an hour's route is gigabytes.
+TILES_PER_QUERY = 8
 
 
 class TrueGround:
@@ -94,13 +97,32 @@ class TrueGround:
         return s, d, xs[:, 2]
 
     def terrain_height_m(self, s_m: FloatArray, d_m: FloatArray) -> FloatArray:
-        """True terrain height (N,) at route coordinates (N,), NaN where not modelled. Builds
-        the terrain tiles from ``min(s)`` to ``max(s)`` (a tile of the simulator's terrain
-        costs ~55 ms to synthesise after its neighbour, ~115 ms alone: measured), and they
-        are cached in the world, which is not thread-safe: one caller at a time."""
-        h = np.asarray(self.world.terrain.height(s_m, d_m), np.float64)
-        off = (np.abs(d_m) > self._max_d_m) | (s_m < 0.0) | (s_m > self.world.route.length_m)
-        h[off] = np.nan
+        """True terrain height (N,) at route coordinates (N,), NaN where not modelled.
+
+        Builds the terrain tiles the points lie on (a tile of the simulator's terrain costs
+        ~55 ms to synthesise after its neighbour, ~115 ms alone: measured), and they are
+        cached in the world, which is not thread-safe: one caller at a time. The points are
+        looked up :data:`TILES_PER_QUERY` tiles at a time: the simulator's query joins every
+        tile from the lowest ``s`` asked to the highest into one grid, which for a whole
+        hour's route would be gigabytes. The heights are the same either way (each comes
+        from the grid cells around its point, to rounding: the grid's origin moves)."""
+        s = np.asarray(s_m, np.float64)
+        d = np.asarray(d_m, np.float64)
+        h = np.full(s.shape, np.nan)
+        with np.errstate(invalid="ignore"):
+            on = np.isfinite(s) & np.isfinite(d) & (np.abs(d) <= self._max_d_m)
+            on &= (s >= 0.0) & (s <= self.world.route.length_m)
+        rows = np.flatnonzero(on)
+        if rows.size == 0:
+            return h
+        span_m = TILES_PER_QUERY * float(self.world.terrain.tile_length_m)
+        stretch = np.floor(s[rows] / span_m).astype(np.int64)
+        order = np.argsort(stretch, kind="stable")
+        rows, stretch = rows[order], stretch[order]
+        starts = np.flatnonzero(np.r_[True, stretch[1:] != stretch[:-1]])
+        for lo, hi in zip(starts, np.r_[starts[1:], rows.size], strict=True):
+            at = rows[lo:hi]
+            h[at] = self.world.terrain.height(s[at], d[at])
         return h
 
     def checked_stretch(self, s_m: FloatArray, every: int) -> IntArray:

@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from scipy.stats import norm
 
 from toolkit.model.patches import TyrePatches
-from toolkit.model.roughness import CHUNK_GROUPS, top_k_desc
+from toolkit.model.roughness import CHUNK_GROUPS, Blockwise, top_k_desc
 
 FloatArray = NDArray[np.float64]
 Float32Array = NDArray[np.float32]
@@ -104,10 +104,6 @@ class FixedScores:
     def groups(self) -> int:
         return int(self.scores.shape[0])
 
-    def subset(self, groups: NDArray[np.bool_]) -> FixedScores:
-        """The scores of the patches where ``groups`` (G,) is True."""
-        return FixedScores(self.scores[groups])
-
     def top_scores(self, alpha: Sequence[float], k: int) -> FloatArray:
         del alpha  # the race's test has no alphas
         parts = [
@@ -117,4 +113,10 @@ class FixedScores:
         return np.concatenate(parts, axis=0) if parts else np.zeros((0, k))
 
 
-__all__ = ["BaselineParams", "FixedScores", "flagged", "pair_scores"]
+def baseline_pairs(patches: TyrePatches, params: BaselineParams) -> Blockwise:
+    """The race test's pair scores of ``patches``, built a block at a time when asked (to
+    score every event once without holding all their pairs)."""
+    return Blockwise(patches, lambda block: FixedScores(pair_scores(block, params)))
+
+
+__all__ = ["BaselineParams", "FixedScores", "baseline_pairs", "flagged", "pair_scores"]

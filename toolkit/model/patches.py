@@ -101,6 +101,21 @@ class TyrePatches:
     def n_max(self) -> int:
         return int(self.valid.shape[1])
 
+    def take(self, groups: slice | BoolArray) -> TyrePatches:
+        """The patches of the rows ``groups`` (a slice, or a (G,) mask), same width n_max."""
+        return TyrePatches(
+            self.x[groups],
+            self.y[groups],
+            self.z[groups],
+            self.tau[groups],
+            self.gamma[groups],
+            self.psi[groups],
+            self.valid[groups],
+            self.count[groups],
+            self.laser[groups],
+            self.lasers,
+        )
+
     def with_z(self, z: FloatArray) -> TyrePatches:
         """The same patches with other heights (G, n_max) (the oracle's true terrain)."""
         return TyrePatches(
@@ -167,6 +182,57 @@ _VALUE_COLUMNS = {
 }
 
 
+def _codes(column: pa.Array | pa.ChunkedArray) -> tuple[IntArray, list[str | None]]:
+    """A string column as (N,) indices into its distinct values (the list), -1 for null.
+
+    Read as a dictionary (``iter_table_batches(as_dictionary=...)``) the column already is
+    one; a plain one is encoded here. Either way no string per row is ever made."""
+    if isinstance(column, pa.ChunkedArray):
+        column = column.combine_chunks()
+    if not pa.types.is_dictionary(column.type):
+        column = pc.dictionary_encode(column)
+    indices = column.indices.fill_null(-1).to_numpy(zero_copy_only=False).astype(np.int64)
+    return indices, [None if v is None else str(v) for v in column.dictionary.to_pylist()]
+
+
+class _EventIndex:
+    """Where each (log_id, event_id) of ``events`` sits in it: a sorted key per log, looked
+    up with ``np.searchsorted`` (no join of string columns per batch)."""
+
+    def __init__(self, events: pa.Table, source: str | Path) -> None:
+        codes, names = _codes(events.column("log_id"))
+        event_id = np.asarray(events.column("event_id").to_numpy(zero_copy_only=False), np.int64)
+        self.logs: dict[str, tuple[IntArray, IntArray]] = {}
+        for code, name in enumerate(names):
+            if name is None:
+                continue
+            rows = np.flatnonzero(codes == code)
+            order = np.argsort(event_id[rows], kind="stable")
+            ids = event_id[rows][order]
+            if ids.size > 1 and (ids[1:] == ids[:-1]).any():
+                dup = int(ids[1:][ids[1:] == ids[:-1]][0])
+                raise StageError(f"log {name!r} lists event {dup} twice", path=source)
+            self.logs[name] = (ids, rows[order])
+
+    def lookup(
+        self, log_codes: IntArray, log_names: list[str | None], event_id: IntArray
+    ) -> IntArray:
+        """(N,) the event index of each row, -1 for events not in the table."""
+        out = np.full(event_id.size, -1, np.int64)
+        for code, name in enumerate(log_names):
+            known = self.logs.get(name) if name is not None else None
+            if known is None:
+                continue
+            ids, index = known
+            rows = np.flatnonzero(log_codes == code)
+            if rows.size == 0 or ids.size == 0:
+                continue
+            at = np.minimum(np.searchsorted(ids, event_id[rows]), ids.size - 1)
+            hit = ids[at] == event_id[rows]
+            out[rows[hit]] = index[at[hit]]
+        return out
+
+
 def build_patches(
     events: pa.Table,
     points: pa.Table | Iterable[pa.RecordBatch | pa.Table],
@@ -183,69 +249,77 @@ def build_patches(
 
     ``only_laser`` keeps that laser's points alone (the baseline's closest laser, sect. 7.1).
     Points of events not in ``events`` are ignored. StageError if a point names a wheel other
-    than left or right.
+    than left or right, or a column the model scores holds a non-finite value.
     """
     n_events = events.num_rows
     n_groups = 2 * n_events
     k = max_points_per_wheel
     if sample not in SAMPLES:
         raise ValueError(f"sample must be one of {SAMPLES}, not {sample!r}")
-    t_start = (
-        events.column("t_start_ns")
+    t_start_ns = (
+        np.asarray(events.column("t_start_ns").to_numpy(zero_copy_only=False), np.int64)
         if "t_start_ns" in events.column_names
-        else pa.nulls(n_events, pa.int64())
+        else None
     )
-    keys = pa.table(
-        {
-            "log_id": events.column("log_id").cast(pa.string()),
-            "event_id": events.column("event_id"),
-            "_event": pa.array(np.arange(n_events, dtype=np.int64)),
-            "_t_start_ns": t_start.cast(pa.int64()),
-        }
-    )
+    # The events' start times, for the freshest sample only (None: the hash sample).
+    fresh_from_ns = t_start_ns if sample == "freshest" else None
+    if sample == "freshest" and fresh_from_ns is None:
+        raise ValueError("the freshest sample needs the events' t_start_ns")
+    index = _EventIndex(events, source)
     kept: list[_Kept] = []
     laser_ids: dict[str, int] = {}  # laser name -> index, in order of first appearance
     batches = points.to_batches() if isinstance(points, pa.Table) else points
     for batch in batches:
         table = pa.table(batch) if isinstance(batch, pa.RecordBatch) else batch
-        if only_laser is not None:
-            table = table.filter(pc.equal(table.column("laser").cast(pa.string()), only_laser))
         if table.num_rows == 0:
             continue
-        table = table.select(list(POINT_COLUMNS)).cast(_PLAIN_SCHEMA)
-        table = table.append_column("_row", pa.array(np.arange(table.num_rows, dtype=np.int64)))
-        # pyarrow's join does not keep row order; the row number restores it.
-        joined = table.join(keys, ["log_id", "event_id"], join_type="inner").sort_by("_row")
-        if joined.num_rows == 0:
+        log_codes, log_names = _codes(table.column("log_id"))
+        event_id = np.asarray(table.column("event_id").to_numpy(zero_copy_only=False), np.int64)
+        event = index.lookup(log_codes, log_names, event_id)
+        laser_codes, laser_names = _codes(table.column("laser"))
+        keep = event >= 0
+        if only_laser is not None:
+            keep &= laser_codes == (
+                laser_names.index(only_laser) if only_laser in laser_names else -2
+            )
+        rows = np.flatnonzero(keep)
+        if rows.size == 0:
             continue
-        wheel_names = joined.column("wheel").to_numpy(zero_copy_only=False)
-        wheel = np.full(joined.num_rows, -1, np.int64)
-        for w, name in enumerate(WHEELS):
-            wheel[wheel_names == name] = w
+        event, laser_codes = event[rows], laser_codes[rows]
+        wheel_codes, wheel_names = _codes(table.column("wheel"))
+        to_wheel = np.array([WHEELS.index(n) if n in WHEELS else -1 for n in wheel_names] + [-1])
+        wheel = to_wheel[wheel_codes[rows]]  # a null wheel (-1) takes the last entry, -1
         if (wheel < 0).any():
-            bad = wheel_names[wheel < 0][0]
-            raise StageError(f"wheel {bad!r} is neither 'left' nor 'right'", path=source)
-        group = joined.column("_event").to_numpy() * 2 + wheel
-        laser_names = joined.column("laser").to_numpy(zero_copy_only=False)
-        names, inverse = np.unique(laser_names, return_inverse=True)
-        codes = np.array([laser_code(str(n)) for n in names], np.uint64)[inverse]
-        ids = np.array([laser_ids.setdefault(str(n), len(laser_ids)) for n in names], np.int64)
-        for col in _VALUE_COLUMNS.values():
-            values = joined.column(col).to_numpy()
-            if not np.isfinite(values).all():
-                bad = int(np.count_nonzero(~np.isfinite(values)))
+            bad = wheel_codes[rows][wheel < 0][0]
+            raise StageError(
+                f"wheel {wheel_names[bad] if bad >= 0 else None!r} is neither 'left' nor 'right'",
+                path=source,
+            )
+        group = event * 2 + wheel
+        if (laser_codes < 0).any():
+            raise StageError("a point has no laser name", path=source)
+        names = [str(n) for n in laser_names]
+        codes = np.array([laser_code(n) for n in names], np.uint64)[laser_codes]
+        ids = np.array([laser_ids.setdefault(n, len(laser_ids)) for n in names], np.int64)
+        values: dict[str, FloatArray] = {}
+        for key, col in _VALUE_COLUMNS.items():
+            v = np.asarray(
+                table.column(col).cast(pa.float64()).to_numpy(zero_copy_only=False), np.float64
+            )[rows]
+            if not np.isfinite(v).all():
+                bad_count = int(np.count_nonzero(~np.isfinite(v)))
                 raise StageError(
-                    f"column {col!r}: {bad} non-finite value(s) (e.g. "
-                    f"{values[~np.isfinite(values)][0]!r}); the model cannot score them",
+                    f"column {col!r}: {bad_count} non-finite value(s) (e.g. "
+                    f"{v[~np.isfinite(v)][0]!r}); the model cannot score them",
                     path=source,
                 )
-        priority = point_priority(joined.column("t_ns").to_numpy(), codes)
-        if sample == "freshest":
+            values[key] = v
+        t_ns = np.asarray(table.column("t_ns").to_numpy(zero_copy_only=False), np.int64)[rows]
+        priority = point_priority(t_ns, codes)
+        if fresh_from_ns is not None:
             # Lead time in microseconds above, the hash's low 20 bits below: the points seen
             # last before the event, ties broken reproducibly.
-            lead_us = (
-                joined.column("_t_start_ns").to_numpy() - joined.column("t_ns").to_numpy()
-            ) // 1000
+            lead_us = (fresh_from_ns[event] - t_ns) // 1000
             priority = (np.maximum(lead_us, 0).astype(np.uint64) << np.uint64(20)) | (
                 priority & np.uint64(0xFFFFF)
             )
@@ -254,8 +328,8 @@ def build_patches(
             _Kept(
                 group[take],
                 priority[take],
-                {key: joined.column(col).to_numpy()[take] for key, col in _VALUE_COLUMNS.items()},
-                ids[inverse][take],
+                {key: v[take] for key, v in values.items()},
+                ids[laser_codes][take],
             )
         )
     group = np.concatenate([c.group for c in kept]) if kept else np.zeros(0, np.int64)
@@ -295,23 +369,6 @@ def build_patches(
         laser=laser,
         lasers=lasers,
     )
-
-
-_PLAIN_SCHEMA = pa.schema(
-    [
-        ("log_id", pa.string()),
-        ("event_id", pa.int64()),
-        ("wheel", pa.string()),
-        ("x", pa.float64()),
-        ("y", pa.float64()),
-        ("z", pa.float64()),
-        ("tau", pa.float64()),
-        ("roll_rate", pa.float64()),
-        ("pitch_rate", pa.float64()),
-        ("laser", pa.string()),
-        ("t_ns", pa.int64()),
-    ]
-)
 
 
 __all__ = [

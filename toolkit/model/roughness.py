@@ -54,7 +54,7 @@ changing upsilon, omega or zeta reuses the sorted top scores (the learner caches
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Protocol
@@ -72,6 +72,8 @@ N_ALPHA = 10
 EXPONENTS = (1, 3, 5, 7, 9)
 #: Patches per chunk of the vectorised score (keeps each chunk's ~10 temporaries in cache).
 CHUNK_GROUPS = 512
+#: Patches whose pairs :class:`Blockwise` holds at once (~40 MB of pairs at 40 points a tyre).
+BLOCK_GROUPS = 8 * CHUNK_GROUPS
 THREADS = 2
 
 
@@ -152,7 +154,7 @@ class PairTable:
     default 40 points a tyre, ~120 MB).
     """
 
-    def __init__(self, patches: TyrePatches) -> None:
+    def __init__(self, patches: TyrePatches, pool: ThreadPoolExecutor | None = None) -> None:
         r, c = np.tril_indices(patches.n_max, -1)
         self.r = r.astype(np.intp)
         self.c = c.astype(np.intp)
@@ -173,7 +175,7 @@ class PairTable:
         self.log_gamma = _log_abs(patches.gamma)
         self.log_psi = _log_abs(patches.psi)
         self._groups = patches.groups
-        self._pool = ThreadPoolExecutor(THREADS) if THREADS > 1 else None
+        self._pool = pool if pool is not None else new_pool()
 
     def _diff(self, values: FloatArray) -> FloatArray:
         """(g, P) ``values[:, r] - values[:, c]`` for every pair of (g, n_max) ``values``."""
@@ -183,16 +185,6 @@ class PairTable:
     @property
     def groups(self) -> int:
         return self._groups
-
-    def subset(self, groups: NDArray[np.bool_]) -> PairTable:
-        """The pairs of the patches where ``groups`` (G,) is True (a copy, same layout)."""
-        out = PairTable.__new__(PairTable)
-        out.r, out.c = self.r, self.c
-        for name in ("pair_valid", "log_dz", "log_dtau", "log_dxy", "log_gamma", "log_psi"):
-            setattr(out, name, getattr(self, name)[groups])
-        out._groups = int(np.count_nonzero(groups))
-        out._pool = self._pool
-        return out
 
     @property
     def pairs(self) -> int:
@@ -236,6 +228,52 @@ class PairTable:
         else:
             parts = list(self._pool.map(lambda s: self._top_chunk(alpha, k, s), chunks))
         return np.concatenate(parts, axis=0)
+
+
+def new_pool() -> ThreadPoolExecutor | None:
+    """The threads a :class:`PairTable` scores its chunks on (None: the calling thread)."""
+    return ThreadPoolExecutor(THREADS) if THREADS > 1 else None
+
+
+class Blockwise:
+    """Top scores of patches too many to hold all their pairs at once.
+
+    Each block of ``block_groups`` patches is turned into its pair scores by ``make`` (for
+    the model, :class:`PairTable`) when :meth:`top_scores` is asked, and let go before the
+    next: memory is one block's pairs whatever the number of patches, at the price of
+    building the pairs on every call. The scores are the same as ``make(patches)``'s: every
+    patch's pairs are computed from its own points alone. For scoring once (every event of
+    a split, one parameter set); the learner, which asks hundreds of times, holds its
+    training pairs whole.
+    """
+
+    def __init__(
+        self,
+        patches: TyrePatches,
+        make: Callable[[TyrePatches], TopScores],
+        block_groups: int = BLOCK_GROUPS,
+    ) -> None:
+        self.patches = patches
+        self.make = make
+        self.block_groups = block_groups
+
+    @property
+    def groups(self) -> int:
+        return self.patches.groups
+
+    def top_scores(self, alpha: Sequence[float], k: int) -> FloatArray:
+        """(G, k) float64, as :meth:`TopScores.top_scores`."""
+        parts = [
+            self.make(self.patches.take(slice(lo, lo + self.block_groups))).top_scores(alpha, k)
+            for lo in range(0, self.groups, self.block_groups)
+        ]
+        return np.concatenate(parts, axis=0) if parts else np.zeros((0, k))
+
+
+def model_pairs(patches: TyrePatches) -> Blockwise:
+    """The model's pair scores of ``patches``, built block by block on one thread pool."""
+    pool = new_pool()
+    return Blockwise(patches, lambda block: PairTable(block, pool))
 
 
 def top_k_desc(scores: Float32Array | FloatArray, k: int) -> FloatArray:
@@ -300,11 +338,15 @@ def score_events(source: TopScores, params: RoughnessParams) -> EventScores:
 __all__ = [
     "EXPONENTS",
     "N_ALPHA",
+    "BLOCK_GROUPS",
+    "Blockwise",
     "EventScores",
     "PairTable",
     "RoughnessParams",
     "TopScores",
     "combine",
+    "model_pairs",
+    "new_pool",
     "score_events",
     "signed_power",
     "top_k_desc",

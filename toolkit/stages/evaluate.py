@@ -59,10 +59,16 @@ from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.model import speed_control as sc
 from toolkit.model.ascent import AscentResult, best_threshold, coordinate_ascent
-from toolkit.model.baseline import BaselineParams, FixedScores, pair_scores
+from toolkit.model.baseline import BaselineParams, FixedScores, baseline_pairs, pair_scores
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roc import RocSummary, summarise
-from toolkit.model.roughness import EventScores, PairTable, RoughnessParams, TopScores, score_events
+from toolkit.model.roughness import (
+    EventScores,
+    RoughnessParams,
+    TopScores,
+    model_pairs,
+    score_events,
+)
 from toolkit.stages.label import FIG5_PNG
 from toolkit.stages.learn import (
     ascent_config,
@@ -157,19 +163,19 @@ def _train_groups(train: BoolArray) -> BoolArray:
 
 
 def _train_and_score(
-    source: TopScores,
-    subset: Callable[[BoolArray], TopScores],
+    training: TopScores,
+    everything: TopScores,
     train: BoolArray,
     rough: BoolArray,
     config: PipelineConfig,
     free: tuple[bool, ...] | None = None,
     fixed: dict[int, float] | None = None,
 ) -> MethodScores:
-    """Coordinate ascent on the training events' patches, then every event scored."""
-    result = coordinate_ascent(
-        subset(_train_groups(train)), rough[train], ascent_config(config, free, fixed)
-    )
-    return MethodScores(score_events(source, result.params), result, result.params)
+    """Coordinate ascent on ``training`` (the training events' patches, held whole: the
+    search scores them hundreds of times), then every event scored by ``everything`` (block
+    by block: once)."""
+    result = coordinate_ascent(training, rough[train], ascent_config(config, free, fixed))
+    return MethodScores(score_events(everything, result.params), result, result.params)
 
 
 def closest_laser(
@@ -359,12 +365,26 @@ def run_evaluate(
     rough = events.column("rough").to_numpy(zero_copy_only=False).astype(bool)
     ruggedness = events.column("ruggedness").to_numpy(zero_copy_only=False).astype(np.float64)
     patches = patches_of(workspace, events, config)
-    pairs = pair_table(patches, config, workspace.config_path)
+    train_groups = _train_groups(train)
+    # Only the training split's pairs are held: each search scores them hundreds of times.
+    # Every event is scored once per method, a block of pairs at a time, so memory follows
+    # the training split, not the whole log (an hour's log: ~280 MB of pairs a split).
+    train_pairs = pair_table(patches.take(train_groups), config, workspace.config_path)
+    everything = model_pairs(patches)
     timings["read"] = time.perf_counter() - t0
 
-    methods: dict[str, MethodScores | None] = {}
+    # The report's order (its table and the ROC figure's curves).
+    methods: dict[str, MethodScores | None] = dict.fromkeys(
+        (
+            "self_supervised",
+            "baseline_all_lasers",
+            "baseline_closest_laser",
+            "oracle",
+            *ABLATION_NAMES,
+        )
+    )
     t0 = time.perf_counter()
-    learned = MethodScores(score_events(pairs, params), None, params)
+    learned = MethodScores(score_events(everything, params), None, params)
     methods["self_supervised"] = learned
     learnable = bool(rough[train].any() and (~rough[train]).any())
     if not learnable:
@@ -385,11 +405,16 @@ def run_evaluate(
     for name, laser in (("baseline_all_lasers", None), ("baseline_closest_laser", closest)):
         tell(f"training {name}")
         if not learnable or (name == "baseline_closest_laser" and closest is None):
-            methods[name] = None
             continue
         p = patches if laser is None else patches_of(workspace, events, config, only_laser=laser)
-        fixed = FixedScores(pair_scores(p, bp))
-        got = _train_and_score(fixed, fixed.subset, train, rough, config, BASELINE_FREE)
+        got = _train_and_score(
+            FixedScores(pair_scores(p.take(train_groups), bp)),
+            baseline_pairs(p, bp),
+            train,
+            rough,
+            config,
+            BASELINE_FREE,
+        )
         # An event without a point of this laser under a tyre has nothing to score.
         none = (p.count.reshape(-1, 2) < 2).all(axis=1)
         s = got.scores
@@ -397,39 +422,35 @@ def run_evaluate(
         methods[name] = MethodScores(
             EventScores(s.r_left, s.r_right, r_comb, s.predicted & ~none), got.trained, got.params
         )
-        # Each method's pair scores are as large as the model's pair table: let them go
-        # before the next method builds its own (peak memory on an hour's log).
-        del p, fixed
-    tell("training the oracle")
-    truth = oracle_patches(workspace, events, patches) if learnable else None
-    if truth is None:
-        methods["oracle"] = None
-        if learnable:
-            warnings.append("not every log is simulated: no oracle")
-    else:
-        oracle_pairs = PairTable(truth)
-        methods["oracle"] = _train_and_score(
-            oracle_pairs, oracle_pairs.subset, train, rough, config
-        )
-        del oracle_pairs, truth
+        del p
     for name, (fixed_values, frozen) in ABLATIONS.items():
         tell(f"training the ablation {name}")
         if not learnable:
-            methods[name] = None
             continue
         free = tuple(j not in frozen for j in range(13))
         methods[name] = _train_and_score(
-            pairs, pairs.subset, train, rough, config, free, fixed_values
+            train_pairs, everything, train, rough, config, free, fixed_values
         )
     tell("scoring the initial guess")
     if learnable:
         start_params = RoughnessParams.from_vector(ascent_config(config).initial, 0.0)
-        start_r = score_events(pairs, start_params).r_combined
-        mu = best_threshold(start_r[train], rough[train], config.learn.lambda_fp).mu
+        initial = score_events(everything, start_params)
+        mu = best_threshold(initial.r_combined[train], rough[train], config.learn.lambda_fp).mu
         start_params = dataclasses.replace(start_params, mu=mu)
-        methods["no_learning"] = MethodScores(score_events(pairs, start_params), None, start_params)
+        methods["no_learning"] = MethodScores(
+            dataclasses.replace(initial, predicted=initial.r_combined > mu), None, start_params
+        )
+    # The model's training pairs go before the oracle builds its own.
+    del train_pairs
+    tell("training the oracle")
+    truth = oracle_patches(workspace, events, patches) if learnable else None
+    if truth is None:
+        if learnable:
+            warnings.append("not every log is simulated: no oracle")
     else:
-        methods["no_learning"] = None
+        oracle_pairs = pair_table(truth.take(train_groups), config, workspace.config_path)
+        methods["oracle"] = _train_and_score(oracle_pairs, model_pairs(truth), train, rough, config)
+        del oracle_pairs, truth
     timings["methods"] = time.perf_counter() - t0
 
     tell("ROC and speed control")
