@@ -186,6 +186,8 @@ def test_pair_table_built_in_chunks_equals_all_pairs_at_once() -> None:
         want_dtau = np.log(np.abs(patches.tau[:, r] - patches.tau[:, c])).astype(np.float32)
         dxy = np.hypot(patches.x[:, r] - patches.x[:, c], patches.y[:, r] - patches.y[:, c])
         want_dxy = np.log(dxy).astype(np.float32)
+    # A pair with a padding point has no height term: its log |dz| is -inf (|0|^a2 = 0).
+    want_dz[~(patches.valid[:, r] & patches.valid[:, c])] = -np.inf
     np.testing.assert_array_equal(table.log_dz, want_dz)
     np.testing.assert_array_equal(table.log_dtau, want_dtau)
     np.testing.assert_array_equal(table.log_dxy, want_dxy)
@@ -205,3 +207,50 @@ def test_total_score_does_not_depend_on_where_the_scores_sit_in_memory() -> None
     assert total_score(top, 1.3, 17)[0] == pytest.approx(
         sum(max(v, 0.0) * 1.3 ** (16 - k) for k, v in enumerate(top[0])), rel=1e-12
     )
+
+
+def test_a_held_point_caches_terms_and_scores_as_a_fresh_table_does() -> None:
+    """The search's pattern: hold B, score candidates that move one element (the height
+    term, a penalty, a rate term switched on), accept one and hold it. Every call gives
+    the scores a table without a cache gives, bit for bit, and at most four arrays are
+    kept (B's and the latest candidate's height and penalty)."""
+    rng = np.random.default_rng(9)
+    patches = make_patches(random_patches(rng, 40, 9))
+    held, fresh = PairTable(patches), PairTable(patches)
+    b = [1.0, 2.0, 0.05, 1.0, 0.01, 1.0, 0.0, 1.0, 0.0, 1.0]
+    held.hold(b)
+    moves = [(0, 0.5), (1, -0.5), (2, 0.1), (3, 0.5), (6, 0.2), (7, 0.3), (8, 0.1), (4, -0.01)]
+    for n, (j, step) in enumerate(moves):
+        t = list(b)
+        t[j] += step
+        np.testing.assert_array_equal(held.top_scores(t, 7), fresh.top_scores(t, 7))
+        assert len(held._cache) <= 4
+        if n % 2 == 0:  # accepted
+            b = t
+            held.hold(b)
+        np.testing.assert_array_equal(held.top_scores(b, 7), fresh.top_scores(b, 7))
+    held.hold(None)
+    assert not held._cache
+
+
+def test_the_search_is_the_same_with_and_without_the_cache(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A table too large for CACHE_BYTES searches without a cache: the same steps and
+    parameters, bit for bit."""
+    from toolkit.model import roughness
+    from toolkit.model.ascent import AscentConfig, coordinate_ascent
+
+    rng = np.random.default_rng(12)
+    raw = random_patches(rng, 60, 8)
+    rough = rng.random(60) < 0.3
+    config = AscentConfig(
+        initial=(1.0, 2.0, 0.05, 1.0, 0.01, 1.0, 0.0, 1.0, 0.0, 1.0, 1.05, 3.0, 1.0),
+        increments=(0.5, 0.5, 0.02, 0.5, 0.005, 0.5, 0.02, 0.5, 0.02, 0.5, 0.05, 2.0, 0.2),
+        iterations=4,
+    )
+    cached = coordinate_ascent(PairTable(make_patches(raw)), rough, config)
+    monkeypatch.setattr(roughness, "CACHE_BYTES", 0)
+    uncached = coordinate_ascent(PairTable(make_patches(raw)), rough, config)
+    assert cached.steps and cached.steps == uncached.steps
+    assert cached.params == uncached.params

@@ -192,31 +192,37 @@ def coordinate_ascent(
     b = list(config.initial)
     inc = list(config.increments)
     start = RoughnessParams.from_vector(b, 0.0)
-    best = evaluate(start) if start.admissible() else None
-    if best is None:
-        raise ValueError(f"the initial parameters {b} are outside the model's domain")
-    history: list[float] = []
-    steps: list[tuple[int, str, float, float]] = []
-    for rotation in range(config.iterations):
-        for j in range(13):
-            if not config.free[j]:
-                continue
-            step = max(1.0, float(round(inc[j]))) if j == OMEGA else inc[j]
-            for sign in (-1.0, 1.0):
-                t = list(b)
-                t[j] = b[j] + sign * step
-                candidate = RoughnessParams.from_vector(t, 0.0)
-                if not candidate.admissible():
+    try:
+        # Every candidate differs from B in one element: the source may keep B's terms.
+        source.hold(start.alpha)
+        best = evaluate(start) if start.admissible() else None
+        if best is None:
+            raise ValueError(f"the initial parameters {b} are outside the model's domain")
+        history: list[float] = []
+        steps: list[tuple[int, str, float, float]] = []
+        for rotation in range(config.iterations):
+            for j in range(13):
+                if not config.free[j]:
                     continue
-                got = evaluate(candidate)
-                if got is not None and got.beats(best):
-                    b, best = t, got
-                    steps.append((rotation, B_NAMES[j], t[j], got.objective))
-                    break
-        inc = [v / 2.0 for v in inc]
-        history.append(best.objective)
-        if progress is not None:
-            progress(rotation + 1)
+                step = max(1.0, float(round(inc[j]))) if j == OMEGA else inc[j]
+                for sign in (-1.0, 1.0):
+                    t = list(b)
+                    t[j] = b[j] + sign * step
+                    candidate = RoughnessParams.from_vector(t, 0.0)
+                    if not candidate.admissible():
+                        continue
+                    got = evaluate(candidate)
+                    if got is not None and got.beats(best):
+                        b, best = t, got
+                        source.hold(candidate.alpha)
+                        steps.append((rotation, B_NAMES[j], t[j], got.objective))
+                        break
+            inc = [v / 2.0 for v in inc]
+            history.append(best.objective)
+            if progress is not None:
+                progress(rotation + 1)
+    finally:
+        source.hold(None)
     params = RoughnessParams.from_vector(b, best.mu)
     return AscentResult(
         params=params,

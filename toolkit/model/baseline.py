@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 from scipy.stats import norm
 
 from toolkit.model.patches import TyrePatches
-from toolkit.model.roughness import CHUNK_GROUPS, Blockwise, top_k_desc
+from toolkit.model.roughness import CHUNK_GROUPS, Blockwise, top_w
 
 FloatArray = NDArray[np.float64]
 Float32Array = NDArray[np.float32]
@@ -104,11 +104,13 @@ class FixedScores:
     def groups(self) -> int:
         return int(self.scores.shape[0])
 
+    def hold(self, alpha: Sequence[float] | None) -> None:
+        """Nothing to keep: the scores are fixed."""
+
     def top_scores(self, alpha: Sequence[float], k: int) -> FloatArray:
         del alpha  # the race's test has no alphas
         parts = [
-            top_k_desc(self.scores[i : i + CHUNK_GROUPS], k)
-            for i in range(0, self.groups, CHUNK_GROUPS)
+            top_w(self.scores[i : i + CHUNK_GROUPS], k) for i in range(0, self.groups, CHUNK_GROUPS)
         ]
         return np.concatenate(parts, axis=0) if parts else np.zeros((0, k))
 
