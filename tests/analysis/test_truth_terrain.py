@@ -297,6 +297,29 @@ def test_heights_along_a_whole_route_are_asked_a_few_tiles_at_a_time(projected: 
     assert np.isnan(got[4000:]).all()
 
 
+def test_heights_are_the_same_with_one_fft_thread_or_two(projected: Path) -> None:
+    """Evaluate's oracle synthesises the terrain with two FFT threads: the same heights,
+    bit for bit, as with one (each built from cold caches)."""
+    import scipy.fft
+
+    from toolkit.sim import world
+
+    first = true_ground(projected)
+    assert isinstance(first, TrueGround)
+    rng = np.random.default_rng(1)
+    s = rng.uniform(0.0, first.world.terrain.route.length_m, 500)
+    d = rng.uniform(-3.0, 3.0, 500)
+    heights = []
+    for workers in (1, 2):
+        ground = true_ground(projected)
+        assert isinstance(ground, TrueGround)
+        world._raw_field.cache_clear()
+        with scipy.fft.set_workers(workers):
+            heights.append(ground.terrain_height_m(s, d))
+    assert np.isfinite(heights[0]).all()
+    np.testing.assert_array_equal(heights[0], heights[1])
+
+
 def test_a_short_route_checks_closer_stretches(projected: Path) -> None:
     """Every 8th tile on a long route; on the sample log's 0.7 km (14 tiles) that would be two
     stretches, so the check takes every tile there, and never fewer than one."""

@@ -468,6 +468,7 @@ __all__ = [
     "BLOCK_GROUPS",
     "CACHE_BYTES",
     "Blockwise",
+    "THREADS",
     "EventScores",
     "PairTable",
     "RoughnessParams",

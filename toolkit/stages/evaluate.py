@@ -47,6 +47,7 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
+import scipy.fft
 from numpy.typing import NDArray
 
 from toolkit import __version__
@@ -63,6 +64,7 @@ from toolkit.model.baseline import BaselineParams, FixedScores, baseline_pairs, 
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roc import RocSummary, summarise
 from toolkit.model.roughness import (
+    THREADS,
     EventScores,
     RoughnessParams,
     TopScores,
@@ -212,7 +214,11 @@ def oracle_patches(
         rows = np.flatnonzero(log_of_group == log_id)
         mask = patches.valid[rows]
         xyz = np.c_[patches.x[rows][mask], patches.y[rows][mask], patches.z[rows][mask]]
-        h, _ = ground.height_m(xyz)
+        # The terrain's tiles are synthesised by FFT (most of this lookup's time: ~30 s for
+        # an hour's route); pocketfft splits each transform's independent lines over the
+        # threads, so the heights are the same with one thread or two.
+        with scipy.fft.set_workers(THREADS):
+            h, _ = ground.height_m(xyz)
         sub = z[rows]
         sub[mask] = h
         z[rows] = sub

@@ -54,8 +54,9 @@ MODEL_FORMAT_VERSION = 1
 #: Rows per batch when streaming the event points.
 POINT_BATCH = 1_048_576
 #: Largest pair table learning builds, bytes (13 bytes a pair: three float32 logarithms of
-#: differences and a validity flag): a quarter of the project machine's 24 GiB, leaving room
-#: for evaluate, which holds two splits' pairs and the baselines' scores beside them.
+#: differences and a validity flag; the search's cache adds up to 16 a pair, up to
+#: :data:`toolkit.model.roughness.CACHE_BYTES`): a quarter of the project machine's 24 GiB.
+#: Evaluate holds the training split's pairs too (and the oracle's, one after the other).
 MAX_PAIR_BYTES = 6 << 30
 #: String columns of the event points read as dictionaries (a few distinct values each).
 DICTIONARY_COLUMNS = ("log_id", "wheel", "laser")
