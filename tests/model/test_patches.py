@@ -56,6 +56,8 @@ def test_only_laser_and_unknown_events() -> None:
     assert p.count.tolist() == [3, 0] and p.lasers == ("/a", "/b")
     only = build_patches(events_table(1), both, 0, only_laser="/b")
     assert only.count.tolist() == [1, 0]
+    assert only.lasers == ("/b",) and only.laser[0, 0] == 0
+    assert build_patches(events_table(1), b, 0).lasers == ("/b",)
 
 
 def test_a_wheel_that_is_neither_left_nor_right_is_refused() -> None:

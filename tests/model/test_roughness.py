@@ -254,3 +254,24 @@ def test_the_search_is_the_same_with_and_without_the_cache(
     uncached = coordinate_ascent(PairTable(make_patches(raw)), rough, config)
     assert cached.steps and cached.steps == uncached.steps
     assert cached.params == uncached.params
+
+
+# The overflow is the point of the test (raised in the table's worker threads too, where
+# np.errstate does not reach).
+@pytest.mark.filterwarnings("ignore:overflow encountered in exp:RuntimeWarning")
+def test_a_padding_pair_is_absent_even_where_a_negative_weight_overflows() -> None:
+    """A negative time weight with a steep exponent: the time term of a real point paired
+    with the padding's 0 (tau of 1.7e9 s, a raw clock) overflows float32 to -inf. The pair
+    is still absent (Delta = -inf, not NaN), and R stays finite."""
+    t0 = 1.7e9
+    pts = [(0.0, 0.0, 0.0, t0, 0.0, 0.0), (0.1, 0.0, 0.1, t0 + 0.1, 0.0, 0.0)]
+    three = [*pts, (0.2, 0.0, 0.3, t0 + 0.2, 0.0, 0.0)]
+    table = PairTable(make_patches([[pts, three]]))
+    alpha = (1.0, 2.0, -0.01, 5.0, 0.01, 1.0, 0.0, 1.0, 0.0, 1.0)
+    d = table.delta(alpha)
+    got = score_events(table, RoughnessParams(alpha, 1.1, 3, 1.0, 0.0))
+    assert not table.pair_valid[0].all()
+    assert np.isneginf(d[~table.pair_valid]).all()
+    assert np.isfinite(d[table.pair_valid]).all()
+    assert np.isfinite(got.r_left).all() and np.isfinite(got.r_right).all()
+    assert got.r_right[0] > 0.0

@@ -256,15 +256,14 @@ def build_patches(
     k = max_points_per_wheel
     if sample not in SAMPLES:
         raise ValueError(f"sample must be one of {SAMPLES}, not {sample!r}")
-    t_start_ns = (
-        np.asarray(events.column("t_start_ns").to_numpy(zero_copy_only=False), np.int64)
-        if "t_start_ns" in events.column_names
-        else None
-    )
     # The events' start times, for the freshest sample only (None: the hash sample).
-    fresh_from_ns = t_start_ns if sample == "freshest" else None
-    if sample == "freshest" and fresh_from_ns is None:
-        raise ValueError("the freshest sample needs the events' t_start_ns")
+    fresh_from_ns = None
+    if sample == "freshest":
+        if "t_start_ns" not in events.column_names:
+            raise ValueError("the freshest sample needs the events' t_start_ns")
+        fresh_from_ns = np.asarray(
+            events.column("t_start_ns").to_numpy(zero_copy_only=False), np.int64
+        )
     index = _EventIndex(events, source)
     kept: list[_Kept] = []
     laser_ids: dict[str, int] = {}  # laser name -> index, in order of first appearance
@@ -300,7 +299,11 @@ def build_patches(
             raise StageError("a point has no laser name", path=source)
         names = [str(n) for n in laser_names]
         codes = np.array([laser_code(n) for n in names], np.uint64)[laser_codes]
-        ids = np.array([laser_ids.setdefault(n, len(laser_ids)) for n in names], np.int64)
+        # Only the lasers of the rows taken (the events asked for, ``only_laser``) are named
+        # in the result, not every name in the batch's dictionary.
+        ids = np.full(len(names), -1, np.int64)
+        for code in np.unique(laser_codes):
+            ids[code] = laser_ids.setdefault(names[code], len(laser_ids))
         values: dict[str, FloatArray] = {}
         for key, col in _VALUE_COLUMNS.items():
             v = np.asarray(

@@ -47,8 +47,8 @@ and xy in m, tau in s, gamma and psi in rad/s.
 Computation: ``Delta`` is evaluated as ``exp(a * log|d|)`` over precomputed logarithms of the
 pair differences (:class:`PairTable`), in float32, a chunk of patches at a time on two
 threads (numpy releases the GIL), in one fixed order: the height term ``a1 |dz|^a2`` less
-the penalties (time, distance, roll rate, pitch rate) summed onto a barrier that is +inf
-for a pair with a padding point. Only patches with a positive score are partitioned for
+the penalties (time, distance, roll rate, pitch rate) summed, the penalty set to +inf for
+a pair with a padding point. Only patches with a positive score are partitioned for
 their largest entries (:func:`top_w`): most have none. During the search the table keeps
 the height term and the penalty sum of the current point and of the latest candidate
 (:meth:`PairTable.hold`), so a candidate recomputes only the part it changes; changing
@@ -180,8 +180,8 @@ class PairTable:
             self.pair_valid[rows] = patches.valid[rows][:, self.r] & patches.valid[rows][:, self.c]
             log_dz = _log_abs(self._diff(patches.z[rows]))
             # A pair with a padding point has no height term (|0|^a2 = 0): its Delta is
-            # then 0 - inf = -inf exactly (the penalty's barrier, :meth:`_penalty`), even
-            # where the height of a real point over the padding's 0 would overflow.
+            # then 0 - inf = -inf exactly (the penalty is +inf there, :meth:`_penalty`),
+            # even where the height of a real point over the padding's 0 would overflow.
             log_dz[~self.pair_valid[rows]] = -np.inf
             self.log_dz[rows] = log_dz
             self.log_dtau[rows] = _log_abs(self._diff(patches.tau[rows]))
@@ -216,9 +216,10 @@ class PairTable:
         the table caches, for it and for the latest candidate, the height term
         ``a1 |dz|^a2`` and the sum of the penalty terms, so a candidate that moves a1 or a2
         recomputes one term and one that moves a penalty recomputes the penalties alone.
-        The cache costs 16 bytes a pair (4 arrays of float32) and is skipped beyond
-        :data:`CACHE_BYTES`; scores are the same with or without it, bit for bit (the same
-        operations on the same arrays)."""
+        The cache costs 16 bytes a pair between calls (4 arrays of float32; up to 24 during
+        a call) and is skipped beyond :data:`CACHE_BYTES`; scores are the same with or
+        without it, bit for bit (the same operations on the same arrays). A call that moves
+        more than one term from the held point is scored right, only with less reuse."""
         if alpha is None or self.groups * self.pairs * 16 > CACHE_BYTES:
             self._held = None
             self._cache = {}
@@ -240,11 +241,10 @@ class PairTable:
         return out
 
     def _penalty(self, a: list[np.float32], rows: slice) -> Float32Array:
-        """(g, P) the terms eq. (4) subtracts, summed in a fixed order onto a barrier that
-        is 0 for a pair and +inf for a pair with a padding point (so Delta = -inf there,
-        an absent pair): time, distance, roll rate, pitch rate, those with a zero weight
-        left out."""
-        total: Float32Array = np.where(self.pair_valid[rows], np.float32(0.0), np.float32(np.inf))
+        """(g, P) the terms eq. (4) subtracts, summed in a fixed order (time, distance, roll
+        rate, pitch rate; those with a zero weight left out), and +inf for a pair with a
+        padding point, so that Delta is -inf there (an absent pair) whatever the terms."""
+        total: Float32Array = np.zeros((self.log_dz[rows].shape), np.float32)
         if a[2] != 0.0:
             total += a[2] * np.exp(a[3] * self.log_dtau[rows])
         if a[4] != 0.0:
@@ -256,6 +256,9 @@ class PairTable:
                 pair = per_point[:, self.r]
                 pair += per_point[:, self.c]
                 total += pair
+        # Set last, not summed onto: a negative weight whose term overflows on a padding
+        # pair (a point's raw time less the padding's 0) would make inf - inf = NaN.
+        total[~self.pair_valid[rows]] = np.inf
         return total
 
     @staticmethod
