@@ -244,7 +244,7 @@ class PairTable:
         """(g, P) the terms eq. (4) subtracts, summed in a fixed order (time, distance, roll
         rate, pitch rate; those with a zero weight left out), and +inf for a pair with a
         padding point, so that Delta is -inf there (an absent pair) whatever the terms."""
-        total: Float32Array = np.zeros((self.log_dz[rows].shape), np.float32)
+        total: Float32Array = np.zeros(self.log_dz[rows].shape, np.float32)
         if a[2] != 0.0:
             total += a[2] * np.exp(a[3] * self.log_dtau[rows])
         if a[4] != 0.0:
@@ -285,7 +285,7 @@ class PairTable:
         else:
             parts = list(self._pool.map(lambda s: work(alpha, k, s), chunks))
         if self._held is not None:
-            self._keep_only(self._held, _term_keys(alpha))
+            self._keep_only({*self._held, *_term_keys(alpha)})
         return np.concatenate(parts, axis=0)
 
     def _cached_chunker(
@@ -316,9 +316,9 @@ class PairTable:
 
         return work
 
-    def _keep_only(self, *keys: tuple[tuple[object, ...], tuple[object, ...]]) -> None:
-        """Drop cached arrays but those of the held point's and the latest call's terms."""
-        wanted = {key for pair in keys for key in pair}
+    def _keep_only(self, wanted: set[tuple[object, ...]]) -> None:
+        """Drop the cached arrays but those of ``wanted``: the held point's and the latest
+        call's height and penalty keys."""
         for key in list(self._cache):
             if key not in wanted:
                 del self._cache[key]
