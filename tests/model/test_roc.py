@@ -5,8 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from scipy.stats import spearmanr
+from sklearn.metrics import roc_auc_score
 
-from toolkit.model.roc import auc, roc, summarise, tpr_at_fpr
+from toolkit.model.roc import (
+    MIN_ROUGH_EVENTS,
+    auc,
+    auc_half_width,
+    roc,
+    small_sample_warnings,
+    summarise,
+    tpr_at_fpr,
+)
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -55,4 +64,94 @@ def test_summary_intervals_and_correlation() -> None:
     b = summarise(s, y, rug, resamples=200, seed=4)
     assert a.auc_ci == b.auc_ci and a.auc_ci[0] < a.auc < a.auc_ci[1]
     assert a.spearman == pytest.approx(spearmanr(s, rug).statistic)
-    assert a.to_json()["tpr_at_fpr"].keys() == {"0.05", "0.1", "0.2"}
+    tprs = a.to_json()["tpr_at_fpr"]
+    assert isinstance(tprs, dict) and tprs.keys() == {"0.05", "0.1", "0.2"}
+
+
+def heavy_ties(seed: int, n: int = 2000) -> tuple[np.ndarray, np.ndarray]:
+    """Scores (n,) that are exactly 0 for about 95 % of the events, rough ones among them,
+    a few unscored (NaN), and labels (n,) with about 5 % rough: the shape of a method that
+    sees no evidence on most of the route."""
+    rng = np.random.default_rng(seed)
+    y = rng.random(n) < 0.05
+    s = np.where(rng.random(n) < 0.95, 0.0, rng.random(n))
+    s[y] = np.where(rng.random(y.sum()) < 0.5, 0.0, rng.random(y.sum()) + 0.3)
+    s[rng.random(n) < 0.02] = np.nan
+    y[:2] = [True, False]
+    return s, y
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_curve_encloses_the_auc_under_heavy_ties(seed: int) -> None:
+    """Joined by straight lines, the curve's points enclose exactly the AUC (ties counted
+    half), however many events tie at 0: a tie is one diagonal segment of the curve."""
+    s, y = heavy_ties(seed)
+    summary = summarise(s, y, np.abs(np.nan_to_num(s)), resamples=20)
+    c = summary.curve
+    assert c.fpr[0] == 0.0 and c.tpr[0] == 0.0 and c.fpr[-1] == 1.0 and c.tpr[-1] == 1.0
+    assert float(np.trapezoid(c.tpr, c.fpr)) == pytest.approx(summary.auc, abs=1e-9)
+    assert float(np.trapezoid(c.tpr, c.fpr)) == pytest.approx(
+        roc_auc_score(y, np.where(np.isnan(s), -1.0, s)), abs=1e-9
+    )
+
+
+def test_zero_and_unscored_shares() -> None:
+    """Scores 0 0 0 .5 NaN 2 for labels P N N P P N: of the 5 scored events 3 score 0, of
+    the 2 scored rough ones 1; 1 of 6 events and 1 of 3 rough ones is unscored. An exact
+    0 only: -0.0 counts, 1e-300 does not."""
+    s = np.array([0.0, -0.0, 0.0, 0.5, np.nan, 2.0])
+    y = np.array([True, False, False, True, True, False])
+    r = summarise(s, y, np.arange(6.0), resamples=5)
+    assert r.zero_share == pytest.approx(3 / 5) and r.zero_share_rough == pytest.approx(1 / 2)
+    assert r.unscored_share == pytest.approx(1 / 6)
+    assert r.unscored_share_rough == pytest.approx(1 / 3)
+    doc = r.to_json()
+    assert doc["zero_share"] == 0.6 and doc["zero_share_rough"] == 0.5
+    assert doc["unscored_share"] == round(1 / 6, 6)
+    assert doc["unscored_share_rough"] == round(1 / 3, 6)
+    tiny = summarise(
+        np.array([1e-300, 0.0, 1.0]), np.array([True, False, True]), np.arange(3.0), resamples=5
+    )
+    assert tiny.zero_share == pytest.approx(1 / 3) and tiny.zero_share_rough == 0.0
+
+
+def test_shares_of_a_method_that_scores_nothing_are_undefined_not_zero() -> None:
+    """Every event unscored: no scored event to take a share of, so the zero shares are
+    NaN (null in JSON), and the unscored shares 1."""
+    y = np.array([True, False, False])
+    r = summarise(np.full(3, np.nan), y, np.ones(3), resamples=5)
+    assert np.isnan(r.zero_share) and np.isnan(r.zero_share_rough)
+    assert r.unscored_share == 1.0 and r.unscored_share_rough == 1.0
+    assert r.to_json()["zero_share"] is None
+
+
+def test_small_sample_warnings_name_each_small_split_in_order() -> None:
+    """A line for each split with fewer than MIN_ROUGH_EVENTS (30) rough events, naming the
+    split, its count, the threshold and the AUC difference it cannot resolve; none for 30
+    or more; a split without a rough event says it has no ROC."""
+    assert MIN_ROUGH_EVENTS == 30
+    assert small_sample_warnings({"train": 400, "test": 30}) == []
+    lines = small_sample_warnings({"train": 12, "validation": 300, "test": 6, "extra": 0})
+    assert len(lines) == 3
+    assert lines[0].startswith("the train split has 12 rough events (fewer than 30)")
+    assert lines[1].startswith("the test split has 6 rough events (fewer than 30)")
+    assert f"~{auc_half_width(6):.2f}" in lines[1] and "noise" in lines[1]
+    assert lines[2] == "the extra split has no rough event: no ROC curve or AUC on it"
+    assert small_sample_warnings({"test": 1})[0].startswith("the test split has 1 rough event ")
+    assert small_sample_warnings({"test": 40}, minimum=50) != []
+
+
+def test_auc_half_width_is_about_the_bootstrap_interval() -> None:
+    """Hanley & McNeil's width: +-0.10 at 30 rough events (why 30 is the threshold), shrinking
+    as 1/sqrt(P); the stratified bootstrap of 30 rough among 3000 smooth binormal scores at
+    AUC 0.75 gives an interval of about that half-width (a little narrower)."""
+    assert auc_half_width(30) == pytest.approx(0.10, abs=0.005)
+    assert auc_half_width(120) == pytest.approx(auc_half_width(30) / 2)
+    assert auc_half_width(0) == float("inf")
+    rng = np.random.default_rng(3)
+    y = np.zeros(3030, bool)
+    y[:30] = True
+    s = rng.normal(size=y.size) + 0.954 * y  # binormal, AUC = Phi(0.954 / sqrt 2) = 0.75
+    r = summarise(s, y, s, resamples=200, seed=1)
+    half = (r.auc_ci[1] - r.auc_ci[0]) / 2
+    assert 0.6 * auc_half_width(30) < half < 1.3 * auc_half_width(30)

@@ -54,14 +54,20 @@ PARAMETER_MEANINGS: tuple[tuple[str, str], ...] = (
 def roc_png(
     path: Path, curves: Mapping[str, Any], title: str = "Fig. 6 analogue: ROC on the test split"
 ) -> Path:
-    """The ROC curves (objects with ``fpr`` and ``tpr`` arrays) of each method, one figure."""
+    """The ROC curves of each method, one figure: objects with ``fpr`` and ``tpr`` arrays
+    (K,), scikit-learn's points with every threshold kept (``toolkit.model.roc.RocCurve``).
+
+    Consecutive points are joined by straight lines, as scikit-learn draws them: a tie
+    between rough and smooth events (many events score exactly 0) is one diagonal segment,
+    so the area under the drawn line is the AUC in the table beside it. A staircase would
+    draw each tie's FPR rise before its TPR rise and, with a large tie, lose much of that
+    area (the tie counts half in the AUC, as the Mann-Whitney counts it).
+    """
     fig = new_figure(6.5, 5.5)
     ax = fig.add_subplot(1, 1, 1)
     for name, curve in curves.items():
         style = "--" if name.startswith("no_") else ("-." if name == "oracle" else "-")
-        ax.step(
-            curve.fpr, curve.tpr, where="post", linestyle=style, label=METHOD_NAMES.get(name, name)
-        )
+        ax.plot(curve.fpr, curve.tpr, linestyle=style, label=METHOD_NAMES.get(name, name))
     ax.plot([0, 1], [0, 1], color="0.7", linewidth=0.8, label="chance")
     ax.set_xlabel("false-positive rate")
     ax.set_ylabel("true-positive rate")
@@ -93,7 +99,19 @@ def _fmt(v: Any, digits: int = 3) -> str:
     return html.escape(str(v))
 
 
-def _roc_rows(summary: Mapping[str, Any]) -> list[str]:
+def _share_pair(m: Mapping[str, Any], key: str) -> str:
+    """``"all % / rough %"`` of the share ``key`` and ``key + "_rough"`` of a method's
+    entry; n/a for a share the entry lacks (a summary written before it was stated)."""
+
+    def pct(v: Any) -> str:
+        return "n/a" if v is None else f"{100 * v:.1f} %"
+
+    return f"{pct(m.get(key))} / {pct(m.get(key + '_rough'))}"
+
+
+def _roc_rows(summary: Mapping[str, Any], n_fprs: int) -> list[str]:
+    """The ROC table's rows: method, AUC [CI], share scored 0, share unscored, TPR at each
+    of the ``n_fprs`` FPRs [CI], Spearman."""
     rows = []
     entries: list[tuple[str, Any]] = [
         (k, summary.get(k))
@@ -103,16 +121,34 @@ def _roc_rows(summary: Mapping[str, Any]) -> list[str]:
     for key, m in entries:
         name = html.escape(METHOD_NAMES.get(key, key))
         if not m:
-            rows.append(f"<tr><td>{name}</td><td colspan='5'>not evaluated</td></tr>")
+            rows.append(f"<tr><td>{name}</td><td colspan='{n_fprs + 4}'>not evaluated</td></tr>")
             continue
         ci = m.get("auc_ci95") or [None, None]
-        cells = [f"{_fmt(m['auc'])} [{_fmt(ci[0])}, {_fmt(ci[1])}]"]
+        cells = [
+            f"{_fmt(m['auc'])} [{_fmt(ci[0])}, {_fmt(ci[1])}]",
+            _share_pair(m, "zero_share"),
+            _share_pair(m, "unscored_share"),
+        ]
         for fpr, tpr in m["tpr_at_fpr"].items():
             lo, hi = (m.get("tpr_at_fpr_ci95") or {}).get(fpr, [None, None])
             cells.append(f"{_fmt(tpr, 2)} [{_fmt(lo, 2)}, {_fmt(hi, 2)}]")
         cells.append(_fmt(m.get("spearman_vs_ruggedness")))
         rows.append(f"<tr><td>{name}</td>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     return rows
+
+
+def _warnings_box(warnings: Sequence[Any] | None) -> list[str]:
+    """The run's warnings (``summary["warnings"]``) in a framed box, for the top of the
+    page: each qualifies the numbers below it (a small split, a missing oracle), so it is
+    read before them. Nothing when there is none."""
+    if not warnings:
+        return []
+    return [
+        "<div class='warnings' style='border:2px solid #c60;background:#fff4e5;"
+        "padding:.2em 1em;margin:1em 0'><h2>Warnings</h2><ul>",
+        *[f"<li>{html.escape(str(w))}</li>" for w in warnings],
+        "</ul></div>",
+    ]
 
 
 def index_html(inputs: ReportInputs) -> str:
@@ -138,6 +174,7 @@ def index_html(inputs: ReportInputs) -> str:
         "td,th{border:1px solid #ccc;padding:.25em .6em;text-align:left}"
         "img{max-width:100%}</style></head><body>",
         "<h1>Terrain roughness: evaluation report</h1>",
+        *_warnings_box(s.get("warnings")),
         "<p>A reproduction of Stavens &amp; Thrun (2006), <i>A Self-Supervised Terrain Roughness "
         "Estimator for Off-Road Autonomous Driving</i>. Each event is a 1.4 m stretch of the rear "
         "axle's path; it is <b>rough</b> when the shock the IMU felt there divided by the speed "
@@ -155,8 +192,15 @@ def index_html(inputs: ReportInputs) -> str:
         "test generates the pair scores of the baselines, with their own trained upsilon, "
         f"omega, zeta and mu (sect. 7.1); its closest laser here: "
         f"<code>{_fmt(s.get('closest_laser'))}</code>.</p>",
-        f"<table><tr><th>method</th><th>AUC</th>{head}<th>Spearman</th></tr>",
-        *_roc_rows(s),
+        "<p><i>Score 0</i> is the share of the events a method scored whose score is exactly "
+        "0, over all of them / over the rough ones; <i>unscored</i> the share it could not "
+        "score (e.g. no laser point under a tyre), over all events / over the rough ones, ranked "
+        "below every score. Each is one tie: the method does not rank the events in it, and "
+        "its ROC curve crosses them as one straight segment (the AUC counts a tied rough and "
+        "smooth pair as half a win).</p>",
+        "<table><tr><th>method</th><th>AUC</th><th>score 0: all / rough</th>"
+        f"<th>unscored: all / rough</th>{head}<th>Spearman</th></tr>",
+        *_roc_rows(s, len(fprs)),
         "</table>",
         *[f"<p><img src='{html.escape(f)}' alt='ROC curves'></p>" for f in inputs.roc_figures],
         "<h2>The learned model (sect. 4 and 6)</h2>",
@@ -196,10 +240,6 @@ def index_html(inputs: ReportInputs) -> str:
                 f"<h3>{html.escape(caption)}</h3><p><img src='{html.escape(name)}' "
                 f"alt='{html.escape(caption)}'></p>"
             )
-    if s.get("warnings"):
-        parts.append("<h2>Warnings</h2><ul>")
-        parts += [f"<li>{html.escape(str(w))}</li>" for w in s["warnings"]]
-        parts.append("</ul>")
     parts.append(f"<p><small>terrain {_fmt(s.get('toolkit_version'))}</small></p></body></html>\n")
     return "\n".join(parts)
 

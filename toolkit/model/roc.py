@@ -1,7 +1,12 @@
 """ROC curves with confidence intervals and rank correlation (sect. 7.1, Fig. 6).
 
-The curve itself is scikit-learn's (``sklearn.metrics.roc_curve``, every threshold kept);
-this module adds what the report states about it:
+The curve itself is scikit-learn's (``sklearn.metrics.roc_curve``, every threshold kept):
+events with tied scores share one threshold, so a tie is one point-to-point segment of the
+curve, a diagonal where the tie holds both classes. Drawn with straight lines between its
+points (never as a staircase), the area under the curve is exactly the AUC
+(``roc_auc_score``: Mann-Whitney, a tied positive-negative pair counting half). Ties are
+common here: a method scores 0 wherever it sees no evidence, and most events are smooth.
+This module adds what the report states about it:
 
 - ``tpr_at_fpr``: the largest true-positive rate among the curve's points whose
   false-positive rate is at most the target. No interpolation between points: a classifier
@@ -15,17 +20,22 @@ this module adds what the report states about it:
 - Events a method could not score (NaN, e.g. no point of the closest laser under a tyre)
   rank below every scored event: the method says nothing about them, as a vehicle would
   not slow for them.
+- The share of events scored exactly 0 (one large tie at the bottom of the ranking, among
+  all scored events and among the rough ones) and, apart from it, the share not scored:
+  the part of the curve that is one straight segment, where the method ranks nothing.
+- :func:`small_sample_warnings`: a split with fewer than :data:`MIN_ROUGH_EVENTS` rough
+  events gives an AUC too uncertain to compare methods by.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.stats import spearmanr
+from scipy.stats import norm, spearmanr
 from sklearn.metrics import auc as sk_auc
 from sklearn.metrics import roc_auc_score, roc_curve
 
@@ -33,6 +43,17 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 DEFAULT_FPR_POINTS = (0.05, 0.1, 0.2)
+
+#: Fewest rough events in a split for its AUCs to be compared without a warning. With P rough
+#: events among many smooth ones, an AUC near 0.75 has a standard error of about
+#: sqrt((Q2 - A^2) / P), Q2 = 2 A^2 / (1 + A) (Hanley & McNeil 1982), i.e. 0.28 / sqrt(P):
+#: at P = 30 its 95 % interval is about +-0.10 (the stratified bootstrap's is alike); with
+#: fewer rough events even two methods whose AUCs differ by 0.1 cannot be told apart, and
+#: the curve moves in TPR steps of 1/P > 3 %.
+MIN_ROUGH_EVENTS = 30
+
+#: The AUC at which :func:`auc_half_width` states the interval (a typical method's, Fig. 6).
+TYPICAL_AUC = 0.75
 
 
 @dataclass(frozen=True)
@@ -79,7 +100,13 @@ def auc(scores: FloatArray, labels: BoolArray) -> float:
 
 @dataclass(frozen=True)
 class RocSummary:
-    """What the report states of one method on one split."""
+    """What the report states of one method on one split.
+
+    ``zero_share`` is the fraction of the scored (non-NaN) events whose score is exactly 0,
+    ``zero_share_rough`` the same among the scored rough events; ``unscored_share`` is the
+    fraction of all events with a NaN score, ``unscored_share_rough`` the same among the
+    rough events. A share is NaN when its denominator is empty.
+    """
 
     auc: float
     tpr_at_fpr: dict[str, float]
@@ -88,6 +115,10 @@ class RocSummary:
     spearman: float
     events: int
     positives: int
+    zero_share: float
+    zero_share_rough: float
+    unscored_share: float
+    unscored_share_rough: float
     curve: RocCurve = field(repr=False)
 
     def to_json(self) -> dict[str, object]:
@@ -104,7 +135,17 @@ class RocSummary:
             "spearman_vs_ruggedness": clean(self.spearman),
             "events": self.events,
             "positives": self.positives,
+            "zero_share": clean(self.zero_share),
+            "zero_share_rough": clean(self.zero_share_rough),
+            "unscored_share": clean(self.unscored_share),
+            "unscored_share_rough": clean(self.unscored_share_rough),
         }
+
+
+def _share(hit: BoolArray, among: BoolArray) -> float:
+    """The fraction of the events in ``among`` (E,) where ``hit`` (E,) holds; NaN if none."""
+    n = int(among.sum())
+    return float((hit & among).sum()) / n if n else float("nan")
 
 
 def fpr_key(fpr: float) -> str:
@@ -143,6 +184,8 @@ def summarise(
     def interval(v: FloatArray) -> tuple[float, float]:
         return float(np.percentile(v, lo)), float(np.percentile(v, hi))
 
+    scored = ~np.isnan(s)
+    zero = scored & (s == 0.0)
     finite = np.isfinite(s)
     rho = (
         float(spearmanr(s[finite], np.asarray(ruggedness)[finite]).statistic)
@@ -157,17 +200,62 @@ def summarise(
         spearman=rho,
         events=int(y.size),
         positives=int(y.sum()),
+        zero_share=_share(zero, scored),
+        zero_share_rough=_share(zero, scored & y),
+        unscored_share=_share(~scored, np.ones_like(y)),
+        unscored_share_rough=_share(~scored, y),
         curve=curve,
     )
 
 
+def auc_half_width(rough_events: int, level: float = 0.95, auc_value: float = TYPICAL_AUC) -> float:
+    """About how far an AUC's ``level`` interval reaches either side of it, on a split with
+    ``rough_events`` rough events among many smooth ones: z * sqrt((Q2 - A^2) / P), with
+    Q2 = 2 A^2 / (1 + A) (Hanley & McNeil 1982). An order of magnitude for warnings, not an
+    interval of a run's own (the report's intervals are bootstrapped); inf when P is 0."""
+    if rough_events <= 0:
+        return math.inf
+    a = auc_value
+    z = float(norm.ppf(0.5 + level / 2))
+    return z * math.sqrt((2 * a * a / (1 + a) - a * a) / rough_events)
+
+
+def small_sample_warnings(
+    rough_events: Mapping[str, int], minimum: int = MIN_ROUGH_EVENTS
+) -> list[str]:
+    """One warning line for each split (name -> its number of rough events, in the order
+    given) with fewer than ``minimum`` rough events: with so few, the bootstrap interval of
+    an AUC is wide (:func:`auc_half_width`), and two methods whose AUCs differ by less than
+    that cannot be told apart. No line for a split with enough."""
+    out = []
+    for split, n in rough_events.items():
+        n = int(n)
+        if n >= minimum:
+            continue
+        if n == 0:
+            out.append(f"the {split} split has no rough event: no ROC curve or AUC on it")
+            continue
+        w = auc_half_width(n)
+        noun = "event" if n == 1 else "events"
+        out.append(
+            f"the {split} split has {n} rough {noun} (fewer than {minimum}): an AUC's 95 % "
+            f"interval then reaches about +-{w:.2f} (the bootstrap intervals show this run's), "
+            f"so AUC differences under ~{w:.2f} cannot be told from noise"
+        )
+    return out
+
+
 __all__ = [
     "DEFAULT_FPR_POINTS",
+    "MIN_ROUGH_EVENTS",
+    "TYPICAL_AUC",
     "RocCurve",
     "RocSummary",
     "auc",
+    "auc_half_width",
     "fpr_key",
     "roc",
+    "small_sample_warnings",
     "summarise",
     "tpr_at_fpr",
 ]
