@@ -56,11 +56,11 @@ def main() -> None:
     splits: dict[str, tuple[PairTable, NDArray[np.bool_]]] = {}
     for split in ("train", "test"):
         events = learn.split_events(ws, split)
-        pairs = learn.pair_table(learn.patches_of(ws, events, config), config, ws.root)
+        pairs = learn.pair_table(learn.patches_of(ws, events, config.model), config.model, ws.root)
         rough = np.asarray(events.column("rough").to_numpy(zero_copy_only=False), bool)
         splits[split] = (pairs, rough)
         print(f"{split}: {int(rough.sum())} rough of {rough.size} events")
-    search = learn.ascent_config(config)
+    search = learn.ascent_config(config.learn)
     result = coordinate_ascent(*splits["train"], search)
     print(f"pairs and search: {time.perf_counter() - t0:.1f} s")
 

@@ -225,6 +225,10 @@ class LabelConfig:
     min_speed_mps: Annotated[float, Rule(ge=0.0)]
     rough_threshold_g_per_mph: Annotated[float, Rule(gt=0.0)]
     gravity_mps2: Annotated[float, Rule(gt=0.0)]
+    #: Who owns a filtered impact (max_abs only): "impact", the one event whose span holds
+    #: its crest, or "span_peak", every event the filter's response reaches (the peak over the
+    #: span, as before issue 26). See toolkit.analysis.shock.
+    attribution: Annotated[str, Rule(choices=("impact", "span_peak"))] = "impact"
 
 
 @dataclass(frozen=True)
@@ -234,8 +238,9 @@ class ModelConfig:
     wheel_window_radius_m: Annotated[float, Rule(gt=0.0)]
     max_points_per_wheel: Annotated[int, Rule(ge=0)]
     #: Which points a patch with more than max_points_per_wheel keeps: "hash" (a uniform,
-    #: reproducible sample) or "freshest" (those seen last before the event).
-    point_sample: Annotated[str, Rule(choices=("hash", "freshest"))] = "hash"
+    #: reproducible sample of all lasers, the paper's), "nearest_laser" (the nearest laser's
+    #: first) or "freshest" (those seen last before the event). toolkit.model.patches.
+    point_sample: Annotated[str, Rule(choices=("hash", "freshest", "nearest_laser"))] = "hash"
 
 
 @dataclass(frozen=True)
@@ -252,6 +257,9 @@ class LearnConfig:
     increment_upsilon: Annotated[float, Rule(gt=0.0)]
     increment_omega: Annotated[float, Rule(gt=0.0)]
     increment_zeta: Annotated[float, Rule(gt=0.0)]
+    #: What a step of the search must improve on the training split: "objective" (eq. 6,
+    #: the paper's), "auc" or "pauc" (toolkit.model.ascent); mu is eq. (6)'s either way.
+    accept: Annotated[str, Rule(choices=("objective", "auc", "pauc"))] = "objective"
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ import pytest
 
 from tests.model.helpers import events_table, points_table, random_patches
 from toolkit.errors import StageError
-from toolkit.model.patches import build_patches
+from toolkit.model.patches import build_patches, lead_order
 
 
 def _kept(p, g: int) -> set[tuple[float, float]]:  # type: ignore[no-untyped-def]
@@ -123,3 +123,38 @@ def test_an_event_listed_twice_is_refused() -> None:
     events = pa.concat_tables([events_table(2), events_table(1)])
     with pytest.raises(StageError, match="lists event 0 twice"):
         build_patches(events, points_table([[[(0.0, 0, 0, 1.0, 0, 0)], []]]), 0)
+
+
+def _two_lasers(near: int, far: int) -> tuple[pa.Table, pa.Table]:
+    """One event, left tyre: ``near`` points of "/near" seen 1 s before the event and ``far``
+    of "/far" seen 4 s before (taus distinct, so every point has its own identity)."""
+    near_pts = [[[(0.01 * i, 0.0, 0.0, 9.0 + 0.001 * i, 0.0, 0.0) for i in range(near)], []]]
+    far_pts = [[[(0.01 * i, 0.0, 0.0, 6.0 + 0.001 * i, 0.0, 0.0) for i in range(far)], []]]
+    events = events_table(1).append_column("t_start_ns", pa.array([10_000_000_000], pa.int64()))
+    both = pa.concat_tables([points_table(far_pts, laser="/far"), points_table(near_pts, "/near")])
+    return events, both
+
+
+def test_lead_order_puts_the_laser_seen_last_first() -> None:
+    events, both = _two_lasers(5, 5)
+    assert lead_order(events, both) == ("/near", "/far")
+    # Batching and row order do not matter.
+    assert lead_order(events, both.slice(3).to_batches() + both.slice(0, 3).to_batches()) == (
+        "/near",
+        "/far",
+    )
+
+
+@pytest.mark.parametrize(("near", "cap"), [(30, 10), (6, 10), (10, 10)])
+def test_the_nearest_laser_sample_keeps_the_nearest_lasers_points(near: int, cap: int) -> None:
+    """``nearest_laser``: the nearest laser's points fill a patch first (all of them when
+    they are fewer than the cap), the far laser's only the places left; the hash sample of
+    the same points takes both lasers alike."""
+    events, both = _two_lasers(near, 40)
+    order = lead_order(events, both)
+    p = build_patches(events, both, cap, sample="nearest_laser", laser_order=order)
+    near_index = p.lasers.index("/near")
+    kept_near = int(np.count_nonzero(p.valid[0] & (p.laser[0] == near_index)))
+    assert kept_near == min(near, cap) and p.count[0] == cap
+    uniform = build_patches(events, both, cap)
+    assert int(np.count_nonzero(uniform.valid[0] & (uniform.laser[0] == near_index))) < cap

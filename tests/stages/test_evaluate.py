@@ -32,6 +32,7 @@ from tests.stages.test_learn import (
 from toolkit.cli import main
 from toolkit.config import default_config
 from toolkit.errors import StageError, ToolkitError
+from toolkit.model.roc import MIN_ROUGH_EVENTS
 from toolkit.model.roughness import signed_power
 from toolkit.stages.evaluate import run_evaluate
 from toolkit.tableio import load_table_schema, read_table
@@ -99,7 +100,8 @@ def test_summary_has_the_contract_keys_and_the_tables_counts(
 ) -> None:
     """The contract's minimum keys, each method's entry with an AUC and TPR at the three
     FPRs (the oracle too: the sample is simulated), and the per-split counts equal to what
-    ``tables/events.parquet`` holds; no warning (both splits have both classes)."""
+    ``tables/events.parquet`` holds; no warning but the small-sample one of each split with
+    fewer than 30 rough events (both splits have both classes)."""
     for key in (*METHODS, "ablations", "speed_control"):
         assert key in summary, key
     for name, entry in method_entries(summary).items():
@@ -113,7 +115,11 @@ def test_summary_has_the_contract_keys_and_the_tables_counts(
         mine = split == name
         assert summary[f"{name}_events"] == int(mine.sum())
         assert summary[f"{name}_positives"] == int(rough[mine].sum())
-    assert summary["warnings"] == [] and pipeline.evaluate_warnings == ()
+    small = [name for name in ("train", "test") if summary[f"{name}_positives"] < MIN_ROUGH_EVENTS]
+    assert len(summary["warnings"]) == len(small)
+    for name, line in zip(small, summary["warnings"], strict=True):
+        assert line.startswith(f"the {name} split has {summary[f'{name}_positives']} rough")
+    assert pipeline.evaluate_warnings == tuple(summary["warnings"])
 
 
 def test_every_method_roc_entry_agrees_with_its_scores(

@@ -56,13 +56,14 @@ from toolkit.analysis.report import ReportInputs, roc_png, write_index_html
 from toolkit.analysis.scan_agreement import PNG_NAME as FIG4_PNG
 from toolkit.analysis.shock import MPS_PER_MPH
 from toolkit.analysis.truth_terrain import true_ground
-from toolkit.config import PipelineConfig, config_hash
+from toolkit.config import LearnConfig, ModelConfig, PipelineConfig, config_hash
 from toolkit.errors import StageError
+from toolkit.model import boosted
 from toolkit.model import speed_control as sc
 from toolkit.model.ascent import AscentResult, best_threshold, coordinate_ascent
 from toolkit.model.baseline import BaselineParams, FixedScores, baseline_pairs, pair_scores
 from toolkit.model.patches import TyrePatches
-from toolkit.model.roc import RocSummary, summarise
+from toolkit.model.roc import RocSummary, small_sample_warnings, summarise
 from toolkit.model.roughness import (
     THREADS,
     EventScores,
@@ -74,6 +75,7 @@ from toolkit.model.roughness import (
 from toolkit.stages.label import FIG5_PNG
 from toolkit.stages.learn import (
     ascent_config,
+    laser_order,
     load_model,
     pair_table,
     patches_of,
@@ -115,6 +117,21 @@ ABLATIONS: dict[str, tuple[dict[int, float], tuple[int, ...]]] = {
 ABLATION_NAMES = (*ABLATIONS, "no_learning")
 #: The baseline learns only upsilon, omega and zeta (and mu): sect. 7.1.
 BASELINE_FREE = (False,) * 10 + (True, True, True)
+#: Every method, in the report's order (its table and the ROC figure's curves); a method a
+#: run cannot train (no oracle off the simulator, no closest laser) is left out.
+METHOD_NAMES = (
+    "self_supervised",
+    "paper_exact",
+    "baseline_all_lasers",
+    "baseline_closest_laser",
+    "baseline_model_points",
+    "model_closest_laser",
+    "boosted",
+    "oracle",
+    *ABLATION_NAMES,
+)
+#: The methods beside the ablations that the summary lists at its top level.
+MAIN_METHODS = METHOD_NAMES[: -len(ABLATION_NAMES)]
 
 
 def stage_config_hash(config: PipelineConfig) -> str:
@@ -144,7 +161,7 @@ class EvaluateResult:
             return f"report up to date: {self.report}"
         s = self.summary
         lines = [f"report written in {self.seconds:.1f} s: {self.report}"]
-        for name in ("self_supervised", "baseline_all_lasers", "baseline_closest_laser", "oracle"):
+        for name in MAIN_METHODS:
             m = s.get(name)
             if isinstance(m, dict) and m.get("auc") is not None:
                 tpr = ", ".join(
@@ -169,15 +186,69 @@ def _train_and_score(
     everything: TopScores,
     train: BoolArray,
     rough: BoolArray,
-    config: PipelineConfig,
+    learn: LearnConfig,
     free: tuple[bool, ...] | None = None,
     fixed: dict[int, float] | None = None,
 ) -> MethodScores:
     """Coordinate ascent on ``training`` (the training events' patches, held whole: the
     search scores them hundreds of times), then every event scored by ``everything`` (block
     by block: once)."""
-    result = coordinate_ascent(training, rough[train], ascent_config(config, free, fixed))
+    result = coordinate_ascent(training, rough[train], ascent_config(learn, free, fixed))
     return MethodScores(score_events(everything, result.params), result, result.params)
+
+
+def _baseline(
+    p: TyrePatches, bp: BaselineParams, train: BoolArray, rough: BoolArray, learn: LearnConfig
+) -> MethodScores:
+    """The race test on the points ``p``: its W from :func:`pair_scores`, upsilon, omega,
+    zeta and mu trained on the training split (sect. 7.1); an event without two points of
+    ``p`` under either tyre has nothing to score (NaN, never predicted rough)."""
+    got = _train_and_score(
+        FixedScores(pair_scores(p.take(_train_groups(train)), bp)),
+        baseline_pairs(p, bp),
+        train,
+        rough,
+        learn,
+        BASELINE_FREE,
+    )
+    none = (p.count.reshape(-1, 2) < 2).all(axis=1)
+    s = got.scores
+    r_comb = np.where(none, np.nan, s.r_combined)
+    return MethodScores(
+        EventScores(s.r_left, s.r_right, r_comb, s.predicted & ~none), got.trained, got.params
+    )
+
+
+def _paper_exact(config: PipelineConfig) -> tuple[ModelConfig, LearnConfig]:
+    """The paper's method as written, with the configured initial guess: every laser's
+    points alike (the uniform sample, sect. 7: "data from all lasers is used") and steps
+    accepted by eq. (6) itself (sect. 6)."""
+    return (
+        dataclasses.replace(config.model, point_sample="hash"),
+        dataclasses.replace(config.learn, accept="objective"),
+    )
+
+
+def _boosted(
+    patches: TyrePatches,
+    order: tuple[str, ...],
+    event_time_s: FloatArray,
+    train: BoolArray,
+    rough: BoolArray,
+    config: PipelineConfig,
+) -> MethodScores:
+    """The gradient-boosted classifier (beyond the paper, :mod:`toolkit.model.boosted`) on
+    the model's points, fitted on the training split alone; its score is the log-odds of
+    rough, and mu eq. (6)'s best threshold on the training split."""
+    lasers = tuple(order) or patches.lasers
+    features, _ = boosted.patch_features(
+        patches, lasers, config.evaluate.baseline_cell_m, event_time_s=event_time_s
+    )
+    scores, _ = boosted.train_and_score(features, rough, train, boosted.BoostedConfig())
+    mu = best_threshold(scores[train], rough[train], config.learn.lambda_fp).mu
+    nan = np.full(scores.size, np.nan)
+    params = RoughnessParams((0.0,) * 10, 1.0, 1, 1.0, mu)
+    return MethodScores(EventScores(nan, nan, scores, scores > mu), None, params)
 
 
 def closest_laser(
@@ -370,28 +441,23 @@ def run_evaluate(
     train, test = split == "train", split == "test"
     rough = events.column("rough").to_numpy(zero_copy_only=False).astype(bool)
     ruggedness = events.column("ruggedness").to_numpy(zero_copy_only=False).astype(np.float64)
-    patches = patches_of(workspace, events, config)
+    order = laser_order(workspace, config.model)
+    patches = patches_of(workspace, events, config.model, order=order)
     train_groups = _train_groups(train)
-    # Only the training split's pairs are held: each search scores them hundreds of times.
-    # Every event is scored once per method, a block of pairs at a time, so memory follows
-    # the training split, not the whole log (an hour's log: ~280 MB of pairs a split).
-    train_pairs = pair_table(patches.take(train_groups), config, workspace.config_path)
-    everything = model_pairs(patches)
     timings["read"] = time.perf_counter() - t0
 
     # The report's order (its table and the ROC figure's curves).
-    methods: dict[str, MethodScores | None] = dict.fromkeys(
-        (
-            "self_supervised",
-            "baseline_all_lasers",
-            "baseline_closest_laser",
-            "oracle",
-            *ABLATION_NAMES,
-        )
-    )
+    methods: dict[str, MethodScores | None] = dict.fromkeys(METHOD_NAMES)
+    points: dict[str, dict[str, Any]] = {}
+    model_points = {"sample": config.model.point_sample, "only_laser": None}
     t0 = time.perf_counter()
+    # Only the training split's pairs are held: each search scores them hundreds of times.
+    # Every event is scored once per method, a block of pairs at a time, so memory follows
+    # the training split, not the whole log (an hour's log: ~280 MB of pairs a split).
+    everything = model_pairs(patches)
     learned = MethodScores(score_events(everything, params), None, params)
     methods["self_supervised"] = learned
+    points["self_supervised"] = model_points
     learnable = bool(rough[train].any() and (~rough[train]).any())
     if not learnable:
         warnings.append(
@@ -408,54 +474,93 @@ def run_evaluate(
     )
     t_start_s = events.column("t_start_ns").to_numpy().astype(np.float64) * 1e-9
     closest = closest_laser(patches, t_start_s, ev.baseline_closest_laser)
-    for name, laser in (("baseline_all_lasers", None), ("baseline_closest_laser", closest)):
+    # Sect. 7.1's two readings of the race test: all lasers' points equally (the uniform
+    # sample), and the closest laser's alone. Then the race test on the model's own points,
+    # so that the two are also compared on the same points.
+    uniform = (
+        patches
+        if config.model.point_sample == "hash"
+        else patches_of(workspace, events, dataclasses.replace(config.model, point_sample="hash"))
+    )
+    nearest = (
+        patches_of(workspace, events, config.model, only_laser=closest, order=order)
+        if closest is not None and learnable
+        else None
+    )
+    point_sets: dict[str, tuple[TyrePatches | None, dict[str, Any]]] = {
+        "baseline_all_lasers": (uniform, {"sample": "hash", "only_laser": None}),
+        "baseline_closest_laser": (nearest, {"sample": "hash", "only_laser": closest}),
+        "baseline_model_points": (
+            patches if config.model.point_sample != "hash" else None,
+            model_points,
+        ),
+    }
+    for name, (p, where) in point_sets.items():
         tell(f"training {name}")
-        if not learnable or (name == "baseline_closest_laser" and closest is None):
+        if not learnable or p is None:
             continue
-        p = patches if laser is None else patches_of(workspace, events, config, only_laser=laser)
-        got = _train_and_score(
-            FixedScores(pair_scores(p.take(train_groups), bp)),
-            baseline_pairs(p, bp),
-            train,
-            rough,
-            config,
-            BASELINE_FREE,
-        )
-        # An event without a point of this laser under a tyre has nothing to score.
-        none = (p.count.reshape(-1, 2) < 2).all(axis=1)
-        s = got.scores
-        r_comb = np.where(none, np.nan, s.r_combined)
-        methods[name] = MethodScores(
-            EventScores(s.r_left, s.r_right, r_comb, s.predicted & ~none), got.trained, got.params
-        )
-        del p
+        methods[name] = _baseline(p, bp, train, rough, config.learn)
+        points[name] = where
+    if learnable:
+        tell("training the paper-exact model")
+        paper = _paper_exact(config)
+        if paper == (config.model, config.learn):
+            methods["paper_exact"] = learned
+        else:
+            methods["paper_exact"] = _train_and_score(
+                pair_table(uniform.take(train_groups), paper[0], workspace.config_path),
+                model_pairs(uniform),
+                train,
+                rough,
+                paper[1],
+            )
+        points["paper_exact"] = {"sample": "hash", "only_laser": None}
+        if nearest is not None:
+            tell("training the model on the closest laser's points")
+            methods["model_closest_laser"] = _train_and_score(
+                pair_table(nearest.take(train_groups), config.model, workspace.config_path),
+                model_pairs(nearest),
+                train,
+                rough,
+                config.learn,
+            )
+            points["model_closest_laser"] = points["baseline_closest_laser"]
+        tell("training the gradient-boosted learner")
+        methods["boosted"] = _boosted(patches, order, t_start_s, train, rough, config)
+        points["boosted"] = model_points
+    train_pairs = pair_table(patches.take(train_groups), config.model, workspace.config_path)
     for name, (fixed_values, frozen) in ABLATIONS.items():
         tell(f"training the ablation {name}")
         if not learnable:
             continue
         free = tuple(j not in frozen for j in range(13))
         methods[name] = _train_and_score(
-            train_pairs, everything, train, rough, config, free, fixed_values
+            train_pairs, everything, train, rough, config.learn, free, fixed_values
         )
+        points[name] = model_points
     tell("scoring the initial guess")
     if learnable:
-        start_params = RoughnessParams.from_vector(ascent_config(config).initial, 0.0)
+        start_params = RoughnessParams.from_vector(ascent_config(config.learn).initial, 0.0)
         initial = score_events(everything, start_params)
         mu = best_threshold(initial.r_combined[train], rough[train], config.learn.lambda_fp).mu
         start_params = dataclasses.replace(start_params, mu=mu)
         methods["no_learning"] = MethodScores(
             dataclasses.replace(initial, predicted=initial.r_combined > mu), None, start_params
         )
+        points["no_learning"] = model_points
     # The model's training pairs go before the oracle builds its own.
-    del train_pairs
+    del train_pairs, uniform, nearest
     tell("training the oracle")
     truth = oracle_patches(workspace, events, patches) if learnable else None
     if truth is None:
         if learnable:
             warnings.append("not every log is simulated: no oracle")
     else:
-        oracle_pairs = pair_table(truth.take(train_groups), config, workspace.config_path)
-        methods["oracle"] = _train_and_score(oracle_pairs, model_pairs(truth), train, rough, config)
+        oracle_pairs = pair_table(truth.take(train_groups), config.model, workspace.config_path)
+        methods["oracle"] = _train_and_score(
+            oracle_pairs, model_pairs(truth), train, rough, config.learn
+        )
+        points["oracle"] = {**model_points, "z": "true terrain height"}
         del oracle_pairs, truth
     timings["methods"] = time.perf_counter() - t0
 
@@ -488,8 +593,14 @@ def run_evaluate(
             return None
         out = r.to_json()
         out["params"] = m.params.to_json()
+        out["points"] = points.get(name)
         if m.trained is not None:
-            out["train_objective"] = m.trained.objective
+            t = m.trained
+            out["train_objective"] = t.objective
+            out["train_auc"] = t.auc
+            out["accepted_by"] = t.accepted_by
+            if t.start is not None:
+                out["train_start"] = {"objective": t.start.objective, "auc": t.start.auc}
         return out
 
     counts = {
@@ -497,11 +608,14 @@ def run_evaluate(
         for side, mask in (("train", train), ("test", test))
         for k, v in (("events", mask.sum()), ("positives", (rough & mask).sum()))
     }
+    # Too few rough events to tell methods apart: said on the page and on the terminal.
+    warnings += small_sample_warnings(
+        {"train": counts["train_positives"], "test": counts["test_positives"]}
+        if testable
+        else {"train": counts["train_positives"]}
+    )
     summary: dict[str, Any] = {
-        "self_supervised": entry("self_supervised"),
-        "baseline_all_lasers": entry("baseline_all_lasers"),
-        "baseline_closest_laser": entry("baseline_closest_laser"),
-        "oracle": entry("oracle"),
+        **{name: entry(name) for name in MAIN_METHODS},
         "ablations": {name: entry(name) for name in ABLATION_NAMES},
         "speed_control": speed,
         **counts,
@@ -520,7 +634,9 @@ def run_evaluate(
                 "fp_rate",
                 "iterations",
             )
-        },
+        }
+        | {k: model_doc.get(k) for k in ("accepted_by", "train_auc", "start")}
+        | {"point_sample": config.model.point_sample, "laser_order": list(order)},
         "baseline_test": {
             "cell_m": bp.cell_m,
             "delta_m": bp.delta_m,
@@ -556,6 +672,10 @@ def run_evaluate(
                 for name in (
                     "baseline_all_lasers",
                     "baseline_closest_laser",
+                    "paper_exact",
+                    "baseline_model_points",
+                    "model_closest_laser",
+                    "boosted",
                     "oracle",
                     *ABLATION_NAMES,
                 )

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -29,10 +29,10 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from toolkit import __version__
-from toolkit.config import PipelineConfig, config_hash
+from toolkit.config import LearnConfig, ModelConfig, PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.model.ascent import B_NAMES, AscentConfig, AscentResult, coordinate_ascent
-from toolkit.model.patches import POINT_COLUMNS, TyrePatches, build_patches
+from toolkit.model.patches import POINT_COLUMNS, TyrePatches, build_patches, lead_order
 from toolkit.model.roughness import PairTable, RoughnessParams
 from toolkit.tableio import iter_table_batches, read_table
 from toolkit.workspace import (
@@ -88,39 +88,58 @@ def split_events(workspace: Workspace, split: str | None) -> pa.Table:
     return events.filter(pc.equal(events.column("split"), split))
 
 
+def _point_batches(workspace: Workspace, columns: Sequence[str]) -> Iterator[pa.RecordBatch]:
+    return iter_table_batches(
+        workspace.event_points_table,
+        "event_points",
+        columns=list(columns),
+        batch_rows=POINT_BATCH,
+        as_dictionary=[c for c in DICTIONARY_COLUMNS if c in columns],
+    )
+
+
+def laser_order(workspace: Workspace, model: ModelConfig) -> tuple[str, ...]:
+    """The lasers nearest first, as ``[model] point_sample = "nearest_laser"`` ranks them
+    (:func:`toolkit.model.patches.lead_order`), measured on the training split's events only
+    (so learn and evaluate rank them alike, and no test event informs the model); () for
+    any other sample."""
+    if model.point_sample != "nearest_laser":
+        return ()
+    train = split_events(workspace, "train")
+    columns = ("log_id", "event_id", "laser", "t_ns")
+    return lead_order(train, _point_batches(workspace, columns), workspace.event_points_table)
+
+
 def patches_of(
     workspace: Workspace,
     events: pa.Table,
-    config: PipelineConfig,
+    model: ModelConfig,
     *,
     only_laser: str | None = None,
+    order: Sequence[str] | None = None,
 ) -> TyrePatches:
-    """The tyre patches of ``events``, streamed from ``tables/event_points.parquet``."""
-    batches = iter_table_batches(
-        workspace.event_points_table,
-        "event_points",
-        columns=POINT_COLUMNS,
-        batch_rows=POINT_BATCH,
-        as_dictionary=DICTIONARY_COLUMNS,
-    )
+    """The tyre patches of ``events``, streamed from ``tables/event_points.parquet``, sampled
+    as ``model`` says (``order``: the lasers nearest first, :func:`laser_order` when None)."""
+    if order is None:
+        order = laser_order(workspace, model)
     return build_patches(
         events,
-        batches,
-        config.model.max_points_per_wheel,
+        _point_batches(workspace, POINT_COLUMNS),
+        model.max_points_per_wheel,
         only_laser=only_laser,
-        sample=config.model.point_sample,
+        sample=model.point_sample,
+        laser_order=order,
         source=workspace.event_points_table,
     )
 
 
 def ascent_config(
-    config: PipelineConfig,
+    lc: LearnConfig,
     free: tuple[bool, ...] | None = None,
     fixed: dict[int, float] | None = None,
 ) -> AscentConfig:
     """The search of sect. 6 from ``[learn]``: ``free`` (13 flags) says which elements of B
     move, ``fixed`` overrides initial values (an ablation's zeroed terms)."""
-    lc = config.learn
     initial = [*lc.initial_alpha, lc.initial_upsilon, float(lc.initial_omega), lc.initial_zeta]
     for j, v in (fixed or {}).items():
         initial[j] = v
@@ -131,10 +150,11 @@ def ascent_config(
         lambda_fp=lc.lambda_fp,
         iterations=lc.iterations,
         free=free if free is not None else (True,) * 13,
+        accept=lc.accept,
     )
 
 
-def pair_table(patches: TyrePatches, config: PipelineConfig, path: Path) -> PairTable:
+def pair_table(patches: TyrePatches, model: ModelConfig, path: Path) -> PairTable:
     """The pairs of ``patches``; StageError, before allocating, when they would take more
     than :data:`MAX_PAIR_BYTES` (an uncapped ``[model] max_points_per_wheel`` on dense
     lasers: N points a tyre make N (N - 1) / 2 pairs)."""
@@ -144,7 +164,7 @@ def pair_table(patches: TyrePatches, config: PipelineConfig, path: Path) -> Pair
         raise StageError(
             f"{patches.groups} tyre patches of up to {n} points make {need / 2**30:.1f} GiB of "
             f"pairs (limit {MAX_PAIR_BYTES / 2**30:.0f} GiB); set [model] max_points_per_wheel "
-            f"(now {config.model.max_points_per_wheel}) to 40 or so",
+            f"(now {model.max_points_per_wheel}) to 40 or so",
             path=path,
         )
     return PairTable(patches)
@@ -190,7 +210,8 @@ def model_json(
     events: int,
     positives: int,
     points: int,
-    max_points_per_wheel: int,
+    model: ModelConfig,
+    laser_order: Sequence[str],
     inputs: dict[str, str],
     cfg_hash: str,
 ) -> dict[str, Any]:
@@ -205,9 +226,19 @@ def model_json(
         "tp_rate": result.tpr,
         "fp_rate": result.fpr,
         "train_auc": result.auc,
+        "train_pauc": result.pauc,
+        "accepted_by": result.accepted_by,
+        "start": None
+        if result.start is None
+        else {
+            "objective": result.start.objective,
+            "auc": result.start.auc,
+            "pauc": result.start.pauc,
+        },
         "iterations": result.iterations,
         "evaluations": result.evaluations,
         "objective_by_iteration": list(result.history),
+        "accepted_measure_by_iteration": list(result.measure_history),
         "steps": [
             {"iteration": i, "parameter": n, "value": v, "objective": j}
             for i, n, v, j in result.steps
@@ -218,7 +249,9 @@ def model_json(
             "events": events,
             "positives": positives,
             "points": points,
-            "max_points_per_wheel": max_points_per_wheel,
+            "max_points_per_wheel": model.max_points_per_wheel,
+            "point_sample": model.point_sample,
+            "laser_order": list(laser_order),
             "tables_sha256": inputs,
         },
         "config_hash": cfg_hash,
@@ -279,11 +312,12 @@ def run_learn(
     train = split_events(workspace, "train")
     rough = train.column("rough").to_numpy(zero_copy_only=False).astype(bool)
     require_both_classes(rough, "training split", workspace.events_table)
-    patches = patches_of(workspace, train, config)
-    pairs = pair_table(patches, config, workspace.config_path)
+    order = laser_order(workspace, config.model)
+    patches = patches_of(workspace, train, config.model, order=order)
+    pairs = pair_table(patches, config.model, workspace.config_path)
     timings["pairs"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    search = ascent_config(config)
+    search = ascent_config(config.learn)
     result = coordinate_ascent(pairs, rough, search, progress)
     timings["ascent"] = time.perf_counter() - t0
     doc = model_json(
@@ -292,7 +326,8 @@ def run_learn(
         events=train.num_rows,
         positives=int(rough.sum()),
         points=int(patches.count.sum()),
-        max_points_per_wheel=config.model.max_points_per_wheel,
+        model=config.model,
+        laser_order=order,
         inputs=inputs,
         cfg_hash=cfg_hash,
     )
@@ -323,6 +358,7 @@ __all__ = [
     "STAGE",
     "LearnResult",
     "ascent_config",
+    "laser_order",
     "load_model",
     "pair_table",
     "patches_of",

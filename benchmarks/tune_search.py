@@ -1,0 +1,91 @@
+"""The search's choices measured on tuning logs: point sample x step acceptance x initial guess.
+
+For each workspace given (made with ``terrain run LOG -w WS --to tables``; logs of seeds that
+no evaluation uses), each combination of ``[model] point_sample``, ``[learn] accept`` and an
+initial guess is learned on the training split and scored on both splits: AUC, partial AUC
+to FPR 0.2 and TPR at FPR 5 / 10 / 20 %, the share of test events at R = 0, and the
+initial guess's own test AUC. What the defaults were chosen from (``benchmarks/README.md``).
+
+Usage: python benchmarks/tune_search.py WS [WS ...] [--quick]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import itertools
+import time
+from pathlib import Path
+
+import numpy as np
+from sklearn.metrics import roc_auc_score, roc_curve
+
+from toolkit.config import load_config
+from toolkit.model.ascent import coordinate_ascent
+from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
+from toolkit.stages import learn
+from toolkit.workspace import Workspace
+
+#: Initial guesses tried (alpha_1..alpha_10, upsilon, omega, zeta).
+INITIAL = {
+    # Squared height, 0.05 per second apart, 0.01 per metre: the default until issue 26.
+    "squared": ((1.0, 2.0, 0.05, 1.0, 0.01, 1.0, 0.0, 1.0, 0.0, 1.0), 1.05, 3, 1.0),
+    # |dz| - 0.01 |dtau| - 0.1 |dxy|: linear in every difference.
+    "linear": ((1.0, 1.0, 0.01, 1.0, 0.1, 1.0, 0.0, 1.0, 0.0, 1.0), 1.05, 3, 1.0),
+    # Height alone: what the learner must discover every penalty from.
+    "height_only": ((1.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0), 1.05, 3, 1.0),
+}
+
+
+def rates(y: np.ndarray, r: np.ndarray) -> tuple[float, list[float]]:
+    fpr, tpr, _ = roc_curve(y, r, drop_intermediate=False)
+    return float(roc_auc_score(y, r)), [float(np.interp(a, fpr, tpr)) for a in (0.05, 0.1, 0.2)]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("workspaces", type=Path, nargs="+")
+    ap.add_argument("--samples", nargs="+", default=["hash", "nearest_laser"])
+    ap.add_argument("--accept", nargs="+", default=["objective", "auc", "pauc"])
+    ap.add_argument("--initial", nargs="+", default=list(INITIAL))
+    args = ap.parse_args()
+    for root in args.workspaces:
+        ws = Workspace(root)
+        config = load_config(ws.config_path)
+        events = learn.split_events(ws, None)
+        split = np.asarray(events.column("split").to_pylist(), dtype=object)
+        train, test = split == "train", split == "test"
+        y = events.column("rough").to_numpy(zero_copy_only=False).astype(bool)
+        print(f"{root}: train {y[train].sum()} rough of {train.sum()}, test {y[test].sum()} "
+              f"of {test.sum()}")  # fmt: skip
+        for sample in args.samples:
+            model = dataclasses.replace(config.model, point_sample=sample)
+            order = learn.laser_order(ws, model)
+            patches = learn.patches_of(ws, events, model, order=order)
+            pairs = learn.pair_table(patches.take(np.repeat(train, 2)), model, root)
+            everything = model_pairs(patches)
+            for init, accept in itertools.product(args.initial, args.accept):
+                alpha, ups, om, zeta = INITIAL[init]
+                lc = dataclasses.replace(
+                    config.learn, initial_alpha=alpha, initial_upsilon=ups, initial_omega=om,
+                    initial_zeta=zeta, accept=accept,
+                )  # fmt: skip
+                t0 = time.perf_counter()
+                res = coordinate_ascent(pairs, y[train], learn.ascent_config(lc))
+                r = score_events(everything, res.params).r_combined
+                r0 = score_events(everything, RoughnessParams.from_vector(
+                    learn.ascent_config(lc).initial, 0.0)).r_combined  # fmt: skip
+                auc0, _ = rates(y[test], r0[test])
+                auc_tr, _ = rates(y[train], r[train])
+                auc_te, tpr = rates(y[test], r[test])
+                zero = float(np.mean(r[test] == 0.0))
+                print(
+                    f"  {sample:13s} {init:11s} {accept:9s} train AUC {auc_tr:.3f} | test AUC "
+                    f"{auc_te:.3f} (start {auc0:.3f}) TPR {tpr[0]:.2f}/{tpr[1]:.2f}/{tpr[2]:.2f} "
+                    f"at0 {100 * zero:.0f}% J {res.objective:.3f} ({time.perf_counter() - t0:.0f} s)",
+                    flush=True,
+                )
+
+
+if __name__ == "__main__":
+    main()
