@@ -83,7 +83,8 @@ def row_of(text: str, method: str) -> str:
 
 def test_index_html_shows_the_zero_share_next_to_the_auc() -> None:
     """A method's row: name, AUC with its interval, then the shares scored 0 and unscored
-    (all events / rough ones, in %), then TPR at each FPR and Spearman. A method not
+    (all events / rough ones, in %), then TPR at each FPR, Spearman and the points it
+    scored. A method not
     evaluated spans every column; a summary written before the shares existed shows
     n/a."""
     entry: dict[str, Any] = tied_summary(0).to_json()
@@ -104,7 +105,8 @@ def test_index_html_shows_the_zero_share_next_to_the_auc() -> None:
     assert cells[3] == (
         f"{100 * entry['unscored_share']:.1f} % / {100 * entry['unscored_share_rough']:.1f} %"
     )
-    assert len(cells) == 1 + 3 + len(entry["tpr_at_fpr"]) + 1
+    assert len(cells) == 1 + 3 + len(entry["tpr_at_fpr"]) + 2
+    assert cells[-1] == "n/a"  # this entry does not say which points it scored
     assert re.findall(r"<th>(.*?)</th>", text)[3:8] == [
         "method",
         "AUC",
@@ -112,7 +114,7 @@ def test_index_html_shows_the_zero_share_next_to_the_auc() -> None:
         "unscored: all / rough",
         "TPR at FPR 0.05",
     ]
-    assert "colspan='7'>not evaluated" in row_of(text, "oracle")
+    assert "colspan='8'>not evaluated" in row_of(text, "oracle")
     assert "<td>n/a / n/a</td><td>n/a / n/a</td>" in row_of(text, "no_learning")
 
 

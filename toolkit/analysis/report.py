@@ -19,12 +19,23 @@ from toolkit.analysis.figures import new_figure, save_png_atomic, write_bytes_at
 #: Display names of the methods, in the report's order.
 METHOD_NAMES: dict[str, str] = {
     "self_supervised": "self-supervised (this model)",
+    "paper_exact": "self-supervised, the paper's method as written",
     "baseline_all_lasers": "race obstacle test, all lasers",
     "baseline_closest_laser": "race obstacle test, closest laser",
+    "baseline_model_points": "race obstacle test, on this model's points",
+    "model_closest_laser": "self-supervised, on the closest laser's points",
+    "boosted": "beyond the paper: gradient-boosted trees on patch features",
     "oracle": "oracle: model on true terrain heights",
     "no_time_term": "ablation: no time term (alpha_3 = 0)",
     "no_rate_terms": "ablation: no roll/pitch-rate terms (alpha_7 = alpha_9 = 0)",
     "no_learning": "ablation: the initial guess, not learned",
+}
+
+#: What the search's steps had to raise (``model.json``'s ``accepted_by``), in words.
+_ACCEPTED = {
+    "objective": "eq. (6), Tp - lambda Fp (the paper's)",
+    "auc": "the area under the ROC curve",
+    "pauc": "the area under the ROC curve up to FPR 0.2",
 }
 
 #: What each learned parameter does (eqs. 3-5), for the parameter table.
@@ -113,15 +124,15 @@ def _roc_rows(summary: Mapping[str, Any], n_fprs: int) -> list[str]:
     """The ROC table's rows: method, AUC [CI], share scored 0, share unscored, TPR at each
     of the ``n_fprs`` FPRs [CI], Spearman."""
     rows = []
+    ablations = summary.get("ablations") or {}
     entries: list[tuple[str, Any]] = [
-        (k, summary.get(k))
-        for k in ("self_supervised", "baseline_all_lasers", "baseline_closest_laser", "oracle")
+        (k, summary.get(k)) for k in METHOD_NAMES if k not in ablations and k in summary
     ]
-    entries += list((summary.get("ablations") or {}).items())
+    entries += list(ablations.items())
     for key, m in entries:
         name = html.escape(METHOD_NAMES.get(key, key))
         if not m:
-            rows.append(f"<tr><td>{name}</td><td colspan='{n_fprs + 4}'>not evaluated</td></tr>")
+            rows.append(f"<tr><td>{name}</td><td colspan='{n_fprs + 5}'>not evaluated</td></tr>")
             continue
         ci = m.get("auc_ci95") or [None, None]
         cells = [
@@ -133,8 +144,22 @@ def _roc_rows(summary: Mapping[str, Any], n_fprs: int) -> list[str]:
             lo, hi = (m.get("tpr_at_fpr_ci95") or {}).get(fpr, [None, None])
             cells.append(f"{_fmt(tpr, 2)} [{_fmt(lo, 2)}, {_fmt(hi, 2)}]")
         cells.append(_fmt(m.get("spearman_vs_ruggedness")))
+        cells.append(html.escape(_points_text(m.get("points"))))
         rows.append(f"<tr><td>{name}</td>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     return rows
+
+
+def _points_text(points: Mapping[str, Any] | None) -> str:
+    """Which laser points a method scored, in words (``entry["points"]`` of the summary)."""
+    if not points:
+        return "n/a"
+    sample = {
+        "hash": "uniform sample of all lasers",
+        "nearest_laser": "nearest laser first",
+        "freshest": "seen last first",
+    }.get(str(points.get("sample")), str(points.get("sample")))
+    text = f"{points['only_laser']} only" if points.get("only_laser") else sample
+    return f"{text}; true heights" if points.get("z") else text
 
 
 def _warnings_box(warnings: Sequence[Any] | None) -> list[str]:
@@ -199,14 +224,20 @@ def index_html(inputs: ReportInputs) -> str:
         "its ROC curve crosses them as one straight segment (the AUC counts a tied rough and "
         "smooth pair as half a win).</p>",
         "<table><tr><th>method</th><th>AUC</th><th>score 0: all / rough</th>"
-        f"<th>unscored: all / rough</th>{head}<th>Spearman</th></tr>",
+        f"<th>unscored: all / rough</th>{head}<th>Spearman</th><th>points scored</th></tr>",
         *_roc_rows(s, len(fprs)),
         "</table>",
         *[f"<p><img src='{html.escape(f)}' alt='ROC curves'></p>" for f in inputs.roc_figures],
         "<h2>The learned model (sect. 4 and 6)</h2>",
-        f"<p>Coordinate ascent maximised Tp - {_fmt(m.get('lambda'), 1)} Fp on the training "
-        f"split: {_fmt(m.get('objective'))} (Tp {_fmt(m.get('tp_rate'))}, Fp "
-        f"{_fmt(m.get('fp_rate'), 4)}) after {_fmt(m.get('iterations'))} iterations.</p>",
+        f"<p>Coordinate ascent (sect. 6) accepted a step when it raised "
+        f"<b>{html.escape(_ACCEPTED.get(str(m.get('accepted_by')), 'eq. (6)'))}</b> on the "
+        f"training split (training AUC {_fmt(m.get('train_auc'))}); mu is eq. (6)'s best "
+        f"threshold: Tp - {_fmt(m.get('lambda'), 1)} Fp = {_fmt(m.get('objective'))} (Tp "
+        f"{_fmt(m.get('tp_rate'))}, Fp {_fmt(m.get('fp_rate'), 4)}) after "
+        f"{_fmt(m.get('iterations'))} iterations. Its points: "
+        f"{html.escape(_points_text((s.get('self_supervised') or {}).get('points')))}. The row "
+        "<i>the paper's method as written</i> is the same search accepting steps by eq. (6) "
+        "itself, on a uniform sample of every laser's points.</p>",
         "<table><tr><th>parameter</th><th>value</th></tr>",
         *[f"<tr><td>{html.escape(k)}</td><td>{_fmt(v, 4)}</td></tr>" for k, v in params],
         "</table><p>What they mean:</p><table>",
