@@ -3,6 +3,7 @@ sample log against its truth, and Fig. 5 on a calibration log."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -10,8 +11,9 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from toolkit.config import default_config
-from toolkit.errors import StageError
+from toolkit.analysis.shock import design_shock_fir, event_shock, filter_stream
+from toolkit.config import PipelineConfig, default_config, parse_config
+from toolkit.errors import ConfigError, StageError
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.label import (
     FIG5_CSV,
@@ -219,6 +221,196 @@ def test_a_rotated_imu_is_read_through_its_mount(
     b = read_table(ws.log_table(LOG_ID, "events"), "events").to_pydict()
     assert a["event_id"] == b["event_id"]
     np.testing.assert_allclose(b["shock_g"], a["shock_g"], atol=1e-12)
+
+
+# --------------------------------------------------------------------------------------
+# Attribution (issue 26): a filtered impact labels the one event that holds it
+
+
+def ring(t_ns: np.ndarray, onset_ns: int, amplitude_g: float) -> np.ndarray:
+    """An impact as the body feels it: a 25 Hz oscillation starting at ``onset_ns`` and
+    decaying in 30 ms, its first crest ``amplitude_g`` G x 0.68, in m/s^2."""
+    u = (t_ns - onset_ns) * 1e-9
+    return np.where(u >= 0, amplitude_g * G * np.exp(-u / 0.03) * np.sin(2 * np.pi * 25 * u), 0.0)
+
+
+def boundary_ns(k: int) -> int:
+    """Where event k starts on the 10 m/s straight of the crafted logs."""
+    return T0_NS + int(round(k * EVENT_S * 1e9))
+
+
+def with_attribution(rule: str) -> PipelineConfig:
+    cfg = default_config()
+    return dataclasses.replace(cfg, label=dataclasses.replace(cfg.label, attribution=rule))
+
+
+AttributionRun = tuple[Workspace, LabelResult, dict[str, np.ndarray]]
+
+
+@pytest.fixture(scope="module")
+def attribution_runs(
+    tmp_path_factory: pytest.TempPathFactory,
+) -> tuple[np.ndarray, np.ndarray, dict[str, AttributionRun]]:
+    """20 s straight at 10 m/s (1.4 m events of 0.14 s, 22.4 mph: rough from 0.447 G) on flat
+    ground but for three impacts: a 1.5 G one starting 16 ms before event 50 (its largest
+    crest in event 50, its leading flank reaching into event 49), and two separate ones in
+    events 100 and 101 (1.2 G 80 ms into event 100, 0.9 G 20 ms into event 101: crests
+    80 ms apart). Labelled under each rule: (IMU times, z accel, rule -> (workspace, result,
+    events))."""
+    t = T0_NS + np.arange(2000, dtype=np.int64) * PERIOD_NS
+    az = np.full(t.size, G)
+    az += ring(t, boundary_ns(50) - 16_000_000, 1.5)
+    az += ring(t, boundary_ns(100) + 80_000_000, 1.2)
+    az += ring(t, boundary_ns(101) + 20_000_000, 0.9)
+    accel = np.stack([np.zeros(t.size), np.zeros(t.size), az], axis=1)
+    x = SPEED_MPS * (t - T0_NS) * 1e-9
+    runs: dict[str, AttributionRun] = {}
+    for rule in ("impact", "span_peak"):
+        root = tmp_path_factory.mktemp(f"attribution_{rule}")
+        ws = crafted_log(root, t, accel, t, x, np.full(t.size, SPEED_MPS))
+        result = run_label(ws, LOG_ID, with_attribution(rule))
+        table = read_table(ws.log_table(LOG_ID, "events"), "events").to_pydict()
+        runs[rule] = (ws, result, {k: np.array(v) for k, v in table.items()})
+    return t, az, runs
+
+
+def by_event(ev: dict[str, np.ndarray], column: str, k: int) -> float:
+    (i,) = np.flatnonzero(ev["event_id"] == k)
+    return float(ev[column][i])
+
+
+def test_one_impact_labels_one_event(
+    attribution_runs: tuple[np.ndarray, np.ndarray, dict[str, AttributionRun]],
+) -> None:
+    """The impact at the start of event 50: under span_peak its flank at the boundary makes
+    event 49 rough too; under impact only event 50, which holds the compensated time of its
+    largest crest, is rough, with the same shock as before. The manifest and the summary say
+    what changed."""
+    _, _, runs = attribution_runs
+    ws, result, ev = runs["impact"]
+    _, old_result, old = runs["span_peak"]
+    assert old["event_id"][old["rough"]].tolist() == [49, 50, 100, 101]
+    assert ev["event_id"][ev["rough"]].tolist() == [50, 100, 101]
+    # The largest crest's time lies in event 50, and its shock is the span peak bit for bit.
+    t50 = by_event(ev, "shock_t_ns", 50)
+    assert boundary_ns(50) <= t50 < boundary_ns(51)
+    assert by_event(ev, "shock_g", 50) == by_event(old, "shock_g", 50)
+    assert by_event(ev, "shock_t_ns", 50) == by_event(old, "shock_t_ns", 50)
+    # Under span_peak, event 49's shock was the flank at its very end.
+    assert boundary_ns(50) - by_event(old, "shock_t_ns", 49) < 1_000_000
+    assert by_event(old, "shock_g", 49) > 0.9 * by_event(old, "shock_g", 50)
+    header = ws.manifest(LOG_ID).read()["label"]
+    changed = header["attribution"]
+    assert changed == result.attribution
+    assert changed["rule"] == "impact" and changed["applied"] is True
+    assert (changed["rough_span_peak"], changed["rough"], changed["rough_lost"]) == (4, 3, 1)
+    assert changed["rough_span_peak"] == old_result.rough and changed["rough"] == result.rough
+    assert changed["events_reduced"] == int((ev["shock_g"] < old["shock_g"]).sum()) >= 1
+    assert "rough_lost_featureless" not in changed  # no truth on a crafted log
+    assert "impact attribution: 1 of span_peak's 4 rough events" in result.summary()
+    assert "attribution" not in old_result.summary()
+    assert ws.manifest(LOG_ID).stage("label") is not None
+    assert run_label(ws, LOG_ID, default_config()).attribution == changed  # up to date
+
+
+def test_two_impacts_keep_their_own(
+    attribution_runs: tuple[np.ndarray, np.ndarray, dict[str, AttributionRun]],
+) -> None:
+    """Two impacts 80 ms apart across the boundary of events 100 and 101: the smaller is not
+    the filter's response to the larger, so each event keeps its own, as under span_peak."""
+    _, _, runs = attribution_runs
+    ev, old = runs["impact"][2], runs["span_peak"][2]
+    for k in (100, 101):
+        assert by_event(ev, "rough", k)
+        assert by_event(ev, "shock_g", k) == by_event(old, "shock_g", k)
+        assert boundary_ns(k) <= by_event(ev, "shock_t_ns", k) < boundary_ns(k + 1)
+    assert by_event(ev, "shock_g", 101) < 0.9 * by_event(ev, "shock_g", 100)
+
+
+def test_span_peak_is_the_rule_before(
+    attribution_runs: tuple[np.ndarray, np.ndarray, dict[str, AttributionRun]],
+) -> None:
+    """span_peak gives, bit for bit, what the old function path gives (the filter streamed,
+    event_shock's band-limited peak over each event's span), and the impact rule never
+    raises a shock above it."""
+    t, az, runs = attribution_runs
+    ws, result, old = runs["span_peak"]
+    fir = design_shock_fir(100.0)
+    (out,) = filter_stream([(t, az)], fir.taps, 15_000_000)
+    for i, k in enumerate(old["event_id"].tolist()):
+        got = event_shock(
+            out.t_ns, out.value, out.run, boundary_ns(k), boundary_ns(k + 1), "max_abs", 15_000_000
+        )
+        assert got is not None
+        assert old["shock_g"][i] == got.shock_mps2 / G
+        assert old["shock_t_ns"][i] == got.peak_t_ns
+    assert ws.manifest(LOG_ID).read()["label"]["attribution"] == {
+        "rule": "span_peak",
+        "applied": False,
+    }
+    new = runs["impact"][2]
+    assert new["event_id"].tolist() == old["event_id"].tolist()
+    assert runs["impact"][1].rejects == result.rejects
+    assert np.all(new["shock_g"] <= old["shock_g"])
+
+
+def test_a_neighbours_smear_is_small_and_still_labelled(
+    attribution_runs: tuple[np.ndarray, np.ndarray, dict[str, AttributionRun]],
+) -> None:
+    """Event 49 holds nothing but the flank of event 50's impact: a small shock (its own
+    crest of the impact's lead-in, 0.13 G against 0.81), not NaN, not rejected. Event 102
+    holds only the decaying tail of event 101's: all of it is the filter's response to that
+    crest, so 0.0, labelled all the same."""
+    _, _, runs = attribution_runs
+    ev, old = runs["impact"][2], runs["span_peak"][2]
+    assert {49, 102} <= set(ev["event_id"].tolist())
+    assert np.all(np.isfinite(ev["shock_g"])) and np.all(np.isfinite(ev["ruggedness"]))
+    s49 = by_event(ev, "shock_g", 49)
+    print(f"\nevent 49: {by_event(old, 'shock_g', 49):.3f} G -> {s49:.3f} G")
+    assert 0.0 < s49 < 0.2 * by_event(ev, "shock_g", 50)
+    assert boundary_ns(49) <= by_event(ev, "shock_t_ns", 49) < boundary_ns(50)
+    assert by_event(old, "shock_g", 102) > 0.02
+    assert by_event(ev, "shock_g", 102) == 0.0 and not by_event(ev, "rough", 102)
+    assert runs["impact"][1].attribution["events_without_own_impact"] >= 1  # type: ignore[index]
+
+
+def test_attribution_applies_to_the_peak_only() -> None:
+    """rms has no crest: nothing is attributed or counted; under impact the counts compare
+    the two rules' ruggedness at the threshold."""
+    from toolkit.stages.label import attribution_summary
+
+    shock = np.array([5.0, 1.0, 0.0])
+    span = np.array([5.0, 4.5, 0.3])
+    own = np.array([True, True, False])
+    speed = np.full(3, 22.4)
+    args = (shock, span, own, speed, G, 0.02)
+    assert attribution_summary("impact", "rms", *args) == {"rule": "impact", "applied": False}
+    assert attribution_summary("span_peak", "max_abs", *args) == {
+        "rule": "span_peak",
+        "applied": False,
+    }
+    got = attribution_summary("impact", "max_abs", *args, np.array([False, True, True]))
+    assert got == {
+        "rule": "impact",
+        "applied": True,
+        "events_reduced": 2,
+        "events_without_own_impact": 1,
+        "rough_span_peak": 2,
+        "rough": 1,
+        "rough_lost": 1,
+        "rough_lost_featureless": 1,
+    }
+
+
+def test_attribution_is_configured() -> None:
+    """``[label] attribution``: "impact" by default, "span_peak" the rule before; anything
+    else is refused, naming the key."""
+    assert default_config().label.attribution == "impact"
+    assert parse_config("[label]\nattribution = 'span_peak'\n").label.attribution == "span_peak"
+    with pytest.raises(ConfigError) as info:
+        parse_config("[label]\nattribution = 'nearest'\n", "x.toml")
+    message = str(info.value)
+    assert message.startswith("x.toml: label.attribution") and "one of" in message
 
 
 def test_a_stop_makes_no_event_and_divides_by_nothing(tmp_path: Path) -> None:
