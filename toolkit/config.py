@@ -260,6 +260,9 @@ class LearnConfig:
     #: What a step of the search must improve on the training split: "objective" (eq. 6,
     #: the paper's), "auc" or "pauc" (toolkit.model.ascent); mu is eq. (6)'s either way.
     accept: Annotated[str, Rule(choices=("objective", "auc", "pauc"))] = "objective"
+    #: Early stopping: the share of training events held out to pick the rotation that ranks
+    #: them best (0: none, the paper's search), in blocks of 50 consecutive events.
+    validation_share: Annotated[float, Rule(ge=0.0, le=0.5)] = 0.0
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ from toolkit.model.ascent import (
     best_threshold,
     coordinate_ascent,
     partial_auc,
+    validation_events,
 )
 from toolkit.model.patches import build_patches, lead_order
 from toolkit.model.roughness import PairTable, RoughnessParams, score_events
@@ -253,3 +254,36 @@ def test_far_laser_noise_and_a_near_laser_step() -> None:
         results[name] = roc_auc_score(y_test, r)
     assert results["default"] >= 0.95
     assert results["paper"] < results["default"]
+
+
+def test_validation_events_are_whole_blocks_and_need_both_classes() -> None:
+    rough = np.zeros(600, bool)
+    rough[::7] = True
+    held = validation_events(rough, 1 / 3, 50)
+    assert held is not None and held.sum() == 200
+    assert held[100:150].all() and not held[:100].any()  # every third block of 50
+    assert validation_events(rough, 0.0, 50) is None
+    only_first = np.zeros(600, bool)
+    only_first[3] = True
+    assert validation_events(only_first, 1 / 3, 50) is None  # nothing rough held out
+
+
+def test_early_stopping_keeps_the_rotation_that_ranks_held_out_events_best() -> None:
+    """With a held-out share, the result's parameters rank the held-out events at least as
+    well as the start and as every later rotation the search passed; mu is eq. (6)'s on all
+    training events."""
+    rng = np.random.default_rng(11)
+    raw, _ = _planted(rng, 90)
+    y = rng.random(90) < 0.3
+    source = PairTable(make_patches(raw))
+    cfg = _config(iterations=5, accept="auc", validation_share=1 / 3, validation_block=5)
+    result = coordinate_ascent(source, y, cfg)
+    held = validation_events(y, 1 / 3, 5)
+    assert held is not None
+    val = np.array(result.validation_history)
+    assert val.size == 5 and np.all(np.diff(val) >= 0)
+    r = score_events(source, result.params).r_combined
+    assert roc_auc_score(y[held], r[held]) == pytest.approx(val[-1], abs=1e-12)
+    start = score_events(source, RoughnessParams.from_vector(cfg.initial, 0.0)).r_combined
+    assert val[-1] >= roc_auc_score(y[held], start[held])
+    assert result.params.mu == best_threshold(r, y, 5.0).mu

@@ -38,6 +38,13 @@ repeats a fixed number of times. Decisions the paper leaves open:
   reached (lambda as configured): the paper's objective still picks the operating point.
   Acceptance is strict, so the search never ends below its starting point on the measure
   it climbs, and it stays deterministic.
+
+- *Early stopping* (``validation_share`` > 0, beyond the paper): with a few dozen training
+  positives every measure can be climbed far past what holds on unseen road. A share of
+  the training events (whole stretches: :func:`validation_events`) is then held out: the
+  steps are judged on the rest, and the search returns the parameters of the rotation (the
+  start included) that ranked the held-out events best by the same measure. mu is then
+  chosen by eq. (6) on every training event.
 - *omega stays a positive integer*: its step is ``max(1, round(I_omega))``, so it keeps moving
   by at least one pair after its increment has halved below 1. Any T outside the model's
   domain (an exponent, upsilon or zeta not positive, omega below 1:
@@ -178,6 +185,10 @@ class AscentConfig:
     free: tuple[bool, ...] = (True,) * 13
     #: What a step must improve (:data:`ACCEPTANCE`); mu is eq. (6)'s either way.
     accept: str = "objective"
+    #: Early stopping: the share of training events held out (0: none), in blocks of
+    #: ``validation_block`` consecutive events (:func:`validation_events`).
+    validation_share: float = 0.0
+    validation_block: int = 50
 
     def __post_init__(self) -> None:
         if self.accept not in ACCEPTANCE:
@@ -207,6 +218,8 @@ class AscentResult:
     accepted_by: str = "objective"
     #: The measure the steps climb (the first of :meth:`Threshold.key`) after each rotation.
     measure_history: tuple[float, ...] = ()
+    #: With early stopping: the best held-out measure so far, after each rotation.
+    validation_history: tuple[float, ...] = ()
 
 
 class _Evaluator:
@@ -228,14 +241,36 @@ class _Evaluator:
             self._alpha = alpha
         return self._top
 
-    def __call__(self, params: RoughnessParams) -> Threshold | None:
+    def scores(self, params: RoughnessParams) -> FloatArray | None:
+        """R_combined (E,) of every training event, None if one is not finite."""
         self.evaluations += 1
         top = self.top(params.alpha, params.omega)
         with np.errstate(over="ignore", invalid="ignore"):
             _, _, r_comb = combine(total_score(top, params.upsilon, params.omega), params.zeta)
         if not np.isfinite(r_comb).all():
             return None
-        return best_threshold(r_comb, self.rough, self.lambda_fp)
+        return r_comb
+
+    def judge(self, r_comb: FloatArray, rows: BoolArray | None = None) -> Threshold:
+        """Eq. (6)'s best threshold and the ROC areas on the events ``rows`` (all: None)."""
+        if rows is None:
+            return best_threshold(r_comb, self.rough, self.lambda_fp)
+        return best_threshold(r_comb[rows], self.rough[rows], self.lambda_fp)
+
+
+def validation_events(rough: BoolArray, share: float, block: int) -> BoolArray | None:
+    """The training events (E,) held out to stop the search early: every k-th block of
+    ``block`` consecutive events (k = round(1 / share)), so the held-out events are whole
+    stretches of road, not neighbours of the fitted ones. None when ``share`` is 0 or either
+    part would lack a rough or a smooth event."""
+    if share <= 0.0:
+        return None
+    k = max(2, round(1.0 / share))
+    held = (np.arange(rough.size) // block) % k == k - 1
+    for part in (held, ~held):
+        if not (rough[part].any() and (~rough[part]).any()):
+            return None
+    return np.asarray(held, bool)
 
 
 def coordinate_ascent(
@@ -249,17 +284,26 @@ def coordinate_ascent(
     ``progress`` is called with the rotation just finished. Deterministic: the same inputs
     give the same result.
     """
-    evaluate = _Evaluator(source, np.asarray(rough, bool), config.lambda_fp)
+    rough = np.asarray(rough, bool)
+    evaluate = _Evaluator(source, rough, config.lambda_fp)
+    held = validation_events(rough, config.validation_share, config.validation_block)
+    fit = None if held is None else ~held
     b = list(config.initial)
     inc = list(config.increments)
     start = RoughnessParams.from_vector(b, 0.0)
     try:
         # Every candidate differs from B in one element: the source may keep B's terms.
         source.hold(start.alpha)
-        best = evaluate(start) if start.admissible() else None
-        if best is None:
+        r0 = evaluate.scores(start) if start.admissible() else None
+        if r0 is None:
             raise ValueError(f"the initial parameters {b} are outside the model's domain")
-        first = best
+        best = evaluate.judge(r0, fit)
+        first = evaluate.judge(r0)
+        # Early stopping: the rotation (0: the start) whose parameters rank the held-out
+        # events best, by the measure the steps climb.
+        kept_b, r_best = list(b), r0
+        kept_val = -np.inf if held is None else evaluate.judge(r0, held).key(config.accept)[0]
+        val_history: list[float] = []
         history: list[float] = []
         measures: list[float] = []
         steps: list[tuple[int, str, float, float]] = []
@@ -274,17 +318,31 @@ def coordinate_ascent(
                     candidate = RoughnessParams.from_vector(t, 0.0)
                     if not candidate.admissible():
                         continue
-                    got = evaluate(candidate)
-                    if got is not None and got.beats(best, config.accept):
-                        b, best = t, got
+                    r = evaluate.scores(candidate)
+                    got = None if r is None else evaluate.judge(r, fit)
+                    if r is not None and got is not None and got.beats(best, config.accept):
+                        b, best, r_best = t, got, r
                         source.hold(candidate.alpha)
                         steps.append((rotation, B_NAMES[j], t[j], got.objective))
                         break
             inc = [v / 2.0 for v in inc]
             history.append(best.objective)
             measures.append(best.key(config.accept)[0])
+            if held is not None and steps and steps[-1][0] == rotation:
+                val = evaluate.judge(r_best, held).key(config.accept)[0]
+                if val > kept_val:
+                    kept_b, kept_val = list(b), val
+            if held is not None:
+                val_history.append(kept_val)
             if progress is not None:
                 progress(rotation + 1)
+        if held is not None:
+            # The kept parameters, judged (and mu chosen) on every training event.
+            b = kept_b
+            r_kept = evaluate.scores(RoughnessParams.from_vector(b, 0.0))
+            if r_kept is None:  # scored finite when kept; cannot fail
+                raise RuntimeError("kept parameters no longer score")
+            best = evaluate.judge(r_kept)
     finally:
         source.hold(None)
     params = RoughnessParams.from_vector(b, best.mu)
@@ -302,6 +360,7 @@ def coordinate_ascent(
         start=first,
         accepted_by=config.accept,
         measure_history=tuple(measures),
+        validation_history=tuple(val_history),
     )
 
 
@@ -323,4 +382,5 @@ __all__ = [
     "coordinate_ascent",
     "initial_vector",
     "partial_auc",
+    "validation_events",
 ]

@@ -151,6 +151,7 @@ def ascent_config(
         iterations=lc.iterations,
         free=free if free is not None else (True,) * 13,
         accept=lc.accept,
+        validation_share=lc.validation_share,
     )
 
 
@@ -239,6 +240,8 @@ def model_json(
         "evaluations": result.evaluations,
         "objective_by_iteration": list(result.history),
         "accepted_measure_by_iteration": list(result.measure_history),
+        "validation_share": config.validation_share,
+        "validation_measure_by_iteration": list(result.validation_history),
         "steps": [
             {"iteration": i, "parameter": n, "value": v, "objective": j}
             for i, n, v, j in result.steps
