@@ -22,8 +22,9 @@ from sklearn.metrics import roc_auc_score, roc_curve
 
 from toolkit.config import load_config
 from toolkit.model.ascent import coordinate_ascent
+from toolkit.model.baseline import BaselineParams
 from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
-from toolkit.stages import learn
+from toolkit.stages import evaluate, learn
 from toolkit.workspace import Workspace
 
 #: Initial guesses tried (alpha_1..alpha_10, upsilon, omega, zeta).
@@ -49,6 +50,7 @@ def main() -> None:
     ap.add_argument("--accept", nargs="+", default=["objective", "auc", "pauc"])
     ap.add_argument("--initial", nargs="+", default=list(INITIAL))
     ap.add_argument("--validation", type=float, nargs="+", default=[0.0])
+    ap.add_argument("--baseline", action="store_true", help="also the closest-laser race test")
     args = ap.parse_args()
     for root in args.workspaces:
         ws = Workspace(root)
@@ -59,6 +61,19 @@ def main() -> None:
         y = events.column("rough").to_numpy(zero_copy_only=False).astype(bool)
         print(f"{root}: train {y[train].sum()} rough of {train.sum()}, test {y[test].sum()} "
               f"of {test.sum()}")  # fmt: skip
+        if args.baseline:
+            # The race test on the closest laser (sect. 7.1), as evaluate trains it.
+            model = dataclasses.replace(config.model, point_sample="nearest_laser")
+            order = learn.laser_order(ws, model)
+            near = learn.patches_of(ws, events, config.model, only_laser=order[0], order=order)
+            ev = config.evaluate
+            bp = BaselineParams(ev.baseline_cell_m, ev.baseline_delta_m, ev.baseline_sigma0_m,
+                                ev.baseline_growth_m2_per_s, ev.baseline_confidence)  # fmt: skip
+            got = evaluate._baseline(near, bp, train, y, config.learn)
+            r = np.nan_to_num(got.scores.r_combined, nan=-np.inf)
+            auc_te, tpr = rates(y[test], r[test])
+            print(f"  race test, closest laser {order[0]}: test AUC {auc_te:.3f} TPR "
+                  f"{tpr[0]:.2f}/{tpr[1]:.2f}/{tpr[2]:.2f}", flush=True)  # fmt: skip
         for sample in args.samples:
             model = dataclasses.replace(config.model, point_sample=sample)
             order = learn.laser_order(ws, model)

@@ -240,7 +240,9 @@ class ModelConfig:
     #: Which points a patch with more than max_points_per_wheel keeps: "hash" (a uniform,
     #: reproducible sample of all lasers, the paper's), "nearest_laser" (the nearest laser's
     #: first) or "freshest" (those seen last before the event). toolkit.model.patches.
-    point_sample: Annotated[str, Rule(choices=("hash", "freshest", "nearest_laser"))] = "hash"
+    point_sample: Annotated[str, Rule(choices=("hash", "freshest", "nearest_laser"))] = (
+        "nearest_laser"
+    )
 
 
 @dataclass(frozen=True)
@@ -259,7 +261,7 @@ class LearnConfig:
     increment_zeta: Annotated[float, Rule(gt=0.0)]
     #: What a step of the search must improve on the training split: "objective" (eq. 6,
     #: the paper's), "auc" or "pauc" (toolkit.model.ascent); mu is eq. (6)'s either way.
-    accept: Annotated[str, Rule(choices=("objective", "auc", "pauc"))] = "objective"
+    accept: Annotated[str, Rule(choices=("objective", "auc", "pauc"))] = "auc"
     #: Early stopping: the share of training events held out to pick the rotation that ranks
     #: them best (0: none, the paper's search), in blocks of 50 consecutive events.
     validation_share: Annotated[float, Rule(ge=0.0, le=0.5)] = 0.0

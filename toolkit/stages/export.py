@@ -888,6 +888,13 @@ def _shock_definition(config: PipelineConfig) -> str:
         f"removes 0-{lc.fir_stop_hz:g} Hz (gain 1 within 5 % from {lc.fir_pass_hz:g} Hz up): "
         "removing 0 Hz removes gravity, the rest the suspension's oscillations (paper, sect. "
         f"5.1), in G (1 G = {lc.gravity_mps2:g} m/s^2)."
+        + (
+            " Each filtered impact counts for the one event whose span holds its peak time: "
+            "the filter's response to an impact in a neighbouring event is left out "
+            '(`label.attribution = "impact"`).'
+            if lc.attribution == "impact" and lc.shock_statistic == "max_abs"
+            else ""
+        )
     )
 
 
