@@ -300,3 +300,17 @@ def test_bad_inputs_are_refused() -> None:
     p = _patches([[], []])
     with pytest.raises(ValueError, match="distinct"):
         patch_features(p, ["/laser/a", "/laser/a"])
+
+
+def test_a_feature_no_training_event_has_is_left_out() -> None:
+    """A column with no finite value on the training rows (a laser the model's points never
+    came from) is left out instead of breaking the fit; the scores equal a fit without it."""
+    rng = np.random.default_rng(4)
+    x = rng.normal(size=(300, 3))
+    y = x[:, 0] + 0.3 * rng.normal(size=300) > 1.2
+    train = np.arange(300) < 200
+    with_nan = np.c_[x, np.full(300, np.nan)]
+    got, summary = train_and_score(with_nan, y, train)
+    want, _ = train_and_score(x, y, train)
+    np.testing.assert_array_equal(got, want)
+    assert summary["features_left_out"] == 1 and summary["features"] == 3

@@ -271,7 +271,8 @@ def test_the_parameters_reproduce_the_recorded_rates_on_the_training_split(
     model: dict[str, Any],
 ) -> None:
     """Scoring the training events again, from the tables, with the model's building blocks
-    (patches, pair table, eqs. 2-5) and the parameters read back from ``model.json``, and
+    (patches sampled as ``model.json`` says, pair table, eqs. 2-5) and the parameters read
+    back from ``model.json``, and
     calling an event rough when ``R_combined > mu``, gives the true- and false-positive
     rates the file records: the file holds the parameters that earned its objective, and
     its mu sits where the learner put it. The recorded training AUC is the ranking's."""
@@ -280,8 +281,14 @@ def test_the_parameters_reproduce_the_recorded_rates_on_the_training_split(
     train = events.filter(pc.equal(events.column("split"), "train"))
     rough = train.column("rough").to_numpy(zero_copy_only=False).astype(bool)
     points = read_table(ws.event_points_table, "event_points")
+    t = model["training"]
     patches = build_patches(
-        train, points, model["training"]["max_points_per_wheel"], source=ws.event_points_table
+        train,
+        points,
+        t["max_points_per_wheel"],
+        sample=t["point_sample"],
+        laser_order=t["laser_order"],
+        source=ws.event_points_table,
     )
     assert int(patches.count.sum()) == model["training"]["points"]
     params = RoughnessParams(

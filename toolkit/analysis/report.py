@@ -159,6 +159,8 @@ def _points_text(points: Mapping[str, Any] | None) -> str:
         "freshest": "seen last first",
     }.get(str(points.get("sample")), str(points.get("sample")))
     text = f"{points['only_laser']} only" if points.get("only_laser") else sample
+    if points.get("same_as"):
+        text += f" (the same points as {METHOD_NAMES.get(points['same_as'], points['same_as'])})"
     return f"{text}; true heights" if points.get("z") else text
 
 

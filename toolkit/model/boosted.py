@@ -295,7 +295,8 @@ def train_and_score(
             the class weighting: higher is rougher; no saturation at 0 or 1, so no ties made
             by rounding) for every event, training and test.
         summary: JSON-ready facts of the fit (settings, rows, rough rows, iterations,
-            scikit-learn's version, threads).
+            scikit-learn's version, threads, features used and left out: a feature no
+            training event has is left out).
 
     ValueError if the shapes disagree or the training split lacks a class.
     """
@@ -312,6 +313,11 @@ def train_and_score(
         raise ValueError(
             f"the training split needs rough and smooth events ({n_rough} of {y_train.size} rough)"
         )
+    # A feature no training event has (a laser none of the model's points came from: with
+    # the nearest laser first, the far lasers' columns) tells the trees nothing, and
+    # scikit-learn's binning cannot bin a column without one finite value: left out.
+    seen = np.isfinite(X_train).any(axis=0)
+    X, X_train = X[:, seen], X_train[:, seen]
     model = config.classifier()
     with threadpool_limits(limits=THREADS, user_api="openmp"):
         model.fit(X_train, y_train)
@@ -322,6 +328,7 @@ def train_and_score(
         "config": asdict(config),
         "threads": THREADS,
         "features": int(X.shape[1]),
+        "features_left_out": int(np.count_nonzero(~seen)),
         "train_events": int(y_train.size),
         "train_rough": n_rough,
         "iterations": int(model.n_iter_),

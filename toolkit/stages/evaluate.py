@@ -11,15 +11,27 @@ Inputs: the training tables (as ``terrain tables`` wrote them) and ``model.json`
 - ``index.html`` with ``roc.png``, ``speed_tradeoff.png`` (and ``speed_tradeoff.csv``), and
   copies of each log's Fig. 4 and, for calibration logs, Fig. 5.
 
-Methods (sect. 7.1 and beyond):
+Methods (sect. 7.1 and beyond); each summary entry says which points it scored:
 
-- ``self_supervised``: the learned model (``model.json``).
+- ``self_supervised``: the learned model (``model.json``), on the configured points.
+- ``paper_exact``: the paper's method as written, trained here: a uniform sample of every
+  laser's points (``point_sample = "hash"``) and steps accepted by eq. (6) itself
+  (``accept = "objective"``), from the configured initial guess. The same row as
+  ``self_supervised`` when the configuration already is the paper's.
 - ``baseline_all_lasers`` / ``baseline_closest_laser``: the race's obstacle test
   (:mod:`toolkit.model.baseline`) generating W, with upsilon, omega, zeta and mu trained
-  separately on the training split, as sect. 7.1 did; once on all lasers' points and once on
-  the closest laser's alone. The closest laser is ``[evaluate] baseline_closest_laser``, or
-  by default the one whose points under the tyres were seen the shortest time before the
-  rear axle got there (the nearest beams: at any speed they land closest to the vehicle).
+  separately on the training split, as sect. 7.1 did; once on a uniform sample of all lasers'
+  points and once on the closest laser's alone. The closest laser is ``[evaluate]
+  baseline_closest_laser``, or by default the one whose points under the tyres were seen the
+  shortest time before the rear axle got there (the nearest beams: at any speed they land
+  closest to the vehicle).
+- ``baseline_model_points``: the race test on the model's own points, and
+  ``model_closest_laser``: the model learned on the closest laser's points, so that the model
+  and the race test are compared on the same points as well as each on its own. When the
+  model's points are the closest laser's (the nearest-laser sample usually keeps nothing
+  else), each is the same computation as its twin and is reported with ``same_as``.
+- ``boosted`` (beyond the paper): gradient-boosted trees over per-patch features of the
+  model's points (:mod:`toolkit.model.boosted`), fitted on the training split alone.
 - ``oracle`` (simulated logs only): the model's own search, trained and tested on the true
   terrain height under each point instead of the measured z (pose, laser and range errors
   removed; the points' places and times kept). It bounds what better z alone could buy.
@@ -27,6 +39,9 @@ Methods (sect. 7.1 and beyond):
   pitch-rate terms (alpha_7 = alpha_9 = 0) removed, what each part of eq. (4) buys; and
   ``no_learning``, the search's initial guess as it stands (mu from the training split),
   what the learning itself buys.
+
+Every entry also gives the share of test events a method scored exactly 0 (eq. 3's W >= 0
+ties them) and the warnings say when a split has fewer than 30 rough events.
 
 Speed control (sect. 7.2, :mod:`toolkit.model.speed_control`): each log's test events in
 driving order, the reactive controller swept over ``slow_fractions`` x
@@ -216,6 +231,17 @@ def _baseline(
     r_comb = np.where(none, np.nan, s.r_combined)
     return MethodScores(
         EventScores(s.r_left, s.r_right, r_comb, s.predicted & ~none), got.trained, got.params
+    )
+
+
+def _same_points(a: TyrePatches, b: TyrePatches) -> bool:
+    """Whether two patch sets hold the same points in the same places (every feature)."""
+    if a.valid.shape != b.valid.shape or not np.array_equal(a.valid, b.valid):
+        return False
+    v = a.valid
+    return all(
+        np.array_equal(getattr(a, k)[v], getattr(b, k)[v])
+        for k in ("x", "y", "z", "tau", "gamma", "psi")
     )
 
 
@@ -487,11 +513,15 @@ def run_evaluate(
         if closest is not None and learnable
         else None
     )
+    # With the nearest laser first, a patch usually holds that laser's points alone (it
+    # puts ~130 under a tyre): then the rows on "the model's points" and on "the closest
+    # laser's points" are the same computation, done once and reported under both names.
+    same = nearest is not None and _same_points(patches, nearest)
     point_sets: dict[str, tuple[TyrePatches | None, dict[str, Any]]] = {
         "baseline_all_lasers": (uniform, {"sample": "hash", "only_laser": None}),
         "baseline_closest_laser": (nearest, {"sample": "hash", "only_laser": closest}),
         "baseline_model_points": (
-            patches if config.model.point_sample != "hash" else None,
+            patches if config.model.point_sample != "hash" and not same else None,
             model_points,
         ),
     }
@@ -501,6 +531,9 @@ def run_evaluate(
             continue
         methods[name] = _baseline(p, bp, train, rough, config.learn)
         points[name] = where
+    if same and learnable and config.model.point_sample != "hash":
+        methods["baseline_model_points"] = methods["baseline_closest_laser"]
+        points["baseline_model_points"] = {**model_points, "same_as": "baseline_closest_laser"}
     if learnable:
         tell("training the paper-exact model")
         paper = _paper_exact(config)
@@ -515,7 +548,13 @@ def run_evaluate(
                 paper[1],
             )
         points["paper_exact"] = {"sample": "hash", "only_laser": None}
-        if nearest is not None:
+        if same:
+            methods["model_closest_laser"] = learned
+            points["model_closest_laser"] = {
+                **points["baseline_closest_laser"],
+                "same_as": "self_supervised",
+            }
+        elif nearest is not None:
             tell("training the model on the closest laser's points")
             methods["model_closest_laser"] = _train_and_score(
                 pair_table(nearest.take(train_groups), config.model, workspace.config_path),
