@@ -50,6 +50,7 @@ def main() -> None:
     ap.add_argument("--accept", nargs="+", default=["objective", "auc", "pauc"])
     ap.add_argument("--initial", nargs="+", default=list(INITIAL))
     ap.add_argument("--validation", type=float, nargs="+", default=[0.0])
+    ap.add_argument("--lead", type=int, nargs="+", default=[0], help="look-ahead term: 0 off, 1 on")
     ap.add_argument("--baseline", action="store_true", help="also the closest-laser race test")
     args = ap.parse_args()
     for root in args.workspaces:
@@ -80,11 +81,13 @@ def main() -> None:
             patches = learn.patches_of(ws, events, model, order=order)
             pairs = learn.pair_table(patches.take(np.repeat(train, 2)), model, root)
             everything = model_pairs(patches)
-            for init, accept, val in itertools.product(args.initial, args.accept, args.validation):
+            for init, accept, val, lead in itertools.product(
+                args.initial, args.accept, args.validation, args.lead
+            ):
                 alpha, ups, om, zeta = INITIAL[init]
                 lc = dataclasses.replace(
                     config.learn, initial_alpha=alpha, initial_upsilon=ups, initial_omega=om,
-                    initial_zeta=zeta, accept=accept, validation_share=val,
+                    initial_zeta=zeta, accept=accept, validation_share=val, lead_term=bool(lead),
                 )  # fmt: skip
                 t0 = time.perf_counter()
                 res = coordinate_ascent(pairs, y[train], learn.ascent_config(lc))
@@ -96,7 +99,8 @@ def main() -> None:
                 auc_te, tpr = rates(y[test], r[test])
                 zero = float(np.mean(r[test] == 0.0))
                 print(
-                    f"  {sample:13s} {init:11s} {accept:9s} val {val:.2f} train AUC {auc_tr:.3f} | test AUC "
+                    f"  {sample:13s} {init:11s} {accept:9s} val {val:.2f} lead {lead} "
+                    f"train AUC {auc_tr:.3f} | test AUC "
                     f"{auc_te:.3f} (start {auc0:.3f}) TPR {tpr[0]:.2f}/{tpr[1]:.2f}/{tpr[2]:.2f} "
                     f"at0 {100 * zero:.0f}% J {res.objective:.3f} ({time.perf_counter() - t0:.0f} s)",
                     flush=True,

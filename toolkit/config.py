@@ -265,6 +265,12 @@ class LearnConfig:
     #: Early stopping: the share of training events held out to pick the rotation that ranks
     #: them best (0: none, the paper's search), in blocks of 50 consecutive events.
     validation_share: Annotated[float, Rule(ge=0.0, le=0.5)] = 0.0
+    #: Beyond the paper: a look-ahead penalty in eq. (4), alpha_11 |lead|^alpha_12 per point
+    #: (toolkit.model.roughness), learned like the others from initial_lead with
+    #: increment_lead; false is the paper's eq. (4).
+    lead_term: bool = False
+    initial_lead: Annotated[tuple[float, ...], Rule(length=2)] = (0.01, 1.0)
+    increment_lead: Annotated[tuple[float, ...], Rule(length=2, gt=0.0)] = (0.005, 0.5)
 
 
 @dataclass(frozen=True)
@@ -542,6 +548,12 @@ def _validate(cfg: PipelineConfig, source: str | Path) -> None:
                 f"positive (got {cfg.learn.initial_alpha[i]!r})",
                 path=source,
             )
+    if not cfg.learn.initial_lead[1] > 0.0:
+        raise ConfigError(
+            "learn.initial_lead: its second value (alpha_12) is an exponent and must be "
+            f"positive (got {cfg.learn.initial_lead[1]!r})",
+            path=source,
+        )
     closest = cfg.evaluate.baseline_closest_laser
     if closest is not None and closest not in cfg.topics.lasers:
         raise ConfigError(

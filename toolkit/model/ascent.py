@@ -66,6 +66,7 @@ from numpy.typing import NDArray
 
 from toolkit.model.roughness import (
     N_ALPHA,
+    N_ALPHA_LEAD,
     RoughnessParams,
     TopScores,
     combine,
@@ -77,7 +78,20 @@ BoolArray = NDArray[np.bool_]
 
 #: Names of the 13 elements of B, in order.
 B_NAMES = tuple(f"alpha_{i}" for i in range(1, N_ALPHA + 1)) + ("upsilon", "omega", "zeta")
+#: With the look-ahead term (:mod:`toolkit.model.roughness`), B has 15 elements.
+B_NAMES_LEAD = tuple(f"alpha_{i}" for i in range(1, N_ALPHA_LEAD + 1)) + (
+    "upsilon",
+    "omega",
+    "zeta",
+)
 OMEGA = 11
+
+
+def b_names(size: int) -> tuple[str, ...]:
+    """The names of B's elements for a B of ``size`` (13, or 15 with the look-ahead term)."""
+    return B_NAMES if size == len(B_NAMES) else B_NAMES_LEAD
+
+
 #: What decides whether a step improves (module docstring): eq. (6) first, the AUC first,
 #: or the partial AUC first.
 ACCEPTANCE = ("objective", "auc", "pauc")
@@ -182,7 +196,8 @@ class AscentConfig:
     increments: tuple[float, ...]
     lambda_fp: float = 5.0
     iterations: int = 20
-    free: tuple[bool, ...] = (True,) * 13
+    #: Which elements of B move (one flag each; empty: all).
+    free: tuple[bool, ...] = ()
     #: What a step must improve (:data:`ACCEPTANCE`); mu is eq. (6)'s either way.
     accept: str = "objective"
     #: Early stopping: the share of training events held out (0: none), in blocks of
@@ -193,6 +208,15 @@ class AscentConfig:
     def __post_init__(self) -> None:
         if self.accept not in ACCEPTANCE:
             raise ValueError(f"accept must be one of {ACCEPTANCE}, not {self.accept!r}")
+        n = len(self.initial)
+        if n not in (len(B_NAMES), len(B_NAMES_LEAD)) or len(self.increments) != n:
+            raise ValueError(f"B and its increments need 13 or 15 elements, not {n}")
+        if self.free and len(self.free) != n:
+            raise ValueError(f"free needs {n} flags, not {len(self.free)}")
+
+    def moves(self, j: int) -> bool:
+        """Whether element ``j`` of B may change."""
+        return not self.free or self.free[j]
 
 
 @dataclass(frozen=True)
@@ -290,6 +314,8 @@ def coordinate_ascent(
     fit = None if held is None else ~held
     b = list(config.initial)
     inc = list(config.increments)
+    names = b_names(len(b))
+    omega = names.index("omega")
     start = RoughnessParams.from_vector(b, 0.0)
     try:
         # Every candidate differs from B in one element: the source may keep B's terms.
@@ -308,10 +334,10 @@ def coordinate_ascent(
         measures: list[float] = []
         steps: list[tuple[int, str, float, float]] = []
         for rotation in range(config.iterations):
-            for j in range(13):
-                if not config.free[j]:
+            for j in range(len(b)):
+                if not config.moves(j):
                     continue
-                step = max(1.0, float(round(inc[j]))) if j == OMEGA else inc[j]
+                step = max(1.0, float(round(inc[j]))) if j == omega else inc[j]
                 for sign in (-1.0, 1.0):
                     t = list(b)
                     t[j] = b[j] + sign * step
@@ -323,7 +349,7 @@ def coordinate_ascent(
                     if r is not None and got is not None and got.beats(best, config.accept):
                         b, best, r_best = t, got, r
                         source.hold(candidate.alpha)
-                        steps.append((rotation, B_NAMES[j], t[j], got.objective))
+                        steps.append((rotation, names[j], t[j], got.objective))
                         break
             inc = [v / 2.0 for v in inc]
             history.append(best.objective)
@@ -374,10 +400,12 @@ def initial_vector(
 __all__ = [
     "ACCEPTANCE",
     "B_NAMES",
+    "B_NAMES_LEAD",
     "PAUC_MAX_FPR",
     "AscentConfig",
     "AscentResult",
     "Threshold",
+    "b_names",
     "best_threshold",
     "coordinate_ascent",
     "initial_vector",

@@ -7,6 +7,7 @@ padded layout every later computation can vectorise over::
 
     group g = 2 * event_index + wheel          (wheel 0 = left, 1 = right)
     x, y, z, tau, gamma, psi : (G, n_max) float64, one row per group, points in columns
+    lead                     : (G, n_max) float64, s the point was seen before its event
     valid                    : (G, n_max) bool, False in the padding
     count                    : (G,) int64, the points kept per group
 
@@ -81,6 +82,10 @@ class TyrePatches:
         x, y, z: (G, n_max) point position in the pose's world frame, m.
         tau: (G, n_max) observation time, s (eq. 1's tau).
         gamma, psi: (G, n_max) estimated roll and pitch rate at that time, rad/s.
+        lead: (G, n_max) how long before its event began the point was seen, s (the
+            event's ``t_start_ns`` less the point's ``t_ns``; 0 when the events table has no
+            start times; None in patches built by hand). The optional look-ahead term of
+            :mod:`toolkit.model.roughness`.
         valid: (G, n_max) True where a point is (padding is False).
         count: (G,) points per group.
         laser: (G, n_max) int16 index into ``lasers`` (-1 in the padding).
@@ -97,6 +102,7 @@ class TyrePatches:
     count: IntArray
     laser: NDArray[np.int16]
     lasers: tuple[str, ...]
+    lead: FloatArray | None = None
 
     @property
     def groups(self) -> int:
@@ -123,6 +129,7 @@ class TyrePatches:
             self.count[groups],
             self.laser[groups],
             self.lasers,
+            None if self.lead is None else self.lead[groups],
         )
 
     def with_z(self, z: FloatArray) -> TyrePatches:
@@ -138,6 +145,7 @@ class TyrePatches:
             self.count,
             self.laser,
             self.lasers,
+            self.lead,
         )
 
 
@@ -269,14 +277,15 @@ def build_patches(
     if sample not in SAMPLES:
         raise ValueError(f"sample must be one of {SAMPLES}, not {sample!r}")
     rank_of = {name: i for i, name in enumerate(laser_order)}
-    # The events' start times, for the freshest sample only (None: the hash sample).
-    fresh_from_ns = None
-    if sample == "freshest":
-        if "t_start_ns" not in events.column_names:
-            raise ValueError("the freshest sample needs the events' t_start_ns")
-        fresh_from_ns = np.asarray(
-            events.column("t_start_ns").to_numpy(zero_copy_only=False), np.int64
-        )
+    # The events' start times: each point's look-ahead, and the freshest sample's order.
+    if sample == "freshest" and "t_start_ns" not in events.column_names:
+        raise ValueError("the freshest sample needs the events' t_start_ns")
+    start_ns = (
+        np.asarray(events.column("t_start_ns").to_numpy(zero_copy_only=False), np.int64)
+        if "t_start_ns" in events.column_names
+        else None
+    )
+    fresh_from_ns = start_ns if sample == "freshest" else None
     index = _EventIndex(events, source)
     kept: list[_Kept] = []
     laser_ids: dict[str, int] = {}  # laser name -> index, in order of first appearance
@@ -331,6 +340,11 @@ def build_patches(
                 )
             values[key] = v
         t_ns = np.asarray(table.column("t_ns").to_numpy(zero_copy_only=False), np.int64)[rows]
+        values["lead"] = (
+            np.asarray((start_ns[event] - t_ns) * 1e-9, np.float64)
+            if start_ns is not None
+            else np.zeros(rows.size)
+        )
         priority = point_priority(t_ns, codes)
         if sample == "nearest_laser":
             # The laser's rank above, the hash's high 48 bits below: a laser's points all
@@ -389,6 +403,7 @@ def build_patches(
         count=count_all,
         laser=laser,
         lasers=lasers,
+        lead=dense("lead"),
     )
 
 

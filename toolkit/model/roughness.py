@@ -19,6 +19,15 @@ of that product: the zeros the mask leaves (the diagonal and the upper triangle,
 a negative score never enters W while a zero is left, and ``W_i = max(score, 0)``. Units: z
 and xy in m, tau in s, gamma and psi in rad/s.
 
+**Beyond the paper, optional: a look-ahead term.** Fig. 4 motivates the time term: pose error
+grows with the time between two scans. A far laser's error grows with its range instead (an
+attitude error times the range: ``benchmarks/README.md``, "The simulator's side of the gap"),
+and two far-laser points of one cell are often seen a fraction of a second apart, so the time
+term cannot discount them. With 12 alphas Delta also subtracts, per point,
+``a11 |lead_r|^a12 + a11 |lead_c|^a12``, where ``lead`` is how long before its event began
+the point was seen (s): the laser's look-ahead distance over the speed, known for every
+point. With 10 alphas (the paper's) the term is absent.
+
 **Where the paper leaves a gap, this implementation decides** (each tested in
 ``tests/model/test_roughness.py``):
 
@@ -72,8 +81,10 @@ FloatArray = NDArray[np.float64]
 Float32Array = NDArray[np.float32]
 
 N_ALPHA = 10
-#: Index of each alpha that is an exponent (0-based: a2, a4, a6, a8, a10).
-EXPONENTS = (1, 3, 5, 7, 9)
+#: The alphas with the optional look-ahead term (beyond the paper): a11, a12.
+N_ALPHA_LEAD = 12
+#: Index of each alpha that is an exponent (0-based: a2, a4, a6, a8, a10, and a12).
+EXPONENTS = (1, 3, 5, 7, 9, 11)
 #: Patches per chunk of the vectorised score (keeps each chunk's ~10 temporaries in cache).
 CHUNK_GROUPS = 512
 #: Patches whose pairs :class:`Blockwise` holds at once (~40 MB of pairs at 40 points a tyre).
@@ -93,16 +104,19 @@ class RoughnessParams:
     mu: float
 
     def vector(self) -> tuple[float, ...]:
-        """The 13-vector B of sect. 6: (alpha_1..alpha_10, upsilon, omega, zeta)."""
+        """The 13-vector B of sect. 6: (alpha_1..alpha_10, upsilon, omega, zeta); 15 with
+        the look-ahead term's alpha_11 and alpha_12."""
         return (*self.alpha, self.upsilon, float(self.omega), self.zeta)
 
     @classmethod
     def from_vector(cls, b: Sequence[float], mu: float) -> RoughnessParams:
+        """From B (13 or 15 elements: the alphas, then upsilon, omega, zeta)."""
+        n = len(b) - 3
         return cls(
-            tuple(float(v) for v in b[:N_ALPHA]),
-            float(b[10]),
-            int(round(b[11])),
-            float(b[12]),
+            tuple(float(v) for v in b[:n]),
+            float(b[n]),
+            int(round(b[n + 1])),
+            float(b[n + 2]),
             float(mu),
         )
 
@@ -112,7 +126,8 @@ class RoughnessParams:
         finite = all(math.isfinite(v) for v in (*self.alpha, self.upsilon, self.zeta))
         return (
             finite
-            and all(self.alpha[i] > 0.0 for i in EXPONENTS)
+            and len(self.alpha) in (N_ALPHA, N_ALPHA_LEAD)
+            and all(self.alpha[i] > 0.0 for i in EXPONENTS if i < len(self.alpha))
             and self.upsilon > 0.0
             and self.zeta > 0.0
             and self.omega >= 1
@@ -189,6 +204,8 @@ class PairTable:
             self.log_dxy[rows] = _log_abs(dxy)
         self.log_gamma = _log_abs(patches.gamma)
         self.log_psi = _log_abs(patches.psi)
+        # Without look-ahead times the term cannot be asked for (it would read -inf logs).
+        self.log_lead = None if patches.lead is None else _log_abs(patches.lead)
         self._groups = patches.groups
         self._pool = pool if pool is not None else new_pool()
         self._held: tuple[tuple[object, ...], tuple[object, ...]] | None = None
@@ -249,8 +266,14 @@ class PairTable:
             total += a[2] * np.exp(a[3] * self.log_dtau[rows])
         if a[4] != 0.0:
             total += a[4] * np.exp(a[5] * self.log_dxy[rows])
-        # The rate terms are per point: |gamma|^a8 once per point, then summed per pair.
-        for w, e, logs in ((a[6], a[7], self.log_gamma), (a[8], a[9], self.log_psi)):
+        # The per-point terms (rates, and the look-ahead with 12 alphas): |gamma|^a8 once
+        # per point, then summed per pair.
+        per_point = [(a[6], a[7], self.log_gamma), (a[8], a[9], self.log_psi)]
+        if len(a) == N_ALPHA_LEAD:
+            if self.log_lead is None:
+                raise ValueError("the look-ahead term needs the patches' lead times")
+            per_point.append((a[10], a[11], self.log_lead))
+        for w, e, logs in per_point:
             if w != 0.0:
                 per_point = w * np.exp(e * logs[rows])
                 pair = per_point[:, self.r]
@@ -334,7 +357,7 @@ def _term_keys(alpha: Sequence[float]) -> tuple[tuple[object, ...], tuple[object
     float32 values they are computed from, tagged."""
     a = [float(np.float32(v)) for v in alpha]
     # A term with no weight is left out, whatever its exponent.
-    penalty = [(a[i], a[i + 1]) if a[i] != 0.0 else None for i in (2, 4, 6, 8)]
+    penalty = [(a[i], a[i + 1]) if a[i] != 0.0 else None for i in range(2, len(a), 2)]
     return ("height", a[0], a[1]), ("penalty", *penalty)
 
 
@@ -469,6 +492,7 @@ def score_events(source: TopScores, params: RoughnessParams) -> EventScores:
 __all__ = [
     "EXPONENTS",
     "N_ALPHA",
+    "N_ALPHA_LEAD",
     "BLOCK_GROUPS",
     "CACHE_BYTES",
     "Blockwise",

@@ -334,6 +334,7 @@ def oracle_patches(
         valid.sum(axis=1),
         patches.laser,
         patches.lasers,
+        patches.lead,
     )
 
 
@@ -572,7 +573,7 @@ def run_evaluate(
         tell(f"training the ablation {name}")
         if not learnable:
             continue
-        free = tuple(j not in frozen for j in range(13))
+        free = tuple(j not in frozen for j in range(len(ascent_config(config.learn).initial)))
         methods[name] = _train_and_score(
             train_pairs, everything, train, rough, config.learn, free, fixed_values
         )

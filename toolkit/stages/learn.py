@@ -31,7 +31,7 @@ import pyarrow.compute as pc
 from toolkit import __version__
 from toolkit.config import LearnConfig, ModelConfig, PipelineConfig, config_hash
 from toolkit.errors import StageError
-from toolkit.model.ascent import B_NAMES, AscentConfig, AscentResult, coordinate_ascent
+from toolkit.model.ascent import AscentConfig, AscentResult, b_names, coordinate_ascent
 from toolkit.model.patches import POINT_COLUMNS, TyrePatches, build_patches, lead_order
 from toolkit.model.roughness import PairTable, RoughnessParams
 from toolkit.tableio import iter_table_batches, read_table
@@ -138,18 +138,23 @@ def ascent_config(
     free: tuple[bool, ...] | None = None,
     fixed: dict[int, float] | None = None,
 ) -> AscentConfig:
-    """The search of sect. 6 from ``[learn]``: ``free`` (13 flags) says which elements of B
-    move, ``fixed`` overrides initial values (an ablation's zeroed terms)."""
-    initial = [*lc.initial_alpha, lc.initial_upsilon, float(lc.initial_omega), lc.initial_zeta]
+    """The search of sect. 6 from ``[learn]``: B is the 13-vector (alpha_1..alpha_10,
+    upsilon, omega, zeta), or with ``lead_term`` the 15-vector whose alpha_11, alpha_12 weigh
+    the look-ahead (:mod:`toolkit.model.roughness`); ``free`` (one flag per element, for the
+    13 or 15 elements) says which elements move, ``fixed`` overrides initial values by index
+    (an ablation's zeroed terms)."""
+    alpha = [*lc.initial_alpha, *(lc.initial_lead if lc.lead_term else ())]
+    steps = [*lc.increment_alpha, *(lc.increment_lead if lc.lead_term else ())]
+    initial = [*alpha, lc.initial_upsilon, float(lc.initial_omega), lc.initial_zeta]
     for j, v in (fixed or {}).items():
         initial[j] = v
-    increments = (*lc.increment_alpha, lc.increment_upsilon, lc.increment_omega, lc.increment_zeta)
+    increments = (*steps, lc.increment_upsilon, lc.increment_omega, lc.increment_zeta)
     return AscentConfig(
         initial=tuple(float(v) for v in initial),
         increments=tuple(float(v) for v in increments),
         lambda_fp=lc.lambda_fp,
         iterations=lc.iterations,
-        free=free if free is not None else (True,) * 13,
+        free=free if free is not None else (),
         accept=lc.accept,
         validation_share=lc.validation_share,
     )
@@ -246,8 +251,8 @@ def model_json(
             {"iteration": i, "parameter": n, "value": v, "objective": j}
             for i, n, v, j in result.steps
         ],
-        "initial": dict(zip(B_NAMES, config.initial, strict=True)),
-        "increments": dict(zip(B_NAMES, config.increments, strict=True)),
+        "initial": dict(zip(b_names(len(config.initial)), config.initial, strict=True)),
+        "increments": dict(zip(b_names(len(config.initial)), config.increments, strict=True)),
         "training": {
             "events": events,
             "positives": positives,
@@ -281,7 +286,7 @@ def load_model(workspace: Workspace) -> tuple[RoughnessParams, dict[str, Any]]:
         )
     except (OSError, ValueError, KeyError, TypeError) as exc:
         raise StageError(f"unreadable model: {exc}", path=path) from exc
-    if len(params.alpha) != 10 or not params.admissible():
+    if not params.admissible():
         raise StageError(f"model parameters outside the model's domain: {params}", path=path)
     return params, doc
 
