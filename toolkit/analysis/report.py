@@ -55,6 +55,11 @@ PARAMETER_MEANINGS: tuple[tuple[str, str], ...] = (
     ),
     ("alpha_7, alpha_8", "weight and exponent of each point's roll rate (penalty)"),
     ("alpha_9, alpha_10", "weight and exponent of each point's pitch rate (penalty)"),
+    (
+        "alpha_11, alpha_12",
+        "beyond the paper, only with [learn] lead_term: weight and exponent of how long "
+        "before the event each point was seen (penalty: a far laser's error grows with range)",
+    ),
     ("upsilon", "growth of the weight of successive scores in R = sum W_i upsilon^i (eq. 3)"),
     ("omega", "how many of the largest pair scores enter R (eq. 3)"),
     ("zeta", "exponent combining the tyres, R_combined = R_left^zeta + R_right^zeta (eq. 5)"),
