@@ -36,20 +36,11 @@ import numpy as np
 import pyarrow.parquet as pq
 from sklearn.metrics import roc_auc_score, roc_curve
 
+from toolkit.stages.evaluate import METHOD_NAMES
+
 REPO = Path(__file__).resolve().parent.parent
-METHODS = (
-    "self_supervised",
-    "paper_exact",
-    "baseline_all_lasers",
-    "baseline_closest_laser",
-    "baseline_model_points",
-    "model_closest_laser",
-    "boosted",
-    "oracle",
-    "no_time_term",
-    "no_rate_terms",
-    "no_learning",
-)
+#: Every method of the report, in its order (``scores.parquet`` names each one's column).
+METHODS = METHOD_NAMES
 REFERENCE = "baseline_closest_laser"
 FPRS = (0.05, 0.10, 0.20)
 

@@ -40,7 +40,7 @@ Nothing here knows the model's parameters; :mod:`toolkit.model.roughness` scores
 from __future__ import annotations
 
 import zlib
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -250,6 +250,22 @@ class _EventIndex:
         return out
 
 
+def _point_batches(
+    points: pa.Table | Iterable[pa.RecordBatch | pa.Table], index: _EventIndex
+) -> Iterator[tuple[pa.Table, IntArray, tuple[IntArray, list[str | None]]]]:
+    """Each non-empty batch of event points as (table, its rows' event indices (-1: not
+    asked for), its laser column as codes and names)."""
+    batches = points.to_batches() if isinstance(points, pa.Table) else points
+    for batch in batches:
+        table = pa.table(batch) if isinstance(batch, pa.RecordBatch) else batch
+        if table.num_rows == 0:
+            continue
+        log_codes, log_names = _codes(table.column("log_id"))
+        event_id = np.asarray(table.column("event_id").to_numpy(zero_copy_only=False), np.int64)
+        event = index.lookup(log_codes, log_names, event_id)
+        yield table, event, _codes(table.column("laser"))
+
+
 def build_patches(
     events: pa.Table,
     points: pa.Table | Iterable[pa.RecordBatch | pa.Table],
@@ -289,15 +305,7 @@ def build_patches(
     index = _EventIndex(events, source)
     kept: list[_Kept] = []
     laser_ids: dict[str, int] = {}  # laser name -> index, in order of first appearance
-    batches = points.to_batches() if isinstance(points, pa.Table) else points
-    for batch in batches:
-        table = pa.table(batch) if isinstance(batch, pa.RecordBatch) else batch
-        if table.num_rows == 0:
-            continue
-        log_codes, log_names = _codes(table.column("log_id"))
-        event_id = np.asarray(table.column("event_id").to_numpy(zero_copy_only=False), np.int64)
-        event = index.lookup(log_codes, log_names, event_id)
-        laser_codes, laser_names = _codes(table.column("laser"))
+    for table, event, (laser_codes, laser_names) in _point_batches(points, index):
         keep = event >= 0
         if only_laser is not None:
             keep &= laser_codes == (
@@ -422,15 +430,7 @@ def lead_order(
     start_ns = np.asarray(events.column("t_start_ns").to_numpy(zero_copy_only=False), np.int64)
     sums: dict[str, float] = {}
     counts: dict[str, int] = {}
-    batches = points.to_batches() if isinstance(points, pa.Table) else points
-    for batch in batches:
-        table = pa.table(batch) if isinstance(batch, pa.RecordBatch) else batch
-        if table.num_rows == 0:
-            continue
-        log_codes, log_names = _codes(table.column("log_id"))
-        event_id = np.asarray(table.column("event_id").to_numpy(zero_copy_only=False), np.int64)
-        event = index.lookup(log_codes, log_names, event_id)
-        laser_codes, laser_names = _codes(table.column("laser"))
+    for table, event, (laser_codes, laser_names) in _point_batches(points, index):
         t_ns = np.asarray(table.column("t_ns").to_numpy(zero_copy_only=False), np.int64)
         ok = (event >= 0) & (laser_codes >= 0)
         lead_s = (start_ns[event[ok]] - t_ns[ok]) * 1e-9
