@@ -262,8 +262,9 @@ class LearnConfig:
     #: What a step of the search must improve on the training split: "objective" (eq. 6,
     #: the paper's), "auc" or "pauc" (toolkit.model.ascent); mu is eq. (6)'s either way.
     accept: Annotated[str, Rule(choices=("objective", "auc", "pauc"))] = "auc"
-    #: Early stopping: the share of training events held out to pick the rotation that ranks
-    #: them best (0: none, the paper's search), in blocks of 50 consecutive events.
+    #: Early stopping: about this share of training events held out to pick the rotation that
+    #: ranks them best (every round(1 / share)-th block of 50 consecutive events; 0: none, the
+    #: paper's search; model.json records the share actually held out).
     validation_share: Annotated[float, Rule(ge=0.0, le=0.5)] = 0.0
     #: Beyond the paper: a look-ahead penalty in eq. (4), alpha_11 |lead|^alpha_12 per point
     #: (toolkit.model.roughness), learned like the others from initial_lead with

@@ -355,3 +355,16 @@ def test_the_look_ahead_term_discounts_far_laser_points() -> None:
         assert len(learned.params.alpha) == len(alpha)
         aucs[name] = roc_auc_score(y_test, score_events(test, learned.params).r_combined)
     assert aucs["lead"] >= 0.95 and aucs["lead"] > aucs["paper"]
+
+
+def test_early_stopping_says_what_it_held_out_and_kept() -> None:
+    rng = np.random.default_rng(11)
+    raw, _ = _planted(rng, 90)
+    y = rng.random(90) < 0.3
+    cfg = _config(iterations=4, accept="auc", validation_share=1 / 3, validation_block=5)
+    result = coordinate_ascent(PairTable(make_patches(raw)), y, cfg)
+    held = validation_events(y, 1 / 3, 5)
+    assert held is not None and result.held_out_share == pytest.approx(held.mean())
+    assert result.kept_rotation is not None and 0 <= result.kept_rotation <= 4
+    plain = coordinate_ascent(PairTable(make_patches(raw)), y, _config(iterations=2))
+    assert plain.held_out_share == 0.0 and plain.kept_rotation is None

@@ -189,8 +189,9 @@ def partial_auc(fpr: FloatArray, tpr: FloatArray, max_fpr: float) -> float:
 
 @dataclass(frozen=True)
 class AscentConfig:
-    """The search of sect. 6: initial B (13), increments I (13), which elements move,
-    lambda of eq. (6) and the number of full rotations."""
+    """The search of sect. 6: initial B (13 elements, 15 with the look-ahead term),
+    increments I (as many), which elements move, lambda of eq. (6), the number of full
+    rotations, what a step must improve, and early stopping."""
 
     initial: tuple[float, ...]
     increments: tuple[float, ...]
@@ -210,7 +211,10 @@ class AscentConfig:
             raise ValueError(f"accept must be one of {ACCEPTANCE}, not {self.accept!r}")
         n = len(self.initial)
         if n not in (len(B_NAMES), len(B_NAMES_LEAD)) or len(self.increments) != n:
-            raise ValueError(f"B and its increments need 13 or 15 elements, not {n}")
+            raise ValueError(
+                f"B and its increments need 13 or 15 elements each, not {n} and "
+                f"{len(self.increments)}"
+            )
         if self.free and len(self.free) != n:
             raise ValueError(f"free needs {n} flags, not {len(self.free)}")
 
@@ -242,13 +246,19 @@ class AscentResult:
     accepted_by: str = "objective"
     #: The measure the steps climb (the first of :meth:`Threshold.key`) after each rotation.
     measure_history: tuple[float, ...] = ()
-    #: With early stopping: the best held-out measure so far, after each rotation.
+    #: With early stopping: the best held-out measure so far, after each rotation; the share
+    #: of training events actually held out (0: none, also when a part lacked a class) and
+    #: the rotation whose parameters were kept (0: the start). ``history``, ``steps`` and
+    #: ``measure_history`` are then on the fitted events and run past the kept rotation.
     validation_history: tuple[float, ...] = ()
+    held_out_share: float = 0.0
+    kept_rotation: int | None = None
 
 
 class _Evaluator:
-    """J of a 13-vector, reusing each patch's sorted top scores while the alphas stay put
-    (changing upsilon, omega or zeta then costs a weighted sum, not Delta again)."""
+    """J of a vector B (13 or 15 elements), reusing each patch's sorted top scores while the
+    alphas stay put (changing upsilon, omega or zeta then costs a weighted sum, not Delta
+    again)."""
 
     def __init__(self, source: TopScores, rough: BoolArray, lambda_fp: float) -> None:
         self.source = source
@@ -327,7 +337,7 @@ def coordinate_ascent(
         first = evaluate.judge(r0)
         # Early stopping: the rotation (0: the start) whose parameters rank the held-out
         # events best, by the measure the steps climb.
-        kept_b, r_best = list(b), r0
+        kept_b, r_best, kept_rotation = list(b), r0, 0
         kept_val = -np.inf if held is None else evaluate.judge(r0, held).key(config.accept)[0]
         val_history: list[float] = []
         history: list[float] = []
@@ -357,7 +367,7 @@ def coordinate_ascent(
             if held is not None and steps and steps[-1][0] == rotation:
                 val = evaluate.judge(r_best, held).key(config.accept)[0]
                 if val > kept_val:
-                    kept_b, kept_val = list(b), val
+                    kept_b, kept_val, kept_rotation = list(b), val, rotation + 1
             if held is not None:
                 val_history.append(kept_val)
             if progress is not None:
@@ -387,6 +397,8 @@ def coordinate_ascent(
         accepted_by=config.accept,
         measure_history=tuple(measures),
         validation_history=tuple(val_history),
+        held_out_share=0.0 if held is None else float(held.mean()),
+        kept_rotation=None if held is None else kept_rotation,
     )
 
 

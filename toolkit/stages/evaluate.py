@@ -223,7 +223,9 @@ def _baseline(
         baseline_pairs(p, bp),
         train,
         rough,
-        learn,
+        # The race test's W has no alphas, so no look-ahead term either: B is the 13-vector
+        # of which BASELINE_FREE moves upsilon, omega and zeta.
+        dataclasses.replace(learn, lead_term=False),
         BASELINE_FREE,
     )
     none = (p.count.reshape(-1, 2) < 2).all(axis=1)
@@ -247,11 +249,14 @@ def _same_points(a: TyrePatches, b: TyrePatches) -> bool:
 
 def _paper_exact(config: PipelineConfig) -> tuple[ModelConfig, LearnConfig]:
     """The paper's method as written, with the configured initial guess: every laser's
-    points alike (the uniform sample, sect. 7: "data from all lasers is used") and steps
-    accepted by eq. (6) itself (sect. 6)."""
+    points alike (the uniform sample, sect. 7: "data from all lasers is used"), eq. (4)
+    without the look-ahead term, and steps accepted by eq. (6) itself with no early stopping
+    (sect. 6)."""
     return (
         dataclasses.replace(config.model, point_sample="hash"),
-        dataclasses.replace(config.learn, accept="objective"),
+        dataclasses.replace(
+            config.learn, accept="objective", lead_term=False, validation_share=0.0
+        ),
     )
 
 
@@ -500,7 +505,8 @@ def run_evaluate(
         ev.baseline_confidence,
     )
     t_start_s = events.column("t_start_ns").to_numpy().astype(np.float64) * 1e-9
-    closest = closest_laser(patches, t_start_s, ev.baseline_closest_laser)
+    # Chosen on the training split's patches alone: the choice feeds trained rows.
+    closest = closest_laser(patches.take(train_groups), t_start_s[train], ev.baseline_closest_laser)
     # Sect. 7.1's two readings of the race test: all lasers' points equally (the uniform
     # sample), and the closest laser's alone. Then the race test on the model's own points,
     # so that the two are also compared on the same points.
@@ -520,7 +526,10 @@ def run_evaluate(
     same = nearest is not None and _same_points(patches, nearest)
     point_sets: dict[str, tuple[TyrePatches | None, dict[str, Any]]] = {
         "baseline_all_lasers": (uniform, {"sample": "hash", "only_laser": None}),
-        "baseline_closest_laser": (nearest, {"sample": "hash", "only_laser": closest}),
+        "baseline_closest_laser": (
+            nearest,
+            {"sample": config.model.point_sample, "only_laser": closest},
+        ),
         "baseline_model_points": (
             patches if config.model.point_sample != "hash" and not same else None,
             model_points,

@@ -246,6 +246,8 @@ def model_json(
         "objective_by_iteration": list(result.history),
         "accepted_measure_by_iteration": list(result.measure_history),
         "validation_share": config.validation_share,
+        "held_out_share": result.held_out_share,
+        "kept_rotation": result.kept_rotation,
         "validation_measure_by_iteration": list(result.validation_history),
         "steps": [
             {"iteration": i, "parameter": n, "value": v, "objective": j}
