@@ -331,3 +331,66 @@ def test_a_short_route_checks_closer_stretches(projected: Path) -> None:
     assert ground.stretch_every(2, 8) == min(8, tiles // 2)
     assert ground.stretch_every(1, 8) == 8
     assert ground.stretch_every(1000, 8) == 1
+
+
+def _write_pose(path: Path, name: str, t_ns: np.ndarray, xyz: np.ndarray, rpy: np.ndarray) -> None:
+    """A ``pose``-shaped table (``name``: pose or truth_pose) with the given track."""
+    import pyarrow as pa
+
+    from toolkit.tableio import load_table_schema, write_table
+
+    given = dict(zip(("x", "y", "z", "roll", "pitch", "yaw"), [*xyz.T, *rpy.T], strict=True))
+    cols = {}
+    for spec in load_table_schema(name).columns:
+        if spec.name == "t_ns":
+            cols[spec.name] = pa.array(t_ns, pa.int64())
+        else:
+            values = given.get(spec.name, np.zeros(t_ns.size))
+            cols[spec.name] = pa.array(np.asarray(values, np.float64), spec.arrow_type())
+    write_table(path, pa.table(cols), name, source_sha256="0" * 64, config_hash="test")
+
+
+def test_beams_are_moved_by_the_pose_error_at_their_time(tmp_path: Path) -> None:
+    """A point placed with an estimated pose 0.2 m east and 0.02 rad of yaw off the truth,
+    turning as it drives, lands back where the true pose puts the same beam; a point seen
+    outside the poses' times has no place."""
+    from scipy.spatial.transform import Rotation
+
+    from toolkit.analysis.truth_terrain import where_beams_hit
+
+    t_ns = np.arange(0, 2_000_000_000, 10_000_000, dtype=np.int64)  # 2 s at 100 Hz
+    s = t_ns * 1e-9
+    true_xyz = np.c_[10.0 * s, 0.5 * s**2, 0.1 * s]
+    true_rpy = np.c_[0.02 * np.sin(s), 0.01 * s, 0.3 * s]
+    est_xyz = true_xyz + [0.2, 0.0, 0.05]
+    est_rpy = true_rpy + [0.0, 0.0, 0.02]
+    _write_pose(tmp_path / "pose.parquet", "pose", t_ns, est_xyz, est_rpy)
+    _write_pose(tmp_path / "truth_pose.parquet", "truth_pose", t_ns, true_xyz, true_rpy)
+    # Beams 10-20 m ahead, at times between pose rows.
+    rng = np.random.default_rng(5)
+    beam_t = np.sort(rng.integers(0, t_ns[-1], 50))
+    beam_base = np.c_[rng.uniform(10, 20, 50), rng.uniform(-3, 3, 50), np.full(50, -2.0)]
+
+    def world(xyz: np.ndarray, rpy: np.ndarray) -> np.ndarray:
+        k = np.searchsorted(t_ns, beam_t, side="right") - 1
+        f = ((beam_t - t_ns[k]) / 1e7)[:, None]
+        pos = xyz[k] + f * (xyz[k + 1] - xyz[k])
+        rot = Rotation.from_euler("ZYX", (rpy[k] + f * (rpy[k + 1] - rpy[k]))[:, ::-1])
+        return np.asarray(rot.apply(beam_base) + pos)
+
+    placed = world(est_xyz, est_rpy)
+    hit = where_beams_hit(tmp_path, placed, beam_t)
+    # Slerp and the linear blend of small Euler steps differ by far less than a millimetre.
+    assert np.abs(hit - world(true_xyz, true_rpy)).max() < 1e-3
+    assert np.abs(placed - world(true_xyz, true_rpy)).max() > 0.2  # the error was there
+    outside = where_beams_hit(tmp_path, placed[:2], np.array([-1, t_ns[-1] + 1]))
+    assert np.isnan(outside).all()
+
+
+def test_beams_need_both_poses(tmp_path: Path) -> None:
+    from toolkit.analysis.truth_terrain import where_beams_hit
+
+    t_ns = np.arange(0, 100_000_000, 10_000_000, dtype=np.int64)
+    _write_pose(tmp_path / "pose.parquet", "pose", t_ns, np.zeros((10, 3)), np.zeros((10, 3)))
+    with pytest.raises(StageError, match="truth_pose"):
+        where_beams_hit(tmp_path, np.zeros((1, 3)), np.array([5]))

@@ -43,7 +43,7 @@ from scipy.spatial import cKDTree
 from toolkit.analysis.figures import new_figure, save_png_atomic, write_csv_atomic
 from toolkit.errors import ConfigError, StageError, ToolkitError
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
-from toolkit.tableio import iter_table_batches, read_table_metadata
+from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -212,6 +212,62 @@ def true_ground(log_dir: Path) -> TrueGround | None:
     except (TypeError, ValueError) as exc:
         raise StageError(f"unreadable enu_origin {origin_text!r}", path=pose_path) from exc
     return TrueGround(world, origin_sim, pose_origin)
+
+
+def where_beams_hit(log_dir: Path, xyz_m: ArrayLike, t_ns: ArrayLike) -> FloatArray:
+    """Where the beams of pose-frame points truly hit (N, 3), NaN where either pose is
+    undefined: each point ``p`` (N, 3), seen at ``t_ns`` (N,), moved from the estimated pose
+    to the true one at its time::
+
+        p_true = T_true(t) T_est(t)^-1 p
+
+    A point is placed with the estimated pose (``pose.parquet``): it lies off the spot its
+    beam hit by the pose's error then, horizontally 0.16 m at the median and 0.30 m at
+    the 90th percentile on 20-mile simulated races (measured on seeds 801 and 802). The true
+    heights *under a point* are therefore the truth 16 cm beside the rock the laser saw; the
+    truth *where its beam hit* is what a perfect sensor on the same beam would have
+    measured. What remains is the range noise and the mounts' flex, which the truth pose
+    does not hold. Both poses are interpolated as the projection interpolates (position
+    linearly, attitude by slerp); ``truth_pose.parquet`` shares the pose's frame
+    (:mod:`toolkit.stages.truth`). StageError when either table is missing.
+    """
+    from scipy.spatial.transform import Rotation, Slerp
+
+    from toolkit.fusion.rotations import euler_to_rot
+
+    p = np.asarray(xyz_m, np.float64).reshape(-1, 3)
+    t = np.asarray(t_ns, np.int64)
+    out = np.full(p.shape, np.nan)
+    poses = []
+    for name in ("pose", "truth_pose"):
+        path = Path(log_dir) / f"{name}.parquet"
+        if not path.is_file():
+            raise StageError(f"no {name} table to place the truth with", path=path)
+        table = read_table(path, name, columns=("t_ns", "x", "y", "z", "roll", "pitch", "yaw"))
+        c = {k: table.column(k).to_numpy() for k in table.column_names}
+        rpy = np.stack([c["roll"], c["pitch"], c["yaw"]], axis=1).astype(np.float64)
+        poses.append((c["t_ns"].astype(np.int64), np.c_[c["x"], c["y"], c["z"]], rpy))
+    defined = np.ones(t.size, bool)
+    for pose_t, _, _ in poses:
+        defined &= (t >= pose_t[0]) & (t <= pose_t[-1]) if pose_t.size >= 2 else False
+    rows = np.flatnonzero(defined)
+    if rows.size == 0:
+        return out
+    # Times as seconds from the first point: float64 keeps nanoseconds there.
+    t0 = int(t[rows].min())
+    at_s = (t[rows] - t0) * 1e-9
+
+    def pose_at(pose_t: IntArray, pos: FloatArray, rpy: FloatArray) -> tuple[Rotation, FloatArray]:
+        s = (pose_t - t0) * 1e-9
+        rotation = Slerp(s, Rotation.from_matrix(euler_to_rot(rpy)))(at_s)
+        position = np.stack([np.interp(at_s, s, pos[:, k]) for k in range(3)], axis=1)
+        return rotation, position
+
+    est_rotation, est_position = pose_at(*poses[0])
+    true_rotation, true_position = pose_at(*poses[1])
+    base = est_rotation.inv().apply(p[rows] - est_position)
+    out[rows] = true_rotation.apply(base) + true_position
+    return out
 
 
 def _tuples(v: list[Any]) -> list[Any]:
@@ -518,6 +574,7 @@ __all__ = [
     "ZErrorRow",
     "histogram_quantile",
     "true_ground",
+    "where_beams_hit",
     "write_z_error",
     "z_error_of",
 ]
