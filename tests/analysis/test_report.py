@@ -3,6 +3,7 @@ at the top, each method's share of events scored 0 next to its AUC)."""
 
 from __future__ import annotations
 
+import html
 import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -77,7 +78,8 @@ def page(summary: dict[str, Any]) -> str:
 
 def row_of(text: str, method: str) -> str:
     """The ROC table's row of ``method`` (its key in METHOD_NAMES)."""
-    (row,) = re.findall(rf"<tr><td>{re.escape(METHOD_NAMES[method])}</td>.*?</tr>", text)
+    name = html.escape(METHOD_NAMES[method])
+    (row,) = re.findall(rf"<tr><td>{re.escape(name)}</td>.*?</tr>", text)
     return str(row)
 
 
@@ -93,6 +95,8 @@ def test_index_html_shows_the_zero_share_next_to_the_auc() -> None:
         {
             "self_supervised": entry,
             "oracle": None,
+            "model_closest_laser": None,
+            "not_run": {"model_closest_laser": "off ([evaluate] model_on_closest_laser)"},
             "ablations": {"no_learning": old},
             "test_events": 3000,
         }
@@ -115,6 +119,8 @@ def test_index_html_shows_the_zero_share_next_to_the_auc() -> None:
         "TPR at FPR 0.05",
     ]
     assert "colspan='8'>not evaluated" in row_of(text, "oracle")
+    # A row left out on purpose says why.
+    assert "not run: off ([evaluate] model_on_closest_laser)" in row_of(text, "model_closest_laser")
     assert "<td>n/a / n/a</td><td>n/a / n/a</td>" in row_of(text, "no_learning")
 
 

@@ -372,3 +372,18 @@ def test_the_paper_exact_row_and_the_race_test_ignore_the_extensions() -> None:
     train = np.arange(40) < 20
     got = _baseline(patches, BaselineParams(), train, rough, extended.learn)
     assert got.trained is not None and len(got.params.alpha) == 10
+
+
+def test_the_model_on_the_closest_laser_alone_is_trained_only_when_asked(
+    pipeline: Pipeline, summary: dict[str, Any]
+) -> None:
+    """Off by default: the row is either the same computation as the model's (and says
+    so) or not run, with the reason on the page; never a silent gap."""
+    row = summary["model_closest_laser"]
+    page = (pipeline.ws.report_dir / "index.html").read_text()
+    if row is None:
+        assert summary["not_run"]["model_closest_laser"].endswith("model_on_closest_laser)")
+        assert "not run: off ([evaluate] model_on_closest_laser)" in page
+    else:
+        assert row["points"]["same_as"] == "self_supervised"
+        assert "model_closest_laser" not in summary["not_run"]

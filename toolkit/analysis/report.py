@@ -137,7 +137,9 @@ def _roc_rows(summary: Mapping[str, Any], n_fprs: int) -> list[str]:
     for key, m in entries:
         name = html.escape(METHOD_NAMES.get(key, key))
         if not m:
-            rows.append(f"<tr><td>{name}</td><td colspan='{n_fprs + 5}'>not evaluated</td></tr>")
+            why = (summary.get("not_run") or {}).get(key)
+            text = f"not run: {html.escape(why)}" if why else "not evaluated"
+            rows.append(f"<tr><td>{name}</td><td colspan='{n_fprs + 5}'>{text}</td></tr>")
             continue
         ci = m.get("auc_ci95") or [None, None]
         cells = [

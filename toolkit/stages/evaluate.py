@@ -435,7 +435,18 @@ def run_evaluate(
     """Score every event by every method, compare them on the test split, write the report
     (module docstring)."""
     start = time.perf_counter()
-    tell = step or (lambda _: None)
+    # Each step's time, for the manifest (where an evaluation spends its minutes).
+    step_s: dict[str, float] = {}
+    current: list[Any] = [None, start]
+
+    def tell(what: str | None) -> None:
+        now = time.perf_counter()
+        if current[0] is not None:
+            step_s[current[0]] = step_s.get(current[0], 0.0) + now - current[1]
+        current[:] = [what, now]
+        if what is not None and step is not None:
+            step(what)
+
     inputs = table_inputs(workspace)
     model_path = workspace.model_path
     if not model_path.is_file():
@@ -493,11 +504,14 @@ def run_evaluate(
     # The report's order (its table and the ROC figure's curves).
     methods: dict[str, MethodScores | None] = dict.fromkeys(METHOD_NAMES)
     points: dict[str, dict[str, Any]] = {}
+    # Rows left out on purpose, and why (the report says so on their line).
+    not_run: dict[str, str] = {}
     model_points = {"sample": config.model.point_sample, "only_laser": None}
     t0 = time.perf_counter()
     # Only the training split's pairs are held: each search scores them hundreds of times.
     # Every event is scored once per method, a block of pairs at a time, so memory follows
     # the training split, not the whole log (an hour's log: ~280 MB of pairs a split).
+    tell("scoring the learned model")
     everything = model_pairs(patches)
     learned = MethodScores(score_events(everything, params), None, params)
     methods["self_supervised"] = learned
@@ -516,6 +530,7 @@ def run_evaluate(
         ev.baseline_growth_m2_per_s,
         ev.baseline_confidence,
     )
+    tell("reading the baselines' points")
     t_start_s = events.column("t_start_ns").to_numpy().astype(np.float64) * 1e-9
     # Chosen on the training split's patches alone: the choice feeds trained rows.
     closest = closest_laser(patches.take(train_groups), t_start_s[train], ev.baseline_closest_laser)
@@ -576,6 +591,8 @@ def run_evaluate(
                 **points["baseline_closest_laser"],
                 "same_as": "self_supervised",
             }
+        elif nearest is not None and not ev.model_on_closest_laser:
+            not_run["model_closest_laser"] = "off ([evaluate] model_on_closest_laser)"
         elif nearest is not None:
             tell("training the model on the closest laser's points")
             methods["model_closest_laser"] = _train_and_score(
@@ -647,6 +664,7 @@ def run_evaluate(
         )
     speed, speed_files = speed_control(events, learned.scores.predicted, test, config, report)
     timings["evaluate"] = time.perf_counter() - t0
+    tell(None)
 
     def entry(name: str) -> dict[str, Any] | None:
         r, m = rocs.get(name), methods.get(name)
@@ -679,6 +697,7 @@ def run_evaluate(
         **{name: entry(name) for name in MAIN_METHODS},
         "ablations": {name: entry(name) for name in ABLATION_NAMES},
         "speed_control": speed,
+        "not_run": not_run,
         **counts,
         "closest_laser": closest,
         "model": {
@@ -771,6 +790,7 @@ def run_evaluate(
             row_counts={**counts, "scores": events.num_rows},
             timings_s={
                 **{k: round(v, 6) for k, v in timings.items()},
+                **{f"step: {k}": round(v, 6) for k, v in step_s.items()},
                 "total": round(time.perf_counter() - start, 6),
             },
             warnings=tuple(warnings),
