@@ -237,6 +237,28 @@ def test_sim_missing_output_directory_exits_1(runner: CliRunner, tmp_path: Path)
     assert "output directory does not exist" in assert_one_error_line(result.stderr)
 
 
+def test_sim_onto_an_existing_file_refuses_without_overwrite(
+    runner: CliRunner, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Like export and viz: a log already there is replaced only with --overwrite."""
+    calls: list[Path] = []
+
+    def simulate(out_path: Path, **kwargs: Any) -> FakeResult:
+        calls.append(out_path)
+        return FakeResult()
+
+    fake_sim_module(monkeypatch, simulate)
+    out = tmp_path / "x.mcap"
+    out.write_bytes(b"a recorded log")
+    result = runner.invoke(main, ["sim", str(out)])
+    assert result.exit_code == 1
+    assert "already exists; pass --overwrite" in assert_one_error_line(result.stderr)
+    assert out.read_bytes() == b"a recorded log" and not calls
+    assert runner.invoke(main, ["sim", str(tmp_path)]).exit_code == 2  # a directory: usage
+    result = runner.invoke(main, ["sim", str(out), "--overwrite"])
+    assert result.exit_code == 0 and calls == [out]
+
+
 def test_unexpected_exception_exits_1_with_hint(
     runner: CliRunner, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

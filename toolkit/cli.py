@@ -208,6 +208,7 @@ def _require_file(path: Path, error: type[ToolkitError] = ToolkitError) -> None:
     help="Leave the laser scans out: a fast log of the same drive and IMU, for judging "
     "the vehicle's physics and the shock labels.",
 )
+@click.option("--overwrite", is_flag=True, help="Replace an existing OUT.mcap.")
 def sim(
     out: Path,
     profile: str,
@@ -215,10 +216,15 @@ def sim(
     seed: int,
     workers: int | None,
     no_lasers: bool,
+    overwrite: bool,
 ) -> None:
     """Write a synthetic race log with ground truth to OUT.mcap."""
     if not out.parent.is_dir():
         raise ToolkitError("output directory does not exist", path=out.parent)
+    # Like export and viz: a log already there (a recorded one, the bundled sample) is only
+    # replaced when asked.
+    if out.exists() and not overwrite:
+        raise ToolkitError("already exists; pass --overwrite to replace it", path=out)
     from toolkit.sim.simulate import simulate
 
     result = simulate(

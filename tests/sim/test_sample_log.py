@@ -33,7 +33,9 @@ def _sha256(path: Path) -> str:
 
 def test_readme_command_regenerates_the_sample_bit_for_bit(tmp_path: Path) -> None:
     readme = (REPO / "sample_logs" / "README.md").read_text()
-    match = re.search(r"terrain sim sample_logs/sample\.mcap --profile (\w+) --seed (\d+)", readme)
+    match = re.search(
+        r"terrain sim sample_logs/sample\.mcap --profile (\w+) --seed (\d+) --overwrite", readme
+    )
     assert match is not None, "sample_logs/README.md lost its regeneration command"
     profile, seed = match.group(1), int(match.group(2))
     out = tmp_path / "sample.mcap"

@@ -1,9 +1,8 @@
 """Shared output helpers of the analyses: CSV tables and matplotlib figures, written
 atomically and byte for byte reproducibly.
 
-A file appears only when complete (contract: written aside, then renamed): each writer puts
-the bytes in a hidden temporary file in the target's own directory (so the rename never
-crosses a file system) and :func:`os.replace` s it over the target. PNGs carry no
+A file appears only when complete (contract: written aside, then renamed), through the
+workspace's one atomic writer (:func:`toolkit.workspace.atomic_write_bytes`). PNGs carry no
 ``Software`` or date chunk, so the same figure from the same data gives the same bytes.
 """
 
@@ -11,11 +10,11 @@ from __future__ import annotations
 
 import csv
 import io
-import os
-import tempfile
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+from toolkit.workspace import atomic_write_bytes
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -25,17 +24,11 @@ PNG_METADATA: dict[str, str | None] = {"Software": None}
 
 
 def write_bytes_atomic(path: Path, data: bytes) -> Path:
-    """Write ``data`` to ``path`` via a temporary file in the same directory and a rename;
-    the directory is created if needed. Returns ``path``."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Write ``data`` to ``path`` atomically, creating its directory if needed: the one
+    writer of :func:`toolkit.workspace.atomic_write_bytes` (aside, fsync, rename), so a
+    figure gets the mode a plain ``open`` gives (0666 less the umask), as the Parquet and
+    JSON beside it do. Returns ``path``."""
+    atomic_write_bytes(path, data)
     return path
 
 
