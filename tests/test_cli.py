@@ -441,3 +441,36 @@ def test_point_stages_on_a_log_without_lasers_say_why_in_one_line(
     tables = runner.invoke(main, ["tables", "-w", ws])
     assert tables.exit_code == 1
     assert "run `terrain label`" in assert_one_error_line(tables.stderr)
+
+
+@pytest.mark.parametrize("verb", ["run", "ingest"])
+def test_a_failed_first_run_leaves_no_workspace(
+    runner: CliRunner, tmp_path: Path, verb: str
+) -> None:
+    """A missing log, a log that is not MCAP, or a configuration with an unknown key: exit
+    1 and no workspace folder left behind."""
+    garbage = tmp_path / "g.mcap"
+    garbage.write_bytes(b"not an mcap")
+    bad_config = tmp_path / "bad.toml"
+    bad_config.write_text("[bogus]\nx = 1\n")
+    sample = Path(__file__).resolve().parents[1] / "sample_logs" / "sample.mcap"
+    cases = {
+        "missing": [str(tmp_path / "nope.mcap")],
+        "garbage": [str(garbage)],
+        "config": [str(sample), "-c", str(bad_config)],
+    }
+    for name, args in cases.items():
+        ws = tmp_path / f"ws-{name}"
+        result = runner.invoke(main, [verb, *args, "-w", str(ws)])
+        assert result.exit_code == 1, (name, result.output)
+        assert not ws.exists(), name
+
+
+def test_a_failed_run_keeps_a_folder_it_did_not_make(runner: CliRunner, tmp_path: Path) -> None:
+    """An existing folder, and everything in it, is left as it was by a failed run."""
+    ws = tmp_path / "ws"
+    ws.mkdir()
+    (ws / "notes.txt").write_text("mine")
+    result = runner.invoke(main, ["ingest", str(tmp_path / "nope.mcap"), "-w", str(ws)])
+    assert result.exit_code == 1
+    assert (ws / "notes.txt").read_text() == "mine"

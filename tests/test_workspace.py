@@ -421,3 +421,31 @@ def test_an_output_of_an_older_table_schema_is_not_up_to_date(tmp_path: Path) ->
     )
     fresh = check_up_to_date(record, inputs={}, config_hash="c", outputs=[path])
     assert not fresh and "written for schema heading v0" in fresh.reason
+
+
+def test_created_takes_away_only_an_unused_fresh_workspace(tmp_path: Path) -> None:
+    """Fresh and left without a log: removed. Fresh but holding a file the toolkit did not
+    write, or a lock another process holds: kept."""
+    import fcntl
+    import os
+
+    ws = Workspace(tmp_path / "a")
+    with ws.created():
+        (ws.logs_dir / ".x-1.lock").touch()  # a failed ingest's log lock
+    assert not ws.root.exists()
+
+    ws = Workspace(tmp_path / "b")
+    with ws.created():
+        (ws.root / "theirs.txt").write_text("x")
+    assert (ws.root / "theirs.txt").is_file()
+
+    ws = Workspace(tmp_path / "c")
+    with ws.created():
+        held = ws.logs_dir / ".y-2.lock"
+        held.touch()
+        fd = os.open(held, os.O_RDONLY)
+        fcntl.flock(fd, fcntl.LOCK_EX)  # another shard's ingest is still at work
+    try:
+        assert held.is_file()
+    finally:
+        os.close(fd)

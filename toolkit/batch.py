@@ -532,31 +532,33 @@ def run_ingest_batch(
     picked = set(shard(list(unique.values()), shard_index, num_shards))
     mine = [log for log in unique.values() if log in picked]  # reported in the user's order
 
-    workspace = Workspace(workspace_root).create()
+    workspace = Workspace(workspace_root)
+    # Validated before anything is made: a bad configuration leaves no workspace.
     config = _config_in_force(workspace, config_path)
-    # ingest_log's own rule (refuse another config unless overwrite), checked once here so
-    # a mismatch fails the command once, not once per log; each ingest_log records the
-    # config only when it succeeds with it.
-    adopt_config = workspace.check_config(config, overwrite=overwrite)
-    config_toml = dump_toml(config)
-    task = functools.partial(
-        ingest_task,
-        workspace_root=os.path.abspath(workspace_root),
-        config_toml=config_toml,
-        overwrite=overwrite,
-        cwd=os.getcwd(),
-    )
-    # Shared: ingests (a job array's shards) run side by side, but not while a stage holds the
-    # workspace exclusively (pose), and such a stage waits for no ingest: it is refused.
-    with workspace.lock(shared=True):
-        if executor is not None:
-            summary = run_batch(task, mine, executor, desc="ingest", unit="log")
-        else:
-            with make_executor(executor_kind, workers=workers, scheduler=scheduler) as opened:
-                summary = run_batch(task, mine, opened, desc="ingest", unit="log")
-    if adopt_config and (summary.done or summary.up_to_date):
-        workspace.write_config(config)  # a config becomes the workspace's once it has worked
-    if num_shards > 1:
-        note = f"shard {shard_index} of {num_shards}: {len(mine)} of {len(unique)} logs"
-        summary = dataclasses.replace(summary, notes=(note,))
+    with workspace.created():  # a first run that ingests no log leaves no workspace
+        # ingest_log's own rule (refuse another config unless overwrite), checked once here so
+        # a mismatch fails the command once, not once per log; each ingest_log records the
+        # config only when it succeeds with it.
+        adopt_config = workspace.check_config(config, overwrite=overwrite)
+        config_toml = dump_toml(config)
+        task = functools.partial(
+            ingest_task,
+            workspace_root=os.path.abspath(workspace_root),
+            config_toml=config_toml,
+            overwrite=overwrite,
+            cwd=os.getcwd(),
+        )
+        # Shared: ingests (a job array's shards) run side by side, but not while a stage holds the
+        # workspace exclusively (pose), and such a stage waits for no ingest: it is refused.
+        with workspace.lock(shared=True):
+            if executor is not None:
+                summary = run_batch(task, mine, executor, desc="ingest", unit="log")
+            else:
+                with make_executor(executor_kind, workers=workers, scheduler=scheduler) as opened:
+                    summary = run_batch(task, mine, opened, desc="ingest", unit="log")
+        if adopt_config and (summary.done or summary.up_to_date):
+            workspace.write_config(config)  # a config becomes the workspace's once it has worked
+        if num_shards > 1:
+            note = f"shard {shard_index} of {num_shards}: {len(mine)} of {len(unique)} logs"
+            summary = dataclasses.replace(summary, notes=(note,))
     return summary

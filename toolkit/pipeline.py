@@ -130,6 +130,8 @@ class StageReport:
 
     def line(self) -> str:
         status = ", ".join(f"{n} {k.replace('_', ' ')}" for k, n in self.statuses.items() if n)
+        # A stage no log reached (each failed an earlier one) says so, not an empty row.
+        status = status or "not run: no log passed the stage before"
         rows = ", ".join(f"{k} {v:,}" for k, v in list(self.rows.items())[:3])
         rejected = sum(self.rejects.values())
         parts = [f"{self.stage:<9} {self.seconds:7.1f} s  {status}"]
@@ -249,122 +251,124 @@ def run_pipeline(
         unique.setdefault(os.path.abspath(log), log)
     picked = set(shard(list(unique.values()), shard_index, num_shards))
     mine = [log for log in unique.values() if log in picked]
-    ws = Workspace(workspace_root).create()
+    ws = Workspace(workspace_root)
+    # Validated before anything is made: a bad configuration leaves no workspace.
     config = _config_in_force(ws, config_path)
-    adopt_config = ws.check_config(config, overwrite=overwrite)
-    config_toml = dump_toml(config)
-    root = os.path.abspath(workspace_root)
-    cwd = os.getcwd()
-    per_log = [s for s in stages if s in PER_LOG_STAGES]
-    workspace_stages = [s for s in stages if s not in PER_LOG_STAGES and num_shards == 1]
-    notes: list[str] = []
-    if num_shards > 1 and any(s not in PER_LOG_STAGES for s in stages):
-        notes.append(
-            f"shard {shard_index} of {num_shards}: per-log stages only for {len(mine)} of "
-            f"{len(unique)} logs; once every shard is done, run `terrain run LOGS... -w "
-            f"{workspace_root} --from tables`"
-        )
-    reports: list[StageReport] = []
-    # Items are (path, log id); the id is known once ingested (or, when ingest is not part
-    # of this run, from the file's content, as ingest names it).
-    items: list[tuple[str, str]] = [(str(p), "") for p in mine]
-    if "ingest" not in per_log and per_log:
-        items = [(str(p), log_id_for(p)) for p in mine]
-        missing = [i for _, i in items if i not in ws.log_ids()]
-        if missing:
-            raise WorkspaceError(
-                f"not ingested: {', '.join(missing)} (run from ingest)", path=ws.root
+    with ws.created():  # a first run that ingests no log leaves no workspace
+        adopt_config = ws.check_config(config, overwrite=overwrite)
+        config_toml = dump_toml(config)
+        root = os.path.abspath(workspace_root)
+        cwd = os.getcwd()
+        per_log = [s for s in stages if s in PER_LOG_STAGES]
+        workspace_stages = [s for s in stages if s not in PER_LOG_STAGES and num_shards == 1]
+        notes: list[str] = []
+        if num_shards > 1 and any(s not in PER_LOG_STAGES for s in stages):
+            notes.append(
+                f"shard {shard_index} of {num_shards}: per-log stages only for {len(mine)} of "
+                f"{len(unique)} logs; once every shard is done, run `terrain run LOGS... -w "
+                f"{workspace_root} --from tables`"
             )
-    ids: list[str] = [i for _, i in items]
-    with contextlib.ExitStack() as stack:
-        stack.enter_context(ws.lock(shared=num_shards > 1))
-        pool = executor
-        if pool is None and per_log:
-            pool = stack.enter_context(
-                make_executor(executor_kind, workers=workers, scheduler=scheduler)
-            )
-        total = len(items) * len(per_log) + len(workspace_stages)
-        with progress(total=total, desc="run", unit="step") as bar:
-            passed: dict[str, list[tuple[str, str]]] = {}
-            for stage in per_log:
-                # A stage takes the logs its prerequisite passed: label needs pose, not
-                # project, so a log without lasers is still labelled.
-                before = DEPENDS_ON.get(stage)
-                if before in passed:
-                    items = passed[before]
-                task = functools.partial(
-                    log_stage_task,
-                    stage=stage,
-                    workspace_root=root,
-                    config_toml=config_toml,
-                    overwrite=overwrite,
-                    cwd=cwd,
+        reports: list[StageReport] = []
+        # Items are (path, log id); the id is known once ingested (or, when ingest is not part
+        # of this run, from the file's content, as ingest names it).
+        items: list[tuple[str, str]] = [(str(p), "") for p in mine]
+        if "ingest" not in per_log and per_log:
+            items = [(str(p), log_id_for(p)) for p in mine]
+            missing = [i for _, i in items if i not in ws.log_ids()]
+            if missing:
+                raise WorkspaceError(
+                    f"not ingested: {', '.join(missing)} (run from ingest)", path=ws.root
                 )
-                if pool is None:  # opened above whenever a per-log stage runs
-                    raise RuntimeError("no executor for the per-log stages")
-                summary = run_batch(task, items, pool, desc=stage, unit="log", bar=bar)
-                if adopt_config and summary.results:
-                    ws.write_config(config)  # a config becomes the workspace's once it worked
-                    adopt_config = False
-                if stage == "ingest":
-                    results = summary.results
-                    items = [
-                        (p, str(results[(p, i)].log_id)) for p, i in items if (p, i) in results
-                    ]
-                else:
-                    ok = summary.results
-                    items = [it for it in items if it in ok]
-                passed[stage] = items
-                ids = sorted({i for done in passed.values() for _, i in done})
-                report = _per_log_report(stage, summary, ws, [i for _, i in items])
-                reports.append(report)
-                say(report.line())
-            report_path: Path | None = None
-            for stage in workspace_stages:
-                t0 = time.perf_counter()
-                if any(r.failures for r in reports):
-                    # Tables reads every log of the workspace: one whose stage just failed
-                    # would enter with its older outputs. Stop, as the docstring says.
-                    notes.append("workspace stages not run: a log failed a per-log stage")
-                    break
-                try:
-                    result = _run_workspace_stage(stage, ws, config, overwrite)
-                except ToolkitError as exc:
+        ids: list[str] = [i for _, i in items]
+        with contextlib.ExitStack() as stack:
+            stack.enter_context(ws.lock(shared=num_shards > 1))
+            pool = executor
+            if pool is None and per_log:
+                pool = stack.enter_context(
+                    make_executor(executor_kind, workers=workers, scheduler=scheduler)
+                )
+            total = len(items) * len(per_log) + len(workspace_stages)
+            with progress(total=total, desc="run", unit="step") as bar:
+                passed: dict[str, list[tuple[str, str]]] = {}
+                for stage in per_log:
+                    # A stage takes the logs its prerequisite passed: label needs pose, not
+                    # project, so a log without lasers is still labelled.
+                    before = DEPENDS_ON.get(stage)
+                    if before in passed:
+                        items = passed[before]
+                    task = functools.partial(
+                        log_stage_task,
+                        stage=stage,
+                        workspace_root=root,
+                        config_toml=config_toml,
+                        overwrite=overwrite,
+                        cwd=cwd,
+                    )
+                    if pool is None:  # opened above whenever a per-log stage runs
+                        raise RuntimeError("no executor for the per-log stages")
+                    summary = run_batch(task, items, pool, desc=stage, unit="log", bar=bar)
+                    if adopt_config and summary.results:
+                        ws.write_config(config)  # a config becomes the workspace's once it worked
+                        adopt_config = False
+                    if stage == "ingest":
+                        results = summary.results
+                        items = [
+                            (p, str(results[(p, i)].log_id)) for p, i in items if (p, i) in results
+                        ]
+                    else:
+                        ok = summary.results
+                        items = [it for it in items if it in ok]
+                    passed[stage] = items
+                    ids = sorted({i for done in passed.values() for _, i in done})
+                    report = _per_log_report(stage, summary, ws, [i for _, i in items])
+                    reports.append(report)
+                    say(report.line())
+                report_path: Path | None = None
+                for stage in workspace_stages:
+                    t0 = time.perf_counter()
+                    if any(r.failures for r in reports):
+                        # Tables reads every log of the workspace: one whose stage just failed
+                        # would enter with its older outputs. Stop, as the docstring says.
+                        notes.append("workspace stages not run: a log failed a per-log stage")
+                        break
+                    try:
+                        result = _run_workspace_stage(stage, ws, config, overwrite)
+                    except ToolkitError as exc:
+                        reports.append(
+                            StageReport(
+                                stage,
+                                time.perf_counter() - t0,
+                                {"failed": 1},
+                                failures={stage: " ".join(str(exc).split())},
+                            )
+                        )
+                        say(reports[-1].line())
+                        break
+                    finally:
+                        bar.update(1)
+                    status = "up_to_date" if result.status == "up_to_date" else "done"
+                    rec = ws.manifest().read().get("stages", {}).get(stage, {})
+                    rows, rejects, warnings = _record_totals([rec], stage)
                     reports.append(
                         StageReport(
-                            stage,
-                            time.perf_counter() - t0,
-                            {"failed": 1},
-                            failures={stage: " ".join(str(exc).split())},
+                            stage, time.perf_counter() - t0, {status: 1}, rows, rejects, warnings
                         )
                     )
                     say(reports[-1].line())
-                    break
-                finally:
-                    bar.update(1)
-                status = "up_to_date" if result.status == "up_to_date" else "done"
-                rec = ws.manifest().read().get("stages", {}).get(stage, {})
-                rows, rejects, warnings = _record_totals([rec], stage)
-                reports.append(
-                    StageReport(
-                        stage, time.perf_counter() - t0, {status: 1}, rows, rejects, warnings
-                    )
-                )
-                say(reports[-1].line())
-                if stage == "evaluate":
-                    report_path = ws.report_dir / "index.html"
-    if adopt_config and any(
-        r.statuses.get("done") or r.statuses.get("up_to_date") for r in reports
-    ):
-        ws.write_config(config)  # the configuration in force is the one these stages used
-    all_ids = tuple(sorted(set(ids) if per_log else ws.log_ids()))
-    return RunSummary(
-        tuple(reports),
-        all_ids,
-        time.perf_counter() - start,
-        report_path if "evaluate" in workspace_stages else None,
-        tuple(notes),
-    )
+                    if stage == "evaluate":
+                        report_path = ws.report_dir / "index.html"
+        if adopt_config and any(
+            r.statuses.get("done") or r.statuses.get("up_to_date") for r in reports
+        ):
+            ws.write_config(config)  # the configuration in force is the one these stages used
+        all_ids = tuple(sorted(set(ids) if per_log else ws.log_ids()))
+        return RunSummary(
+            tuple(reports),
+            all_ids,
+            time.perf_counter() - start,
+            report_path if "evaluate" in workspace_stages else None,
+            tuple(notes),
+        )
 
 
 def _run_workspace_stage(stage: str, ws: Workspace, config: PipelineConfig, overwrite: bool) -> Any:

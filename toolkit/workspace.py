@@ -101,6 +101,22 @@ def temp_path_beside(path: Path, suffix: str = "tmp") -> Path:
     )
 
 
+def _unlink_unheld_lock(path: Path) -> None:
+    """Remove an empty lock file nobody holds (OSError otherwise, the file kept): taken
+    exclusively, without waiting, while it is unlinked, so a process that holds it (another
+    shard's ingest) keeps its lock and its file."""
+    if not path.exists():
+        return
+    if path.stat().st_size != 0:
+        raise OSError(f"{path} is not an empty lock file")
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        path.unlink()
+    finally:
+        os.close(fd)
+
+
 def _pid_alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
@@ -628,6 +644,35 @@ class Workspace:
                 f"cannot create workspace: {exc.strerror or exc}", self.root
             ) from exc
         return self
+
+    @contextlib.contextmanager
+    def created(self) -> Iterator[Workspace]:
+        """The workspace, created for a command that fills it with logs (ingest, run).
+
+        If it did not exist before and the command leaves no log in it (every log failed,
+        or the command raised), what the command made is taken away again: a failed first
+        run leaves no workspace. Only the toolkit's own empty entries are removed (the
+        workspace lock, the logs' lock files, the empty ``logs/``), each only if it is
+        still empty; anything else found there keeps the folder."""
+        fresh = not self.root.exists()
+        self.create()
+        try:
+            yield self
+        finally:
+            if fresh and not self.log_ids():
+                self._remove_unused()
+
+    def _remove_unused(self) -> None:
+        """Remove the empty skeleton :meth:`create` and a failed ingest leave (see
+        :meth:`created`); stops quietly at the first entry that is not the toolkit's."""
+        try:
+            for lock in self.logs_dir.glob(".*.lock"):
+                _unlink_unheld_lock(lock)
+            self.logs_dir.rmdir()
+            _unlink_unheld_lock(self.root / self.LOCK_NAME)
+            self.root.rmdir()
+        except OSError:
+            pass  # something else is there, or in use: leave the folder as it is
 
     def require(self) -> Workspace:
         """Raise WorkspaceError unless this is an existing workspace (has config.toml)."""
