@@ -15,6 +15,7 @@ import dataclasses
 import hashlib
 import json
 import os
+import re
 import subprocess
 import sys
 from collections.abc import Iterator, Mapping
@@ -259,9 +260,12 @@ def test_croissant_validates_and_its_records_are_the_tables_rows(
         assert obj["sha256"] == file_sha256(out / path)
         assert obj["contentSize"] == f"{(out / path).stat().st_size} B"
 
+    # The day the tables were made: a date mlcroissant reads without a warning.
+    assert re.fullmatch(r"\d{4}-\d{2}-\d{2}", doc["datePublished"])
     dataset = mlc.Dataset(jsonld=out / "croissant.json")
     issues = dataset.metadata.ctx.issues
     assert not issues.errors, issues.report()
+    assert not issues.warnings, issues.report()
     assert [rs.name for rs in dataset.metadata.record_sets] == list(CONFIGS)
     for config in CONFIGS:
         names = expected[config]["train"].column_names

@@ -741,6 +741,8 @@ class _Facts:
     #: The tables stage's row counts and rejects, as recorded.
     tables_counts: Mapping[str, int]
     tables_rejects: Mapping[str, int]
+    #: When the tables were made (their record's ``finished_utc``, ISO 8601), "" if unknown.
+    tables_finished_utc: str = ""
 
     def counts(self) -> dict[str, SplitCounts]:
         """Events, rough events and point rows per split."""
@@ -1343,6 +1345,13 @@ def croissant_metadata(facts: _Facts) -> dict[str, Any]:
         # beside this file (replace with the hosting URL when publishing).
         "url": "README.md",
         "version": __version__,
+        # The day the tables were made: the data's date, so exporting the same tables
+        # again gives the same file (mlcroissant warns without a datePublished).
+        **(
+            {"datePublished": facts.tables_finished_utc[:10]}
+            if facts.tables_finished_utc
+            else {}
+        ),
         "keywords": [
             "terrain roughness",
             "self-supervised learning",
@@ -1424,6 +1433,7 @@ def run_export(
             tables=tables,
             tables_counts=dict(record.row_counts),
             tables_rejects=dict(record.rejects),
+            tables_finished_utc=record.finished_utc,
         )
         atomic_write_text(tmp / "README.md", dataset_card(facts))
         atomic_write_text(
