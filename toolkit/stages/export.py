@@ -1347,11 +1347,7 @@ def croissant_metadata(facts: _Facts) -> dict[str, Any]:
         "version": __version__,
         # The day the tables were made: the data's date, so exporting the same tables
         # again gives the same file (mlcroissant warns without a datePublished).
-        **(
-            {"datePublished": facts.tables_finished_utc[:10]}
-            if facts.tables_finished_utc
-            else {}
-        ),
+        **({"datePublished": facts.tables_finished_utc[:10]} if facts.tables_finished_utc else {}),
         "keywords": [
             "terrain roughness",
             "self-supervised learning",
