@@ -474,3 +474,19 @@ def test_a_failed_run_keeps_a_folder_it_did_not_make(runner: CliRunner, tmp_path
     result = runner.invoke(main, ["ingest", str(tmp_path / "nope.mcap"), "-w", str(ws)])
     assert result.exit_code == 1
     assert (ws / "notes.txt").read_text() == "mine"
+
+
+def test_summaries_say_what_they_count(runner: CliRunner, tmp_path: Path) -> None:
+    """One log is "1 log"; a workspace stage's failure names the stage once."""
+    default = Path(toolkit.__file__).parent / "default_config.toml"
+    ws = tmp_path / "ws"
+    (ws / "logs" / "fake-1").mkdir(parents=True)
+    (ws / "config.toml").write_text(default.read_text())
+    result = runner.invoke(main, ["pose", "-w", str(ws)])
+    assert result.exit_code == 1
+    assert "pose: 1 log: 1 failed" in result.output
+    sample = Path(__file__).resolve().parents[1] / "sample_logs" / "sample.mcap"
+    result = runner.invoke(main, ["run", str(sample), "-w", str(ws), "--from", "learn"])
+    assert result.exit_code == 1
+    line = assert_one_error_line(result.stderr)
+    assert line.startswith("terrain: error: learn: ") and "learn: learn:" not in line

@@ -200,3 +200,14 @@ def test_a_new_configuration_reaches_every_stage_it_runs(
     assert "max_points_per_wheel = 30" in (ws / "config.toml").read_text()
     summary = json.loads((ws / "report" / "summary.json").read_text())
     assert summary["train_events"] == model["training"]["events"]
+
+
+def test_the_ingest_row_counts_are_a_total_not_rows_of_rows() -> None:
+    from toolkit.pipeline import StageReport, _record_totals
+
+    rows, _, _ = _record_totals(
+        [{"row_counts": {"imu": 5, "gps": 2}}, {"row_counts": {"imu": 1}}], "ingest"
+    )
+    assert rows == {"total": 8}
+    line = StageReport("ingest", 1.0, {"done": 2}, rows, {}, ()).line()
+    assert "rows: total 8" in line and "rows: rows" not in line

@@ -433,7 +433,8 @@ def _each_log(
             done[result.status] = done.get(result.status, 0) + 1
     if len(ids) > 1 or failed:
         parts = [f"{n} {status.replace('_', ' ')}" for status, n in sorted(done.items())]
-        click.echo(f"{verb}: {len(ids)} logs: {', '.join(parts + [f'{len(failed)} failed'])}")
+        logs = f"{len(ids)} log{'s' if len(ids) != 1 else ''}"
+        click.echo(f"{verb}: {logs}: {', '.join(parts + [f'{len(failed)} failed'])}")
     if failed:
         raise click.exceptions.Exit(1)
 
@@ -631,7 +632,9 @@ def run(
         return
     for report in summary.stages:
         for item, reason in report.failures.items():
-            _error_line(f"{report.stage}: {item}: {reason}")
+            # A workspace stage's one item is the stage itself: named once.
+            where = report.stage if item == report.stage else f"{report.stage}: {item}"
+            _error_line(f"{where}: {reason}")
     ctx.exit(1)
 
 

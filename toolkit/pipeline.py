@@ -190,7 +190,7 @@ def _record_totals(
     for rec in records:
         counts = rec.get("row_counts", {})
         if keys is None:
-            rows["rows"] = rows.get("rows", 0) + sum(int(v) for v in counts.values())
+            rows["total"] = rows.get("total", 0) + sum(int(v) for v in counts.values())
         else:
             for k in keys:
                 if k in counts:

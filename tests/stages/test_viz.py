@@ -258,6 +258,8 @@ def test_every_topic_is_there_in_foxglove_schemas_with_its_count(scored: Made) -
     assert meta["log_id"] == scored.log_id
     assert "points.parquet" in meta["inputs_sha256"]
     assert scored.result.summary().startswith(f"{scored.log_id}: view written to ")
+    # The rows without a fix were left out, not shown: the summary says so.
+    assert f"{r.gps_without_fix} rows without a fix left out" in scored.result.summary()
 
 
 def test_messages_are_in_log_time_order(scored: Made) -> None:

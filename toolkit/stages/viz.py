@@ -283,7 +283,9 @@ class VizResult:
                 f"{self.scored_events} scored)"
             )
         if self.gps_fixes or self.gps_without_fix:
-            parts.append(f"/gps {self.gps_fixes} fixes ({self.gps_without_fix} without a fix)")
+            parts.append(
+                f"/gps {self.gps_fixes} fixes ({self.gps_without_fix} rows without a fix left out)"
+            )
         if self.truth_paths:
             parts.append(f"/truth/path {self.truth_vertices} vertices")
         if self.warnings:
