@@ -170,6 +170,10 @@ def test_manifest_corrupt_is_a_workspace_error(tmp_path: Path) -> None:
     path.write_text(json.dumps({"format": 99, "stages": {}}))
     with pytest.raises(WorkspaceError, match="format"):
         Manifest(path).stages()
+    path.write_bytes(b'{"format": 1, "stages": {"\xff": {}}}')  # not UTF-8
+    with pytest.raises(WorkspaceError, match="not UTF-8 text") as err:
+        Manifest(path).stages()
+    assert str(path) in str(err.value)
 
 
 def _record_in_child(path: str, name: str) -> None:

@@ -323,6 +323,10 @@ class Manifest:
             return {"format": MANIFEST_FORMAT, "stages": {}}
         except OSError as exc:
             raise WorkspaceError(f"cannot read manifest: {exc.strerror or exc}", self.path) from exc
+        except UnicodeDecodeError as exc:
+            raise WorkspaceError(
+                f"manifest is not UTF-8 text (byte {exc.start}): {exc.reason}", path=self.path
+            ) from exc
         try:
             obj = json.loads(text)
         except json.JSONDecodeError as exc:

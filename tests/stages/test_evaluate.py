@@ -387,3 +387,25 @@ def test_the_model_on_the_closest_laser_alone_is_trained_only_when_asked(
     else:
         assert row["points"]["same_as"] == "self_supervised"
         assert "model_closest_laser" not in summary["not_run"]
+
+
+def test_the_closest_laser_is_the_one_seen_last_before_the_training_events(
+    pipeline: Pipeline, summary: dict[str, Any]
+) -> None:
+    """Ranked on every point of the training events (the mean time from scan to event), not
+    on the model's sampled patches, whose few other lasers' points come from odd patches."""
+    import polars as pl
+
+    ws = pipeline.ws
+    events = pl.read_parquet(ws.events_table).filter(pl.col("split") == "train")
+    points = pl.read_parquet(ws.event_points_table, columns=["log_id", "event_id", "laser", "t_ns"])
+    lead = (
+        points.join(events.select("log_id", "event_id", "t_start_ns"), on=["log_id", "event_id"])
+        .with_columns(lead_s=(pl.col("t_start_ns") - pl.col("t_ns")) * 1e-9)
+        .group_by(pl.col("laser").cast(pl.String))
+        .agg(pl.col("lead_s").mean())
+        .sort(["lead_s", "laser"])
+    )
+    assert lead.height > 1  # the sample's five lasers, so the choice means something
+    assert summary["closest_laser"] == lead["laser"][0]
+    assert summary["baseline_closest_laser"]["points"]["only_laser"] == lead["laser"][0]

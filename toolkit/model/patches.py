@@ -422,10 +422,10 @@ def lead_order(
 ) -> tuple[str, ...]:
     """The lasers of the points under ``events`` (a table with ``log_id``, ``event_id`` and
     ``t_start_ns``), nearest first: ordered by the mean time their points were seen before
-    their event began (ties by name). A mean, not the median :func:`closest_laser
-    <toolkit.stages.evaluate.closest_laser>` takes, because it streams; the two agree on
-    which laser is nearest whenever the lasers' lead times do not overlap (a laser's look-
-    ahead is fixed by its mount, so they overlap little)."""
+    their event began (ties by name). A mean, because it streams: a laser's look-ahead is
+    fixed by its mount, so the lasers' lead times overlap little and the mean orders them
+    as the median would. The one ranking of the lasers: the model's nearest-laser sample
+    and the race test's closest laser both take it."""
     index = _EventIndex(events, source)
     start_ns = np.asarray(events.column("t_start_ns").to_numpy(zero_copy_only=False), np.int64)
     sums: dict[str, float] = {}

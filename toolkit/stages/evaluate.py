@@ -91,6 +91,7 @@ from toolkit.stages.label import FIG5_PNG
 from toolkit.stages.learn import (
     ascent_config,
     laser_order,
+    lasers_nearest_first,
     load_model,
     pair_table,
     patches_of,
@@ -283,22 +284,18 @@ def _boosted(
 
 
 def closest_laser(
-    patches: TyrePatches, t_start_s: FloatArray, configured: str | None
+    workspace: Workspace, order: tuple[str, ...], configured: str | None
 ) -> str | None:
-    """The configured closest laser, or the one whose points were seen the shortest median
-    time before their event started (None without points)."""
+    """The configured closest laser, or the nearest of the training split's lasers
+    (:func:`~toolkit.stages.learn.lasers_nearest_first`; ``order`` when the model already
+    ranked them), None without points. Ranked on every point of the training events: the
+    model's patches are a sample that keeps the nearest laser first, so the few other points
+    in them come from unusual patches and would rank the lasers wrongly (on five 20-mile
+    races their median look-ahead put the second laser first)."""
     if configured:
         return configured
-    if not patches.lasers:
-        return None
-    lead_s = np.repeat(t_start_s, 2)[:, None] - patches.tau
-    medians = [
-        float(np.median(lead_s[patches.valid & (patches.laser == i)]))
-        if np.any(patches.valid & (patches.laser == i))
-        else np.inf
-        for i in range(len(patches.lasers))
-    ]
-    return patches.lasers[int(np.argmin(medians))]
+    ranked = order or lasers_nearest_first(workspace)
+    return ranked[0] if ranked else None
 
 
 def oracle_patches(
@@ -533,7 +530,7 @@ def run_evaluate(
     tell("reading the baselines' points")
     t_start_s = events.column("t_start_ns").to_numpy().astype(np.float64) * 1e-9
     # Chosen on the training split's patches alone: the choice feeds trained rows.
-    closest = closest_laser(patches.take(train_groups), t_start_s[train], ev.baseline_closest_laser)
+    closest = closest_laser(workspace, order, ev.baseline_closest_laser)
     # Sect. 7.1's two readings of the race test: all lasers' points equally (the uniform
     # sample), and the closest laser's alone. Then the race test on the model's own points,
     # so that the two are also compared on the same points.

@@ -18,6 +18,7 @@ the toolkit's version. The same tables and configuration give the same file, byt
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -83,6 +84,18 @@ def table_inputs(workspace: Workspace) -> dict[str, str]:
 def split_events(workspace: Workspace, split: str | None) -> pa.Table:
     """The events of one split (``"train"``, ``"test"``) or all (None), in table order."""
     events = read_table(workspace.events_table, "tables_events")
+    # A (log, event) listed twice is the events table's fault: said of it here, before the
+    # points are matched to events and the duplicate would look like theirs.
+    keys = pa.table({"log_id": events.column("log_id"), "event_id": events.column("event_id")})
+    counts = keys.group_by(["log_id", "event_id"]).aggregate([([], "count_all")])
+    twice = counts.filter(pc.greater(counts.column("count_all"), 1))
+    if twice.num_rows:
+        first = twice.slice(0, 1).to_pylist()[0]
+        raise StageError(
+            f"log {first['log_id']!r} lists event {first['event_id']} "
+            f"{first['count_all']} times ({twice.num_rows} duplicated event(s))",
+            path=workspace.events_table,
+        )
     if split is None:
         return events
     return events.filter(pc.equal(events.column("split"), split))
@@ -98,16 +111,23 @@ def _point_batches(workspace: Workspace, columns: Sequence[str]) -> Iterator[pa.
     )
 
 
-def laser_order(workspace: Workspace, model: ModelConfig) -> tuple[str, ...]:
-    """The lasers nearest first, as ``[model] point_sample = "nearest_laser"`` ranks them
-    (:func:`toolkit.model.patches.lead_order`), measured on the training split's events only
-    (so learn and evaluate rank them alike, and no test event informs the model); () for
-    any other sample."""
-    if model.point_sample != "nearest_laser":
-        return ()
+def lasers_nearest_first(workspace: Workspace) -> tuple[str, ...]:
+    """Every laser of the training split's event points, nearest first
+    (:func:`toolkit.model.patches.lead_order`: the shortest mean time between a point's scan
+    and its event), over all their points, not a sample of them: the one ranking both the
+    model's nearest-laser sample and the race test's closest laser use. Measured on the
+    training split only, so no test event informs a trained row."""
     train = split_events(workspace, "train")
     columns = ("log_id", "event_id", "laser", "t_ns")
     return lead_order(train, _point_batches(workspace, columns), workspace.event_points_table)
+
+
+def laser_order(workspace: Workspace, model: ModelConfig) -> tuple[str, ...]:
+    """The lasers nearest first when ``[model] point_sample = "nearest_laser"``
+    (:func:`lasers_nearest_first`); () for any other sample."""
+    if model.point_sample != "nearest_laser":
+        return ()
+    return lasers_nearest_first(workspace)
 
 
 def patches_of(
@@ -278,15 +298,35 @@ def load_model(workspace: Workspace) -> tuple[RoughnessParams, dict[str, Any]]:
     if not path.is_file():
         raise StageError("no model; run `terrain learn` first", path=path)
     try:
-        doc = json.loads(path.read_text())
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise StageError(f"unreadable model: {exc}", path=path) from exc
+    if not isinstance(doc, dict):
+        raise StageError("unreadable model: not a JSON object", path=path)
+
+    def number(key: str, value: Any, integer: bool = False) -> float:
+        """A JSON number as written by learn: finite, not a string or a boolean, and for
+        omega a whole number (5.9 is not truncated to 5)."""
+        ok = isinstance(value, int) if integer else isinstance(value, (int, float))
+        if isinstance(value, bool) or not ok or not math.isfinite(value):
+            kind = "an integer" if integer else "a finite number"
+            raise StageError(f"model key {key!r} must be {kind}, not {value!r}", path=path)
+        return float(value)
+
+    for key in ("alpha", "upsilon", "omega", "zeta", "mu"):
+        if key not in doc:
+            raise StageError(f"unreadable model: no key {key!r}", path=path)
+    if not isinstance(doc["alpha"], list):
+        raise StageError(f"model key 'alpha' must be a list, not {doc['alpha']!r}", path=path)
+    try:
         params = RoughnessParams(
-            tuple(float(a) for a in doc["alpha"]),
-            float(doc["upsilon"]),
-            int(doc["omega"]),
-            float(doc["zeta"]),
-            float(doc["mu"]),
+            tuple(number(f"alpha[{i}]", a) for i, a in enumerate(doc["alpha"])),
+            number("upsilon", doc["upsilon"]),
+            int(number("omega", doc["omega"], integer=True)),
+            number("zeta", doc["zeta"]),
+            number("mu", doc["mu"]),
         )
-    except (OSError, ValueError, KeyError, TypeError) as exc:
+    except (ValueError, TypeError) as exc:
         raise StageError(f"unreadable model: {exc}", path=path) from exc
     if not params.admissible():
         raise StageError(f"model parameters outside the model's domain: {params}", path=path)
