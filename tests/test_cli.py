@@ -199,7 +199,7 @@ def test_sim_passes_arguments_and_prints_summary(
                 "profile": "race",
                 "distance_m": 1200.0,
                 "seed": 7,
-                "show_progress": False,
+                "show_progress": True,
                 "workers": None,
                 "lasers": True,
             },
@@ -210,7 +210,7 @@ def test_sim_passes_arguments_and_prints_summary(
         "profile": "sample",
         "distance_m": None,
         "seed": 0,
-        "show_progress": False,
+        "show_progress": True,
         "workers": 0,
         "lasers": True,
     }
@@ -354,19 +354,22 @@ def test_progress_disabled_off_terminal_in_ci_and_quiet(monkeypatch: pytest.Monk
     assert not progress_mod.progress_enabled()
 
 
-def test_progress_is_silent_under_ci_and_passes_items_through(
+def test_progress_under_ci_is_a_heartbeat_and_passes_items_through(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
+    """A CI log is not a terminal, even when stderr claims to be: no bar, a heartbeat
+    (silent for work shorter than its interval)."""
     monkeypatch.setenv("CI", "true")
     terminal = io.StringIO()
     terminal.isatty = lambda: True  # type: ignore[method-assign]
     monkeypatch.setattr(sys, "stderr", terminal)
+    progress_mod.set_quiet(False)
     bar = progress_mod.progress(range(5), desc="x")
-    assert bar.disable
+    assert isinstance(bar, progress_mod.Heartbeat)
     assert list(bar) == [0, 1, 2, 3, 4]
     with progress_mod.progress(total=10, unit="B") as manual:
         manual.update(4)
-    assert manual.disable and terminal.getvalue() == ""
+    assert isinstance(manual, progress_mod.Heartbeat) and terminal.getvalue() == ""
 
 
 def test_progress_draws_on_a_terminal(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -488,5 +491,30 @@ def test_summaries_say_what_they_count(runner: CliRunner, tmp_path: Path) -> Non
     sample = Path(__file__).resolve().parents[1] / "sample_logs" / "sample.mcap"
     result = runner.invoke(main, ["run", str(sample), "-w", str(ws), "--from", "learn"])
     assert result.exit_code == 1
-    line = assert_one_error_line(result.stderr)
-    assert line.startswith("terrain: error: learn: ") and "learn: learn:" not in line
+    errors = [line for line in result.stderr.splitlines() if line.startswith("terrain: error:")]
+    assert len(errors) == 1
+    assert errors[0].startswith("terrain: error: learn: ") and "learn: learn:" not in errors[0]
+
+
+def test_off_a_terminal_long_work_logs_progress_lines(tmp_path: Path) -> None:
+    """In a pipe: the simulator beats while it works (here every 0.2 s), and each log of
+    a batch gets a line as it finishes; stdout keeps the results alone."""
+    env = {**__import__("os").environ, "TERRAIN_HEARTBEAT_S": "0.2"}
+    env.pop("CI", None)
+    out = tmp_path / "hb.mcap"
+    args = ["sim", str(out), "--profile", "race", "--distance-m", "300", "--no-lasers"]
+    proc = subprocess.run(
+        [sys.executable, "-m", "toolkit", *args], capture_output=True, text=True, env=env
+    )
+    assert proc.returncode == 0, proc.stderr
+    beats = [line for line in proc.stderr.splitlines() if line.startswith("terrain: sim: ")]
+    assert beats and all(" block (" in b and ", after " in b for b in beats), proc.stderr
+    assert "terrain: sim" not in proc.stdout
+    proc = subprocess.run(
+        [sys.executable, "-m", "toolkit", "ingest", str(out), "-w", str(tmp_path / "ws")],
+        capture_output=True,
+        text=True,
+        env=env,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert "terrain: ingest: hb.mcap ingested (1/1)" in proc.stderr.splitlines()

@@ -38,7 +38,7 @@ from typing import Any, Literal, TypeVar
 
 from toolkit.config import PipelineConfig, default_config, dump_toml, load_config, parse_config
 from toolkit.errors import ConfigError, ToolkitError
-from toolkit.progress import progress
+from toolkit.progress import note, progress
 from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
@@ -286,6 +286,13 @@ def shard(items: Iterable[_P], shard_index: int, num_shards: int) -> list[_P]:
 # --------------------------------------------------------------------------------------
 
 
+def _item_name(item: Any) -> str:
+    """How a progress line names an item: a log's id when known, else its file's name."""
+    if isinstance(item, tuple) and item:
+        return str(item[1]) if len(item) > 1 and item[1] else Path(str(item[0])).name
+    return Path(str(item)).name if isinstance(item, (str, Path)) else str(item)
+
+
 @dataclass(frozen=True)
 class ItemOutcome:
     """What became of one item: its status, the task's result or the failure's reason."""
@@ -462,6 +469,8 @@ def run_batch(
             if outcome.detail:
                 _log.debug("%s: %s", item, outcome.detail)
             bar.update(1)
+            # Off a terminal, a line per item as it finishes (the bar says it on one).
+            note(f"{desc}: {_item_name(item)} {outcome.label} ({len(outcomes)}/{len(unique)})")
     ordered = tuple(outcomes[i] for i in range(len(unique)))
     return BatchSummary(desc, ordered, time.perf_counter() - start, unit=unit)
 

@@ -25,7 +25,7 @@ import click
 
 from toolkit import __version__
 from toolkit.errors import LogReadError, ToolkitError
-from toolkit.progress import progress_enabled, set_quiet
+from toolkit.progress import set_quiet
 
 PROG = "terrain"
 #: Stage names for --from/--to (toolkit.pipeline.STAGES, listed here so --help needs no import).
@@ -232,7 +232,7 @@ def sim(
         profile=profile,
         distance_m=distance_m,
         seed=seed,
-        show_progress=progress_enabled(),
+        show_progress=True,  # a bar on a terminal, a heartbeat off it, nothing with -q
         workers=workers,
         lasers=not no_lasers,
     )
@@ -562,7 +562,7 @@ def evaluate(workspace: Path, overwrite: bool) -> None:
 
     ws = Workspace(workspace)
     cfg = ws.read_config()
-    with ws.lock(), progress(total=8, desc="evaluate", unit="step") as bar:
+    with ws.lock(), progress(desc="evaluate", unit="step") as bar:
 
         def step(what: str) -> None:
             bar.set_postfix_str(what)

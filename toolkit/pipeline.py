@@ -57,7 +57,7 @@ from toolkit.batch import (
 )
 from toolkit.config import PipelineConfig, dump_toml, parse_config
 from toolkit.errors import ToolkitError, WorkspaceError
-from toolkit.progress import progress
+from toolkit.progress import note, progress
 from toolkit.workspace import Manifest, Workspace, log_id_for
 
 _log = logging.getLogger(__name__)
@@ -244,7 +244,7 @@ def run_pipeline(
 ) -> RunSummary:
     """``terrain run`` (module docstring). ``echo`` receives each stage's line as it ends."""
     start = time.perf_counter()
-    say = echo or (lambda _: None)
+    say = echo or note  # each stage's line as it ends: off a terminal by default
     stages = stage_range(first, last)
     unique: dict[str, Path] = {}
     for log in logs:  # "a.mcap" and "./a.mcap" are one log

@@ -1,16 +1,21 @@
-"""Progress bars that show on a terminal and stay silent in pipes, CI and ``--quiet`` runs.
+"""Progress: bars on a terminal, log lines and a heartbeat off it, nothing with ``--quiet``.
 
 Long work (simulation, ingest, learning) wraps its loops in :func:`progress`. Bars go to
-stderr, so stdout stays clean for results; they are disabled when stderr is not a terminal,
-when the ``CI`` environment variable is set (to anything but ``""``, ``0`` or ``false``), or
-after :func:`set_quiet` (the command line's ``-q``).
+stderr, so stdout stays clean for results; they are shown when stderr is a terminal and the
+``CI`` environment variable is unset (or ``""``, ``0``, ``false``). Off a terminal (a pipe, a
+CI log) the same call gives a :class:`Heartbeat`: every :data:`HEARTBEAT_S` seconds at most
+one line on stderr saying what runs, how far it is and for how long, so a long job is never
+silent for a minute; :func:`note` prints a line there as each stage or log finishes. After
+:func:`set_quiet` (the command line's ``-q``) neither shows.
 """
 
 from __future__ import annotations
 
 import os
 import sys
-from collections.abc import Iterable
+import threading
+import time
+from collections.abc import Iterable, Iterator
 from typing import Any
 
 from tqdm import tqdm
@@ -38,6 +43,101 @@ def progress_enabled() -> bool:
         return False
 
 
+#: Longest silence off a terminal while work goes on, s (``TERRAIN_HEARTBEAT_S`` overrides).
+HEARTBEAT_S = 60.0
+PROG = "terrain"
+
+
+def _heartbeat_s() -> float:
+    try:
+        return max(0.01, float(os.environ.get("TERRAIN_HEARTBEAT_S", HEARTBEAT_S)))
+    except ValueError:
+        return HEARTBEAT_S
+
+
+def logging_progress() -> bool:
+    """Whether progress is logged as lines (off a terminal, not quiet)."""
+    return not _quiet and not progress_enabled()
+
+
+def note(line: str) -> None:
+    """One progress line on stderr off a terminal (a stage or a log finished); nothing on a
+    terminal, where the bars say it, or when quiet."""
+    if logging_progress():
+        print(f"{PROG}: {line}", file=sys.stderr, flush=True)
+
+
+def _duration(seconds: float) -> str:
+    minutes, secs = divmod(int(seconds), 60)
+    return f"{minutes} min {secs:02d} s" if minutes else f"{secs} s"
+
+
+class Heartbeat:
+    """Progress off a terminal, with the part of tqdm's interface the toolkit uses
+    (iteration, ``update``, ``set_postfix_str``, ``close``, a context manager): a daemon
+    thread prints ``terrain: DESC: N/TOTAL UNIT (P %), POSTFIX, after T`` every
+    ``interval_s`` while the work runs, and nothing once it is closed."""
+
+    def __init__(
+        self,
+        iterable: Iterable[Any] | None,
+        total: float | None,
+        desc: str,
+        unit: str,
+        interval_s: float,
+    ) -> None:
+        self.iterable = iterable
+        self.total = total
+        self.desc = desc
+        self.unit = unit
+        self.n = 0.0
+        self.postfix = ""
+        self._start = time.monotonic()
+        self._stop = threading.Event()
+        self._interval_s = interval_s
+        self._thread = threading.Thread(target=self._beat, name=f"heartbeat {desc}", daemon=True)
+        self._thread.start()
+
+    def line(self) -> str:
+        """What the next heartbeat says."""
+        n = f"{self.n:g}"
+        done = f"{n}/{self.total:g} {self.unit}" if self.total else f"{n} {self.unit}"
+        if self.total:
+            done += f" ({100.0 * self.n / self.total:.0f} %)"
+        postfix = f", {self.postfix}" if self.postfix else ""
+        elapsed = _duration(time.monotonic() - self._start)
+        return f"{PROG}: {self.desc or 'working'}: {done}{postfix}, after {elapsed}"
+
+    def _beat(self) -> None:
+        while not self._stop.wait(self._interval_s):
+            print(self.line(), file=sys.stderr, flush=True)
+
+    def update(self, n: float = 1) -> None:
+        self.n += n
+
+    def set_postfix_str(self, text: str = "", refresh: bool = True) -> None:
+        self.postfix = text
+
+    def close(self) -> None:
+        self._stop.set()
+
+    def __iter__(self) -> Iterator[Any]:
+        if self.iterable is None:
+            raise TypeError("a heartbeat without an iterable is updated, not iterated")
+        try:
+            for item in self.iterable:
+                yield item
+                self.n += 1
+        finally:
+            self.close()
+
+    def __enter__(self) -> Heartbeat:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 def progress(
     iterable: Iterable[Any] | None = None,
     *,
@@ -50,8 +150,11 @@ def progress(
 
     Use as ``for x in progress(xs, desc="ingest")`` or
     ``with progress(total=n_bytes, unit="B", unit_scale=True) as bar: bar.update(k)``.
-    When disabled it is a pass-through with the same interface.
+    Off a terminal it is a :class:`Heartbeat` with the same interface; when quiet, a
+    disabled bar (a pass-through).
     """
+    if logging_progress():
+        return Heartbeat(iterable, total, desc, unit, _heartbeat_s())
     return tqdm(
         iterable,
         total=total,
