@@ -453,3 +453,14 @@ def test_created_takes_away_only_an_unused_fresh_workspace(tmp_path: Path) -> No
         assert held.is_file()
     finally:
         os.close(fd)
+
+
+def test_an_unknown_log_is_refused_naming_the_logs_there(tmp_path: Path) -> None:
+    ws = Workspace(tmp_path / "ws").create()
+    with pytest.raises(WorkspaceError, match="has no log yet"):
+        ws.require_log("a-1")
+    for name in ("b-2", "a-1"):
+        (ws.logs_dir / name).mkdir()
+    assert ws.require_log("a-1") == ws.log_dir("a-1")
+    with pytest.raises(WorkspaceError, match="no log 'c-3' in the workspace; its logs: a-1, b-2"):
+        ws.require_log("c-3")

@@ -404,15 +404,13 @@ def _each_log(
     """Run a per-log stage on one log or every log of the workspace, under its lock: one
     summary line per log, one error line per failed log (the others still run), a total
     line for several logs, exit 1 when any failed."""
-    from toolkit.errors import WorkspaceError
     from toolkit.workspace import Workspace
 
     ws = Workspace(workspace)
     cfg = ws.read_config()
     ids = ws.log_ids()
     if log_id is not None:
-        if log_id not in ids:
-            raise WorkspaceError(f"no log {log_id!r} in the workspace", path=ws.root)
+        ws.require_log(log_id)
         ids = [log_id]
     if not ids:
         click.echo(

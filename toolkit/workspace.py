@@ -697,6 +697,21 @@ class Workspace:
             p.name for p in self.logs_dir.iterdir() if p.is_dir() and not p.name.startswith(".")
         )
 
+    def require_log(self, log_id: str) -> Path:
+        """The directory of the workspace's log ``log_id``; WorkspaceError naming the logs it
+        does have (or saying it has none yet) when it is not one of them."""
+        path = self.log_dir(log_id)
+        if path.is_dir() and not log_id.startswith("."):
+            return path
+        ids = self.log_ids()
+        if not ids:
+            raise WorkspaceError(
+                f"no log {log_id!r}: the workspace has no log yet (run `terrain ingest`)",
+                path=self.root,
+            )
+        shown = ", ".join(ids[:20]) + (f" and {len(ids) - 20} more" if len(ids) > 20 else "")
+        raise WorkspaceError(f"no log {log_id!r} in the workspace; its logs: {shown}", self.root)
+
     def change_log(self, log_id: str) -> contextlib.AbstractContextManager[Generation]:
         """Open a new generation of ``WS/logs/<log_id>`` to change it all or nothing::
 

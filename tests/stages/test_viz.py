@@ -28,7 +28,7 @@ from mcap_protobuf.decoder import DecoderFactory
 
 from tests.stages.test_learn import build_pipeline
 from toolkit.config import default_config
-from toolkit.errors import StageError
+from toolkit.errors import StageError, WorkspaceError
 from toolkit.stages.label import run_label
 from toolkit.stages.viz import VizResult, run_viz
 from toolkit.tableio import read_table
@@ -533,11 +533,12 @@ def test_existing_output_is_refused_unless_overwrite(scored: Made, tmp_path: Pat
     assert sorted(p.name for p in tmp_path.iterdir()) == ["view.mcap"]  # no temporary left
 
 
-def test_unknown_log_is_one_line_naming_it(scored: Made, tmp_path: Path) -> None:
+def test_unknown_log_is_one_line_naming_it_and_the_logs_there(scored: Made, tmp_path: Path) -> None:
     out = tmp_path / "view.mcap"
-    with pytest.raises(StageError, match="no such log") as info:
+    with pytest.raises(WorkspaceError, match="no log 'nosuchlog-000000000000' in the") as info:
         run_viz(scored.ws, "nosuchlog-000000000000", out, CFG)
-    assert "nosuchlog-000000000000" in str(info.value) and "\n" not in str(info.value)
+    assert str(info.value).endswith(f"its logs: {scored.log_id}")
+    assert "\n" not in str(info.value)
     assert not out.exists() and list(tmp_path.iterdir()) == []
 
 

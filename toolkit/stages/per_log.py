@@ -15,7 +15,6 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Protocol, TypeVar
 
-from toolkit.errors import StageError
 from toolkit.workspace import Workspace
 
 
@@ -41,11 +40,7 @@ def run_on_log(
     """Run ``body(log_dir, start)`` on a new generation of the log and commit it unless the
     stage was up to date; a log the workspace does not have is one StageError line."""
     start = time.perf_counter()
-    if not workspace.log_dir(log_id).is_dir():
-        raise StageError(
-            "no such log in the workspace; run `terrain ingest` first",
-            path=workspace.log_dir(log_id),
-        )
+    workspace.require_log(log_id)
     with workspace.change_log(log_id) as gen:
         result = body(gen.path, start)
         if result.status != "up_to_date":

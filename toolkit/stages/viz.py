@@ -678,11 +678,7 @@ def run_viz(
     out_path = Path(out_path)
     if cloud_period_ns <= 0 or max_cloud_points <= 0:
         raise ValueError("cloud_period_ns and max_cloud_points must be positive")
-    if not workspace.log_dir(log_id).is_dir():
-        raise StageError(
-            "no such log in the workspace; run `terrain ingest` first",
-            path=workspace.log_dir(log_id),
-        )
+    workspace.require_log(log_id)
     _refuse_existing(out_path, overwrite)
     # A generation opened and discarded: a consistent snapshot of the log's files under its
     # lock (a stage committing meanwhile cannot mix two versions of the log into the view).
