@@ -472,3 +472,21 @@ def test_an_event_listed_twice_is_blamed_on_the_events_table(
     assert err.value.path == ws.events_table
     with pytest.raises(StageError, match="lists event .* 2 times"):
         split_events(ws, "test")
+
+
+def test_tables_of_another_configuration_are_refused_by_learn_and_evaluate(
+    pipeline: Pipeline, tmp_path: Path
+) -> None:
+    """``run -c B --from tables`` whose learn fails leaves B's tables under A's config.toml:
+    learn and evaluate under A refuse them in one line (export already did) instead of
+    reporting on B's split as A's."""
+    from toolkit.stages.evaluate import run_evaluate
+
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    other = default_config()
+    other = dataclasses.replace(other, tables=dataclasses.replace(other.tables, train_fraction=0.4))
+    for stage in (run_learn, run_evaluate):
+        with pytest.raises(StageError, match="made with another configuration") as err:
+            stage(ws, other, overwrite=True)
+        assert err.value.path == ws.tables_dir
+    run_learn(ws, default_config())  # the configuration they were made with: up to date

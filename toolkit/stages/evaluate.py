@@ -444,7 +444,7 @@ def run_evaluate(
         if what is not None and step is not None:
             step(what)
 
-    inputs = table_inputs(workspace)
+    inputs = table_inputs(workspace, config)
     model_path = workspace.model_path
     if not model_path.is_file():
         raise StageError("no model; run `terrain learn` first", path=model_path)

@@ -83,6 +83,7 @@ from toolkit.generations import fsync_dir, host_name
 from toolkit.model.patches import POINT_COLUMNS as EVENT_POINT_COLUMNS
 from toolkit.stages import label as label_stage
 from toolkit.stages import tables as tables_stage
+from toolkit.stages.learn import table_inputs
 from toolkit.tableio import (
     ColumnSpec,
     TableWriter,
@@ -266,28 +267,6 @@ class Scores:
     #: The learned threshold mu (``predicted`` = ``r_combined > mu``), when model.json is
     #: the one that was scored.
     mu: float | None
-
-
-def _tables_inputs(workspace: Workspace, config: PipelineConfig) -> dict[str, str]:
-    """sha256 of the two tables (keyed as the consumers of the tables key them), refused
-    unless they are what the last finished ``terrain tables`` wrote, with this
-    configuration."""
-    paths = (workspace.events_table, workspace.event_points_table)
-    missing = [p for p in paths if not p.is_file()]
-    if missing:
-        raise StageError("no training tables; run `terrain tables` first", path=missing[0])
-    hashes = {p.name: file_sha256(p) for p in paths}
-    record = workspace.manifest().stage(tables_stage.STAGE)
-    require_finished(record, tables_stage.STAGE, hashes, workspace.tables_dir)
-    # The card states the split's fraction from the configuration: it must be the one the
-    # tables were split with.
-    if record is not None and record.config_hash != tables_stage.stage_config_hash(config):
-        raise StageError(
-            "the tables were made with another configuration than the workspace's; run "
-            "`terrain tables` again",
-            path=workspace.manifest_path,
-        )
-    return {f"tables/{name}": sha for name, sha in hashes.items()}
 
 
 def _read_json(path: Path) -> Any:
@@ -1379,7 +1358,7 @@ def run_export(
     start = time.perf_counter()
     out_dir = Path(os.path.abspath(out_dir))
     _check_destination(workspace, out_dir, overwrite)
-    tables = _tables_inputs(workspace, config)
+    tables = table_inputs(workspace, config)
     record = workspace.manifest().stage(tables_stage.STAGE)
     assert record is not None  # _tables_inputs refuses a missing record
     events = _read_events(workspace)

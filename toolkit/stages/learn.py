@@ -35,6 +35,7 @@ from toolkit.errors import StageError
 from toolkit.model.ascent import AscentConfig, AscentResult, b_names, coordinate_ascent
 from toolkit.model.patches import POINT_COLUMNS, TyrePatches, build_patches, lead_order
 from toolkit.model.roughness import PairTable, RoughnessParams
+from toolkit.stages import tables as tables_stage
 from toolkit.tableio import iter_table_batches, read_table
 from toolkit.workspace import (
     StageRecord,
@@ -68,16 +69,25 @@ def stage_config_hash(config: PipelineConfig) -> str:
     return config_hash(config, CONFIG_SECTIONS)
 
 
-def table_inputs(workspace: Workspace) -> dict[str, str]:
-    """sha256 of the two tables, refused (WorkspaceError naming the file) unless they are
-    what the last finished ``terrain tables`` wrote."""
-    tables_dir = workspace.tables_dir
+def table_inputs(workspace: Workspace, config: PipelineConfig) -> dict[str, str]:
+    """sha256 of the two tables (keyed ``tables/<name>``), refused unless they are what the
+    last finished ``terrain tables`` wrote (WorkspaceError naming the file), and made with
+    ``config``, the configuration in force (StageError): tables of another configuration
+    (a ``run -c B --from tables`` whose learn failed leaves B's tables under A's
+    ``config.toml``) would be learned from, scored and reported as this one's."""
     paths = (workspace.events_table, workspace.event_points_table)
     missing = [p for p in paths if not p.is_file()]
     if missing:
         raise StageError("no training tables; run `terrain tables` first", path=missing[0])
     hashes = {p.name: file_sha256(p) for p in paths}
-    require_finished(workspace.manifest().stage("tables"), "tables", hashes, tables_dir)
+    record = workspace.manifest().stage(tables_stage.STAGE)
+    require_finished(record, tables_stage.STAGE, hashes, workspace.tables_dir)
+    if record is not None and record.config_hash != tables_stage.stage_config_hash(config):
+        raise StageError(
+            "the tables were made with another configuration than the workspace's "
+            f"({workspace.config_path.name}); run `terrain tables` again",
+            path=workspace.tables_dir,
+        )
     return {f"tables/{name}": sha for name, sha in hashes.items()}
 
 
@@ -344,7 +354,7 @@ def run_learn(
     import json
 
     start = time.perf_counter()
-    inputs = table_inputs(workspace)
+    inputs = table_inputs(workspace, config)
     cfg_hash = stage_config_hash(config)
     manifest = workspace.manifest()
     record = manifest.stage(STAGE)
