@@ -243,6 +243,20 @@ def test_section_hash_ignores_other_sections() -> None:
         config_hash(cfg, ["nope"])
 
 
+def test_a_hash_of_one_key_ignores_the_rest_of_its_section() -> None:
+    """What the tables read of [model] is the tyre window's radius: the patch size does not
+    change their hash, the radius does."""
+    cfg = default_config()
+    keys = ["tables", "model.wheel_window_radius_m"]
+    fewer = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, max_points_per_wheel=30))
+    wider = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, wheel_window_radius_m=1))
+    assert config_hash(fewer, keys) == config_hash(cfg, keys)
+    assert config_hash(wider, keys) != config_hash(cfg, keys)
+    assert config_hash(cfg, ["model", "model.wheel_window_radius_m"]) == config_hash(cfg, ["model"])
+    with pytest.raises(ValueError, match="model.nope"):
+        config_hash(cfg, ["model.nope"])
+
+
 # -- writing ----------------------------------------------------------------------------
 
 

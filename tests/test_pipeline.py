@@ -48,10 +48,13 @@ def state(ws: Path) -> dict[str, Any]:
     """Every visible file of the workspace by content (manifests without their timings;
     per-log directories through their public names)."""
     out: dict[str, Any] = {}
-    for p in sorted(ws.rglob("*")):
+    files = []
+    # Through the links (WS/logs/<id>, WS/report): os.walk follows them, Path.rglob does not.
+    for root, dirs, names in os.walk(ws, followlinks=True):
+        dirs[:] = [d for d in dirs if not d.startswith(".")]
+        files += [Path(root, n) for n in names if not n.startswith(".")]
+    for p in sorted(files):
         rel = p.relative_to(ws)
-        if any(part.startswith(".") for part in rel.parts) or p.is_dir():
-            continue
         if p.name == "manifest.json":
             out[str(rel)] = _strip(json.loads(p.read_text()))
         else:

@@ -579,20 +579,32 @@ def to_dict(cfg: PipelineConfig) -> dict[str, Any]:
 
 
 def config_hash(cfg: PipelineConfig, sections: Iterable[str] | None = None) -> str:
-    """sha256 (hex) of the canonical JSON of ``cfg``, or only of the named sections.
+    """sha256 (hex) of the canonical JSON of ``cfg``, or only of the named sections
+    (``"tables"``) and single keys (``"model.wheel_window_radius_m"``).
 
-    Hashing only the sections a stage reads lets an up-to-date check ignore changes to
-    settings the stage does not use. The format number is part of every hash.
+    Hashing only what a stage reads lets an up-to-date check ignore changes to settings the
+    stage does not use. The format number is part of every hash.
     """
     full = to_dict(cfg)
     if sections is None:
         body: dict[str, Any] = full
     else:
         wanted = sorted(set(sections))
-        unknown = [s for s in wanted if s not in full]
+        unknown = [
+            s
+            for s in wanted
+            if s.partition(".")[0] not in full
+            or (s.partition(".")[2] and s.partition(".")[2] not in full[s.partition(".")[0]])
+        ]
         if unknown:
-            raise ValueError(f"unknown config sections: {unknown}")
-        body = {s: full[s] for s in wanted}
+            raise ValueError(f"unknown config sections or keys: {unknown}")
+        body = {}
+        for s in wanted:
+            section, _, key = s.partition(".")
+            if not key:
+                body[section] = full[section]
+            elif section not in wanted:  # a whole section asked for holds the key already
+                body.setdefault(section, {})[key] = full[section][key]
     canonical = json.dumps(
         {"config_format": CONFIG_FORMAT, "config": body},
         sort_keys=True,

@@ -409,3 +409,28 @@ def test_the_closest_laser_is_the_one_seen_last_before_the_training_events(
     assert lead.height > 1  # the sample's five lasers, so the choice means something
     assert summary["closest_laser"] == lead["laser"][0]
     assert summary["baseline_closest_laser"]["points"]["only_laser"] == lead["laser"][0]
+
+
+def test_a_report_killed_mid_write_is_the_old_one(
+    pipeline: Pipeline, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Evaluate dying after the new scores are written but before the page: WS/report is
+    still the earlier report, every file as it was, nothing of the new one beside it; the
+    next evaluate replaces it whole."""
+    from toolkit.stages import evaluate as evaluate_stage
+
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    before = {p.name: file_sha256(p) for p in ws.report_dir.iterdir()}
+
+    def killed(*args: Any, **kwargs: Any) -> None:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(evaluate_stage, "write_index_html", killed)
+    with pytest.raises(KeyboardInterrupt):
+        run_evaluate(ws, default_config(), overwrite=True)
+    assert {p.name: file_sha256(p) for p in ws.report_dir.iterdir()} == before
+    monkeypatch.undo()
+    run_evaluate(ws, default_config(), overwrite=True)
+    assert sorted(p.name for p in ws.report_dir.iterdir()) == sorted(before)
+    gens = [p for p in ws.root.iterdir() if p.name.startswith(".report.") and p.suffix == ".gen"]
+    assert gens == [ws.report_dir.resolve()]  # the current report alone, nothing left over

@@ -54,6 +54,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -73,6 +74,7 @@ from toolkit.analysis.shock import MPS_PER_MPH
 from toolkit.analysis.truth_terrain import true_ground, where_beams_hit
 from toolkit.config import LearnConfig, ModelConfig, PipelineConfig, config_hash
 from toolkit.errors import StageError
+from toolkit.generations import open_generation
 from toolkit.model import boosted
 from toolkit.model import speed_control as sc
 from toolkit.model.ascent import AscentResult, best_threshold, coordinate_ascent
@@ -641,162 +643,186 @@ def run_evaluate(
 
     tell("ROC and speed control")
     t0 = time.perf_counter()
-    report.mkdir(parents=True, exist_ok=True)
-    testable = bool(rough[test].any() and (~rough[test]).any())
-    if not testable:
-        warnings.append("the test split lacks rough or smooth events: no ROC")
-    rocs: dict[str, RocSummary | None] = {}
-    for name, m in methods.items():
-        rocs[name] = (
-            summarise(
-                m.scores.r_combined[test],
-                rough[test],
-                ruggedness[test],
-                ev.fpr_points,
-                resamples=ev.bootstrap_resamples,
-                seed=ev.bootstrap_seed,
-            )
-            if m is not None and testable
-            else None
-        )
-    speed, speed_files = speed_control(events, learned.scores.predicted, test, config, report)
-    timings["evaluate"] = time.perf_counter() - t0
-    tell(None)
-
-    def entry(name: str) -> dict[str, Any] | None:
-        r, m = rocs.get(name), methods.get(name)
-        if r is None or m is None:
-            return None
-        out = r.to_json()
-        out["params"] = m.params.to_json()
-        out["points"] = points.get(name)
-        if m.trained is not None:
-            t = m.trained
-            out["train_objective"] = t.objective
-            out["train_auc"] = t.auc
-            out["accepted_by"] = t.accepted_by
-            if t.start is not None:
-                out["train_start"] = {"objective": t.start.objective, "auc": t.start.auc}
-        return out
-
-    counts = {
-        f"{side}_{k}": int(v)
-        for side, mask in (("train", train), ("test", test))
-        for k, v in (("events", mask.sum()), ("positives", (rough & mask).sum()))
-    }
-    # Too few rough events to tell methods apart: said on the page and on the terminal.
-    warnings += small_sample_warnings(
-        {"train": counts["train_positives"], "test": counts["test_positives"]}
-        if testable
-        else {"train": counts["train_positives"]}
-    )
-    summary: dict[str, Any] = {
-        **{name: entry(name) for name in MAIN_METHODS},
-        "ablations": {name: entry(name) for name in ABLATION_NAMES},
-        "speed_control": speed,
-        "not_run": not_run,
-        **counts,
-        "closest_laser": closest,
-        "model": {
-            k: model_doc[k]
-            for k in (
-                "alpha",
-                "upsilon",
-                "omega",
-                "zeta",
-                "mu",
-                "lambda",
-                "objective",
-                "tp_rate",
-                "fp_rate",
-                "iterations",
-            )
-        }
-        | {k: model_doc.get(k) for k in ("accepted_by", "train_auc", "start")}
-        | {"point_sample": config.model.point_sample, "laser_order": list(order)},
-        "baseline_test": {
-            "cell_m": bp.cell_m,
-            "delta_m": bp.delta_m,
-            "sigma0_m": bp.sigma0_m,
-            "growth_m2_per_s": bp.growth_m2_per_s,
-            "confidence": bp.confidence,
-        },
-        "warnings": warnings,
-        "toolkit_version": __version__,
-    }
-
-    def column(name: str) -> pa.Array:
-        m = methods.get(name)
-        if m is None:
-            return pa.nulls(events.num_rows, pa.float64())
-        v = m.scores.r_combined
-        return pa.array(v, pa.float64(), mask=~np.isfinite(v))
-
-    s = learned.scores
-    scores = pa.table(
-        {
-            "log_id": events.column("log_id"),
-            "event_id": events.column("event_id"),
-            "split": events.column("split"),
-            "r_left": s.r_left,
-            "r_right": s.r_right,
-            "r_combined": s.r_combined,
-            "predicted": s.predicted,
-            "rough": rough,
-            "ruggedness": ruggedness,
-            **{
-                name: column(name)
-                for name in (
-                    "baseline_all_lasers",
-                    "baseline_closest_laser",
-                    "paper_exact",
-                    "baseline_model_points",
-                    "model_closest_laser",
-                    "boosted",
-                    "oracle",
-                    *ABLATION_NAMES,
+    # The report is replaced as a whole, as a log is: written into a new generation of
+    # WS/report (WS/.report.<host>-<pid>-<hex>.gen) and switched to by one rename, so a
+    # reader, or an evaluate killed while writing, sees the old report or the new one.
+    with open_generation(workspace.root, REPORT_NAME) as gen:
+        report = _emptied(gen.path)
+        testable = bool(rough[test].any() and (~rough[test]).any())
+        if not testable:
+            warnings.append("the test split lacks rough or smooth events: no ROC")
+        rocs: dict[str, RocSummary | None] = {}
+        for name, m in methods.items():
+            rocs[name] = (
+                summarise(
+                    m.scores.r_combined[test],
+                    rough[test],
+                    ruggedness[test],
+                    ev.fpr_points,
+                    resamples=ev.bootstrap_resamples,
+                    seed=ev.bootstrap_seed,
                 )
-            },
+                if m is not None and testable
+                else None
+            )
+        speed, speed_files = speed_control(events, learned.scores.predicted, test, config, report)
+        timings["evaluate"] = time.perf_counter() - t0
+        tell(None)
+
+        def entry(name: str) -> dict[str, Any] | None:
+            r, m = rocs.get(name), methods.get(name)
+            if r is None or m is None:
+                return None
+            out = r.to_json()
+            out["params"] = m.params.to_json()
+            out["points"] = points.get(name)
+            if m.trained is not None:
+                t = m.trained
+                out["train_objective"] = t.objective
+                out["train_auc"] = t.auc
+                out["accepted_by"] = t.accepted_by
+                if t.start is not None:
+                    out["train_start"] = {"objective": t.start.objective, "auc": t.start.auc}
+            return out
+
+        counts = {
+            f"{side}_{k}": int(v)
+            for side, mask in (("train", train), ("test", test))
+            for k, v in (("events", mask.sum()), ("positives", (rough & mask).sum()))
         }
-    )
-    write_table(
-        report / SCORES_NAME,
-        scores,
-        "scores",
-        source_sha256=sorted(inputs.values()),
-        config_hash=cfg_hash,
-    )
-    figures = [roc_png(report / ROC_PNG, {n: r.curve for n, r in rocs.items() if r is not None})]
-    copied = _copy_log_figures(workspace, events, report)
-    atomic_write_json(report / SUMMARY_NAME, summary)
-    write_index_html(
-        report / INDEX_NAME,
-        ReportInputs(
-            summary, model_doc, [p.name for p in figures], [p.name for p in speed_files], copied
-        ),
-    )
-    for w in warnings:
-        _log.warning("%s", w)
-    names = [SCORES_NAME, SUMMARY_NAME, INDEX_NAME]
-    manifest.record_stage(
-        STAGE,
-        StageRecord(
-            inputs=inputs,
-            config_hash=cfg_hash,
-            outputs=tuple(f"report/{n}" for n in names),
-            row_counts={**counts, "scores": events.num_rows},
-            timings_s={
-                **{k: round(v, 6) for k, v in timings.items()},
-                **{f"step: {k}": round(v, 6) for k, v in step_s.items()},
-                "total": round(time.perf_counter() - start, 6),
+        # Too few rough events to tell methods apart: said on the page and on the terminal.
+        warnings += small_sample_warnings(
+            {"train": counts["train_positives"], "test": counts["test_positives"]}
+            if testable
+            else {"train": counts["train_positives"]}
+        )
+        summary: dict[str, Any] = {
+            **{name: entry(name) for name in MAIN_METHODS},
+            "ablations": {name: entry(name) for name in ABLATION_NAMES},
+            "speed_control": speed,
+            "not_run": not_run,
+            **counts,
+            "closest_laser": closest,
+            "model": {
+                k: model_doc[k]
+                for k in (
+                    "alpha",
+                    "upsilon",
+                    "omega",
+                    "zeta",
+                    "mu",
+                    "lambda",
+                    "objective",
+                    "tp_rate",
+                    "fp_rate",
+                    "iterations",
+                )
+            }
+            | {k: model_doc.get(k) for k in ("accepted_by", "train_auc", "start")}
+            | {"point_sample": config.model.point_sample, "laser_order": list(order)},
+            "baseline_test": {
+                "cell_m": bp.cell_m,
+                "delta_m": bp.delta_m,
+                "sigma0_m": bp.sigma0_m,
+                "growth_m2_per_s": bp.growth_m2_per_s,
+                "confidence": bp.confidence,
             },
-            warnings=tuple(warnings),
-            output_files=digest_files(report, names),
-        ),
-    )
+            "warnings": warnings,
+            "toolkit_version": __version__,
+        }
+
+        def column(name: str) -> pa.Array:
+            m = methods.get(name)
+            if m is None:
+                return pa.nulls(events.num_rows, pa.float64())
+            v = m.scores.r_combined
+            return pa.array(v, pa.float64(), mask=~np.isfinite(v))
+
+        s = learned.scores
+        scores = pa.table(
+            {
+                "log_id": events.column("log_id"),
+                "event_id": events.column("event_id"),
+                "split": events.column("split"),
+                "r_left": s.r_left,
+                "r_right": s.r_right,
+                "r_combined": s.r_combined,
+                "predicted": s.predicted,
+                "rough": rough,
+                "ruggedness": ruggedness,
+                **{
+                    name: column(name)
+                    for name in (
+                        "baseline_all_lasers",
+                        "baseline_closest_laser",
+                        "paper_exact",
+                        "baseline_model_points",
+                        "model_closest_laser",
+                        "boosted",
+                        "oracle",
+                        *ABLATION_NAMES,
+                    )
+                },
+            }
+        )
+        write_table(
+            report / SCORES_NAME,
+            scores,
+            "scores",
+            source_sha256=sorted(inputs.values()),
+            config_hash=cfg_hash,
+        )
+        figures = [
+            roc_png(report / ROC_PNG, {n: r.curve for n, r in rocs.items() if r is not None})
+        ]
+        copied = _copy_log_figures(workspace, events, report)
+        atomic_write_json(report / SUMMARY_NAME, summary)
+        write_index_html(
+            report / INDEX_NAME,
+            ReportInputs(
+                summary, model_doc, [p.name for p in figures], [p.name for p in speed_files], copied
+            ),
+        )
+        for w in warnings:
+            _log.warning("%s", w)
+        names = [SCORES_NAME, SUMMARY_NAME, INDEX_NAME]
+        gen.commit()
+        manifest.record_stage(
+            STAGE,
+            StageRecord(
+                inputs=inputs,
+                config_hash=cfg_hash,
+                outputs=tuple(f"report/{n}" for n in names),
+                row_counts={**counts, "scores": events.num_rows},
+                timings_s={
+                    **{k: round(v, 6) for k, v in timings.items()},
+                    **{f"step: {k}": round(v, 6) for k, v in step_s.items()},
+                    "total": round(time.perf_counter() - start, 6),
+                },
+                warnings=tuple(warnings),
+                output_files=digest_files(report, names),
+            ),
+        )
+    report = workspace.report_dir
     return EvaluateResult(
         "written", summary, report / INDEX_NAME, tuple(warnings), time.perf_counter() - start
     )
+
+
+#: The report's folder under the workspace (a link to its current generation).
+REPORT_NAME = "report"
+
+
+def _emptied(directory: Path) -> Path:
+    """``directory`` (a new generation of the report, holding links to the old one's files)
+    emptied: the new report is made from nothing, so a figure the run no longer draws does
+    not linger. Removing a link leaves the old generation's file in place."""
+    for entry in directory.iterdir():
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry)
+        else:
+            entry.unlink()
+    return directory
 
 
 def _copy_log_figures(

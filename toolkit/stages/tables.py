@@ -74,7 +74,10 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 STAGE = "tables"
-CONFIG_SECTIONS = ("tables", "model", "vehicle")
+#: What the tables are made from: the split, the vehicle (tyre track) and, of the model's
+#: settings, the radius around a tyre's track alone (the patches' sampling and size are
+#: learn's and evaluate's business: changing them leaves the tables as they are).
+CONFIG_SECTIONS = ("tables", "vehicle", "model.wheel_window_radius_m")
 #: Largest spacing of the samples of a tyre's path, m.
 PATH_STEP_M = 0.05
 #: Points per read batch.
