@@ -155,3 +155,30 @@ def test_auc_half_width_is_about_the_bootstrap_interval() -> None:
     r = summarise(s, y, s, resamples=200, seed=1)
     half = (r.auc_ci[1] - r.auc_ci[0]) / 2
     assert 0.6 * auc_half_width(30) < half < 1.3 * auc_half_width(30)
+
+
+def test_the_report_says_what_a_reader_must_know_of_the_learned_row() -> None:
+    """A model flagging nothing, a ranking mostly tied at zero, and an oracle below the
+    learned model each get a line; a sound run gets none."""
+    from toolkit.model.roc import caveats, summarise
+
+    rng = np.random.default_rng(4)
+    y = np.zeros(2000, bool)
+    y[:40] = True
+    good = np.where(y, rng.normal(2, 1, y.size), rng.normal(0, 1, y.size))
+    tied = np.where(rng.random(y.size) < 0.8, 0.0, good)
+    worse = good + rng.normal(0, 2, y.size)
+    s_good = summarise(good, y, good, resamples=20)
+    s_tied = summarise(tied, y, good, resamples=20)
+    s_worse = summarise(worse, y, good, resamples=20)
+    assert caveats(s_good, s_good, flagged_test=12, objective=0.4) == []
+    (nothing,) = caveats(s_good, None, flagged_test=0, objective=0.0)
+    assert "calling nothing rough" in nothing
+    assert caveats(s_good, None, flagged_test=0, objective=0.3) == [
+        "the learned model flags no test event rough at its threshold mu"
+    ]
+    (zeros,) = caveats(s_tied, None, flagged_test=5, objective=0.3)
+    assert zeros.startswith(f"{100 * s_tied.zero_share:.0f} % of the test events score exactly 0")
+    (below,) = caveats(s_good, s_worse, flagged_test=5, objective=0.3)
+    assert below.startswith("the oracle (the model on true heights) ranks below the learned model")
+    assert "40 rough test events" in below

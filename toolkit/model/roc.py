@@ -245,7 +245,49 @@ def small_sample_warnings(
     return out
 
 
+#: Above this share of test events tied at R = 0, the learned model's ranking is mostly a tie.
+ZERO_SHARE_WARNING = 0.5
+
+
+def caveats(
+    learned: RocSummary | None,
+    oracle: RocSummary | None,
+    flagged_test: int,
+    objective: float,
+) -> list[str]:
+    """What a reader of the report must know about the learned model's row, one line each:
+    it flags no test event rough (``flagged_test`` = 0) or its training objective
+    (eq. 6) is 0; most test events tie at R = 0 (over :data:`ZERO_SHARE_WARNING`); the
+    oracle, which sees the true heights, ranks below it (with the AUC gap against the
+    interval the test split's rough events allow)."""
+    out = []
+    if objective <= 0.0:
+        out.append(
+            "the search found no threshold that beats calling nothing rough (training "
+            "Tp - 5 Fp = 0): the learned model's operating point flags nothing; only its "
+            "ranking (ROC, AUC) says anything"
+        )
+    elif flagged_test == 0:
+        out.append("the learned model flags no test event rough at its threshold mu")
+    if learned is not None and learned.zero_share > ZERO_SHARE_WARNING:
+        out.append(
+            f"{100 * learned.zero_share:.0f} % of the test events score exactly 0 for the "
+            "learned model: they tie, and its ROC crosses them in one straight segment"
+        )
+    if learned is not None and oracle is not None and oracle.auc < learned.auc:
+        gap = learned.auc - oracle.auc
+        half = auc_half_width(max(learned.positives, 1))
+        within = "within" if gap < half else "beyond"
+        out.append(
+            f"the oracle (the model on true heights) ranks below the learned model (AUC "
+            f"{oracle.auc:.3f} against {learned.auc:.3f}): a gap of {gap:.3f}, {within} the "
+            f"~+-{half:.2f} that {learned.positives} rough test events allow"
+        )
+    return out
+
+
 __all__ = [
+    "caveats",
     "DEFAULT_FPR_POINTS",
     "MIN_ROUGH_EVENTS",
     "TYPICAL_AUC",

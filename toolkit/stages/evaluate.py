@@ -80,7 +80,7 @@ from toolkit.model import speed_control as sc
 from toolkit.model.ascent import AscentResult, best_threshold, coordinate_ascent
 from toolkit.model.baseline import BaselineParams, FixedScores, baseline_pairs, pair_scores
 from toolkit.model.patches import TyrePatches
-from toolkit.model.roc import RocSummary, small_sample_warnings, summarise
+from toolkit.model.roc import RocSummary, caveats, small_sample_warnings, summarise
 from toolkit.model.roughness import (
     THREADS,
     EventScores,
@@ -690,6 +690,13 @@ def run_evaluate(
             for side, mask in (("train", train), ("test", test))
             for k, v in (("events", mask.sum()), ("positives", (rough & mask).sum()))
         }
+        # What a reader must know of the learned row (and of an oracle below it).
+        warnings += caveats(
+            rocs.get("self_supervised"),
+            rocs.get("oracle"),
+            int(learned.scores.predicted[test].sum()),
+            float(model_doc.get("objective", 0.0)),
+        )
         # Too few rough events to tell methods apart: said on the page and on the terminal.
         warnings += small_sample_warnings(
             {"train": counts["train_positives"], "test": counts["test_positives"]}
