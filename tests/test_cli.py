@@ -518,3 +518,12 @@ def test_off_a_terminal_long_work_logs_progress_lines(tmp_path: Path) -> None:
     )
     assert proc.returncode == 0, proc.stderr
     assert "terrain: ingest: hb.mcap ingested (1/1)" in proc.stderr.splitlines()
+
+
+def test_sim_writes_no_log_inside_a_workspace(runner: CliRunner, tmp_path: Path) -> None:
+    ws = Workspace(tmp_path / "ws").create()
+    ws.config_path.write_text("")
+    result = runner.invoke(main, ["sim", str(ws.logs_dir / "x.mcap")])
+    assert result.exit_code == 1
+    assert "lies inside the workspace" in assert_one_error_line(result.stderr)
+    assert not (ws.logs_dir / "x.mcap").exists()

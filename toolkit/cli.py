@@ -225,6 +225,9 @@ def sim(
     # replaced when asked.
     if out.exists() and not overwrite:
         raise ToolkitError("already exists; pass --overwrite to replace it", path=out)
+    from toolkit.workspace import refuse_inside_workspace
+
+    refuse_inside_workspace(out)  # a log written there would pass for one of the workspace's
     from toolkit.sim.simulate import simulate
 
     result = simulate(

@@ -101,6 +101,27 @@ def temp_path_beside(path: Path, suffix: str = "tmp") -> Path:
     )
 
 
+def workspace_around(path: str | Path) -> Path | None:
+    """The workspace ``path`` lies in or is (a folder holding ``config.toml`` and ``logs/``,
+    found among its real path's ancestors), or None. An output of export, viz or sim may not
+    go there: it would replace the workspace's own files (a model, a manifest, a log's
+    table inside its generation) or pass for one of its logs."""
+    real = Path(os.path.realpath(path))
+    for folder in (real, *real.parents):
+        if (folder / Workspace.CONFIG_NAME).is_file() and (folder / "logs").is_dir():
+            return folder
+    return None
+
+
+def refuse_inside_workspace(path: str | Path) -> None:
+    """WorkspaceError when ``path`` lies in a workspace (:func:`workspace_around`)."""
+    around = workspace_around(path)
+    if around is not None:
+        raise WorkspaceError(
+            f"lies inside the workspace {around}; write outputs outside a workspace", path=path
+        )
+
+
 def _unlink_unheld_lock(path: Path) -> None:
     """Remove an empty lock file nobody holds (OSError otherwise, the file kept): taken
     exclusively, without waiting, while it is unlinked, so a process that holds it (another

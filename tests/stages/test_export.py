@@ -425,7 +425,7 @@ def test_a_non_empty_destination_is_refused_without_overwrite_and_left_as_it_was
     assert err.value.path == out and "\n" not in str(err.value)
     assert tree_digest(out) == before and not leftovers(out)
 
-    with pytest.raises(StageError, match="is not an earlier export") as err:
+    with pytest.raises(StageError, match="not an earlier export") as err:
         run_export(pipeline.ws, out, config, overwrite=True)
     assert tree_digest(out) == before and not leftovers(out)
 
@@ -439,6 +439,22 @@ def test_a_non_empty_destination_is_refused_without_overwrite_and_left_as_it_was
     empty.mkdir()
     run_export(pipeline.ws, empty, config)
     assert (empty / "croissant.json").is_file()
+
+    # An earlier export with another team's file beside it is not replaced: the file would
+    # be deleted with it.
+    (empty / "data" / "theirs.csv").write_text("theirs\n")
+    before = tree_digest(empty)
+    with pytest.raises(StageError, match="holds data/theirs.csv, which no export wrote"):
+        run_export(pipeline.ws, empty, config, overwrite=True)
+    assert tree_digest(empty) == before
+    (empty / "data" / "theirs.csv").unlink()
+    run_export(pipeline.ws, empty, config, overwrite=True)  # only its own files: replaced
+
+    # Nowhere inside a workspace: it would pass for a log, or replace the workspace's files.
+    for inside in (pipeline.ws.logs_dir / "extra", pipeline.ws.root / "dataset"):
+        with pytest.raises(WorkspaceError, match="lies inside the workspace"):
+            run_export(pipeline.ws, inside, config)
+        assert not inside.exists()
 
 
 def test_a_failure_leaves_no_export_and_nothing_beside_it(

@@ -579,3 +579,19 @@ def test_a_posed_log_without_points_or_events_shows_what_it_has(
     assert (result.clouds, result.events) == (0, 0)
     assert any("points.parquet" in w for w in result.warnings)
     assert any("events.parquet" in w for w in result.warnings)
+
+
+def test_no_view_is_written_inside_a_workspace(scored: Made) -> None:
+    """``--out WS/model.json --overwrite`` replaced the model before: nothing inside a
+    workspace is a view's to replace."""
+    model = scored.ws.model_path
+    before = model.read_bytes() if model.is_file() else None
+    for inside in (
+        model,
+        scored.ws.root / "view.mcap",
+        scored.ws.log_dir(scored.log_id) / "v.mcap",
+    ):
+        with pytest.raises(WorkspaceError, match="lies inside the workspace"):
+            run_viz(scored.ws, scored.log_id, inside, CFG, overwrite=True)
+    assert (model.read_bytes() if model.is_file() else None) == before
+    assert not (scored.ws.root / "view.mcap").exists()

@@ -96,6 +96,7 @@ from toolkit.workspace import (
     Workspace,
     atomic_write_text,
     file_sha256,
+    refuse_inside_workspace,
     require_finished,
     temp_path_beside,
 )
@@ -435,6 +436,7 @@ def _check_destination(workspace: Workspace, out_dir: Path, overwrite: bool) -> 
     if real == root or real in root.parents:
         # Replacing it would delete the workspace the export is made from.
         raise StageError(f"holds the workspace {workspace.root}; export elsewhere", path=out_dir)
+    refuse_inside_workspace(out_dir)
     if not _nonempty(out_dir):
         return
     if not overwrite:
@@ -443,13 +445,45 @@ def _check_destination(workspace: Workspace, out_dir: Path, overwrite: bool) -> 
             "the export there",
             path=out_dir,
         )
-    # --overwrite replaces an earlier export, never an arbitrary folder of someone's files.
-    if not (out_dir / "croissant.json").is_file() or not (out_dir / "README.md").is_file():
+    # --overwrite replaces an earlier export, never an arbitrary folder of someone's files:
+    # every file there must be one the export wrote (its card, its Croissant metadata and
+    # the data files that metadata lists).
+    foreign = _not_written_by_export(out_dir)
+    if foreign is not None:
         raise StageError(
-            "is not an earlier export (no croissant.json and README.md); refusing to "
-            "replace it, choose a new or empty directory",
+            f"holds {foreign}, which no export wrote; refusing to replace it, choose a new "
+            "or empty directory",
             path=out_dir,
         )
+
+
+def _not_written_by_export(out_dir: Path) -> str | None:
+    """The first file or folder in ``out_dir`` (relative) that an export did not write, or
+    None when the folder is an earlier export and nothing else: ``README.md``,
+    ``croissant.json`` and the files its distribution lists (``contentUrl``)."""
+    if not (out_dir / "croissant.json").is_file() or not (out_dir / "README.md").is_file():
+        return "no croissant.json and README.md (not an earlier export)"
+    try:
+        doc = json.loads((out_dir / "croissant.json").read_text(encoding="utf-8"))
+        listed = {
+            str(d["contentUrl"])
+            for d in doc.get("distribution", [])
+            if isinstance(d, dict) and d.get("@type") == "cr:FileObject"
+        }
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return "croissant.json that cannot be read (not an earlier export)"
+    ours = {"README.md", "croissant.json", *listed}
+    folders = {str(Path(f).parent) for f in listed} | {
+        str(p) for f in listed for p in Path(f).parents if str(p) != "."
+    }
+    for entry in sorted(out_dir.rglob("*")):
+        rel = str(entry.relative_to(out_dir))
+        if entry.is_dir() and not entry.is_symlink():
+            if rel not in folders:
+                return rel
+        elif rel not in ours:
+            return rel
+    return None
 
 
 def _nonempty(directory: Path) -> bool:

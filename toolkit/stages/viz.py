@@ -134,6 +134,7 @@ from toolkit.workspace import (
     Workspace,
     file_sha256,
     fsync_file,
+    refuse_inside_workspace,
     require_finished,
     temp_path_beside,
 )
@@ -697,6 +698,7 @@ def run_viz(
 
 
 def _refuse_existing(out_path: Path, overwrite: bool) -> None:
+    refuse_inside_workspace(out_path)  # never over a workspace's own files
     if out_path.is_dir():
         raise StageError("is a directory; give the view's file name", path=out_path)
     if out_path.exists() and not overwrite:
