@@ -135,9 +135,10 @@ class VehicleConfig:
     base_frame: Annotated[str, Rule(nonempty=True)]
     imu_frame: Annotated[str, Rule(nonempty=True)]
     gps_frame: Annotated[str, Rule(nonempty=True)]
-    imu_position_m: Annotated[tuple[float, ...], Rule(length=3)]
-    imu_orientation_rad: Annotated[tuple[float, ...], Rule(length=3)]
-    gps_antenna_position_m: Annotated[tuple[float, ...], Rule(length=3)]
+    #: Mount positions within 100 m of base_link, orientations within one turn.
+    imu_position_m: Annotated[tuple[float, ...], Rule(length=3, ge=-100.0, le=100.0)]
+    imu_orientation_rad: Annotated[tuple[float, ...], Rule(length=3, ge=-6.3, le=6.3)]
+    gps_antenna_position_m: Annotated[tuple[float, ...], Rule(length=3, ge=-100.0, le=100.0)]
 
 
 @dataclass(frozen=True)
@@ -174,7 +175,7 @@ class TimeConfig:
 class PoseConfig:
     """Unscented Kalman filter settings (sect. 3: GPS, compass, IMU, wheels at 100 Hz)."""
 
-    output_rate_hz: Annotated[float, Rule(gt=0.0)]
+    output_rate_hz: Annotated[float, Rule(gt=0.0, le=1000.0)]
     gps_min_status: Annotated[int, Rule(ge=-1, le=2)]
     accel_noise_mps2: Annotated[float, Rule(gt=0.0)]
     gyro_noise_radps: Annotated[float, Rule(gt=0.0)]
@@ -191,7 +192,9 @@ class PoseConfig:
     # reaches -1e7 and the sigma-point covariance loses all precision.
     sigma_alpha: Annotated[float, Rule(ge=1e-3, le=1.0)]
     sigma_beta: Annotated[float, Rule(ge=0.0)]
-    sigma_kappa: float
+    #: Van der Merwe's kappa (0 or 3 - n in the literature): n + kappa must stay positive
+    #: for the state's n of 15-17, so within [-10, 100].
+    sigma_kappa: Annotated[float, Rule(ge=-10.0, le=100.0)]
     initial_position_std_m: Annotated[float, Rule(gt=0.0)]
     initial_velocity_std_mps: Annotated[float, Rule(gt=0.0)]
     initial_attitude_std_rad: Annotated[float, Rule(gt=0.0)]
@@ -215,12 +218,16 @@ class PoseConfig:
 class LabelConfig:
     """Data labeling (sect. 5): FIR high-pass of the z accelerometer, shock per event."""
 
-    fir_taps: Annotated[int, Rule(ge=3)]
+    #: At most 1,000 taps (the paper's 40; 100,000 never finished): the filter's cost and
+    #: its start-up transient grow with the length.
+    fir_taps: Annotated[int, Rule(ge=3, le=1000)]
     fir_stop_hz: Annotated[float, Rule(gt=0.0)]
     #: Where the passband (gain 1 within 5 %) starts; must be above fir_stop_hz and below
     #: the IMU's Nyquist frequency (checked by the label stage, which knows the rate).
     fir_pass_hz: Annotated[float, Rule(gt=0.0)]
-    event_length_m: Annotated[float, Rule(gt=0.0)]
+    #: From 0.1 m (one event a few IMU samples long at race speed; 1e-6 m made billions of
+    #: events and 22.9 GB) to 1 km.
+    event_length_m: Annotated[float, Rule(ge=0.1, le=1000.0)]
     shock_statistic: Annotated[str, Rule(choices=("max_abs", "rms"))]
     min_speed_mps: Annotated[float, Rule(ge=0.0)]
     rough_threshold_g_per_mph: Annotated[float, Rule(gt=0.0)]
@@ -235,8 +242,9 @@ class LabelConfig:
 class ModelConfig:
     """Roughness model inputs (sect. 4): which points are scored for each rear wheel."""
 
-    wheel_window_radius_m: Annotated[float, Rule(gt=0.0)]
-    max_points_per_wheel: Annotated[int, Rule(ge=0)]
+    wheel_window_radius_m: Annotated[float, Rule(gt=0.0, le=5.0)]
+    #: 0 = no cap; otherwise at most 1,000 (a patch costs N^2 / 2 pairs: 500 k a tyre).
+    max_points_per_wheel: Annotated[int, Rule(ge=0, le=1000)]
     #: Which points a patch with more than max_points_per_wheel keeps: "hash" (a uniform,
     #: reproducible sample of all lasers, the paper's), "nearest_laser" (the nearest laser's
     #: first) or "freshest" (those seen last before the event). toolkit.model.patches.
@@ -249,16 +257,22 @@ class ModelConfig:
 class LearnConfig:
     """Coordinate ascent (sect. 6) on Tp - lambda_fp * Fp over (alpha, upsilon, omega, zeta)."""
 
-    lambda_fp: Annotated[float, Rule(ge=0.0)]
-    iterations: Annotated[int, Rule(ge=1)]
-    initial_alpha: Annotated[tuple[float, ...], Rule(length=10)]
-    initial_upsilon: Annotated[float, Rule(gt=0.0)]
-    initial_omega: Annotated[int, Rule(ge=1)]
-    initial_zeta: Annotated[float, Rule(gt=0.0)]
-    increment_alpha: Annotated[tuple[float, ...], Rule(length=10, gt=0.0)]
-    increment_upsilon: Annotated[float, Rule(gt=0.0)]
-    increment_omega: Annotated[float, Rule(gt=0.0)]
-    increment_zeta: Annotated[float, Rule(gt=0.0)]
+    lambda_fp: Annotated[float, Rule(ge=0.0, le=1e6)]
+    #: Full rotations of the search; the increments halve each time (past ~50 they are
+    #: below float32's resolution), so at most 1,000.
+    iterations: Annotated[int, Rule(ge=1, le=1000)]
+    #: Each within +-1e6 (weights) and, for the exponents, positive (checked below): 1e300
+    #: overflowed every score.
+    initial_alpha: Annotated[tuple[float, ...], Rule(length=10, ge=-1e6, le=1e6)]
+    initial_upsilon: Annotated[float, Rule(gt=0.0, le=100.0)]
+    #: The number of largest pair scores summed: at most 10,000 (each patch keeps that many
+    #: scores; 1e9 asked 3 TiB).
+    initial_omega: Annotated[int, Rule(ge=1, le=10000)]
+    initial_zeta: Annotated[float, Rule(gt=0.0, le=100.0)]
+    increment_alpha: Annotated[tuple[float, ...], Rule(length=10, gt=0.0, le=1e6)]
+    increment_upsilon: Annotated[float, Rule(gt=0.0, le=100.0)]
+    increment_omega: Annotated[float, Rule(gt=0.0, le=10000.0)]
+    increment_zeta: Annotated[float, Rule(gt=0.0, le=100.0)]
     #: What a step of the search must improve on the training split: "objective" (eq. 6,
     #: the paper's), "auc" or "pauc" (toolkit.model.ascent); mu is eq. (6)'s either way.
     accept: Annotated[str, Rule(choices=("objective", "auc", "pauc"))] = "auc"
@@ -270,8 +284,11 @@ class LearnConfig:
     #: (toolkit.model.roughness), learned like the others from initial_lead with
     #: increment_lead; false is the paper's eq. (4).
     lead_term: bool = False
-    initial_lead: Annotated[tuple[float, ...], Rule(length=2)] = (0.01, 1.0)
-    increment_lead: Annotated[tuple[float, ...], Rule(length=2, gt=0.0)] = (0.005, 0.5)
+    initial_lead: Annotated[tuple[float, ...], Rule(length=2, ge=-1e6, le=1e6)] = (0.01, 1.0)
+    increment_lead: Annotated[tuple[float, ...], Rule(length=2, gt=0.0, le=1e6)] = (
+        0.005,
+        0.5,
+    )
 
 
 @dataclass(frozen=True)
@@ -281,10 +298,10 @@ class TablesConfig:
     split_method: Annotated[str, Rule(choices=("distance",))]
     split_scope: Annotated[str, Rule(choices=("all_logs", "per_log"))]
     train_fraction: Annotated[float, Rule(gt=0.0, lt=1.0)]
-    min_points_per_wheel: Annotated[int, Rule(ge=2)]
+    min_points_per_wheel: Annotated[int, Rule(ge=2, le=1000)]
     #: A point counts for an event when seen at most this long before the rear axle reached
     #: it, s (on a loop of the course, terrain seen minutes earlier is not "ahead").
-    max_lookahead_s: Annotated[float, Rule(gt=0.0)] = 60.0
+    max_lookahead_s: Annotated[float, Rule(gt=0.0, le=3600.0)] = 60.0
 
 
 @dataclass(frozen=True)
@@ -308,13 +325,13 @@ class EvaluateConfig:
     shock_floor_g: Annotated[float, Rule(ge=0.0)] = 0.3
     #: The race's obstacle test (toolkit.model.baseline): grid cell, m; obstacle height, m;
     #: pose error at zero time, m; its variance growth, m^2/s; the test's confidence.
-    baseline_cell_m: Annotated[float, Rule(gt=0.0)] = 0.25
+    baseline_cell_m: Annotated[float, Rule(ge=0.01, le=10.0)] = 0.25
     baseline_delta_m: Annotated[float, Rule(ge=0.0)] = 0.15
     baseline_sigma0_m: Annotated[float, Rule(gt=0.0)] = 0.03
     baseline_growth_m2_per_s: Annotated[float, Rule(ge=0.0)] = 0.0025
     baseline_confidence: Annotated[float, Rule(gt=0.5, lt=1.0)] = 0.95
     #: Bootstrap resamples of the test events for the ROC's confidence intervals, and the seed.
-    bootstrap_resamples: Annotated[int, Rule(ge=10)] = 1000
+    bootstrap_resamples: Annotated[int, Rule(ge=10, le=100000)] = 1000
     bootstrap_seed: Annotated[int, Rule(ge=0)] = 0
     #: Also train the model on the closest laser's points alone. Off by default: the model
     #: and the race test already meet on the same points (the race test on the model's
@@ -522,15 +539,30 @@ def _scalar(tp: Any, value: Any, key: str, rule: Rule, source: str | Path) -> An
             raise fail("expected a finite number")
     else:  # pragma: no cover - a field type this loader does not know is a programming error
         raise TypeError(f"unsupported config field type {tp!r} for {key}")
-    if rule.gt is not None and not number > rule.gt:
-        raise fail(f"must be greater than {rule.gt:g}")
-    if rule.ge is not None and not number >= rule.ge:
-        raise fail(f"must be at least {rule.ge:g}")
-    if rule.lt is not None and not number < rule.lt:
-        raise fail(f"must be less than {rule.lt:g}")
-    if rule.le is not None and not number <= rule.le:
-        raise fail(f"must be at most {rule.le:g}")
+    inside = (
+        (rule.gt is None or number > rule.gt)
+        and (rule.ge is None or number >= rule.ge)
+        and (rule.lt is None or number < rule.lt)
+        and (rule.le is None or number <= rule.le)
+    )
+    if not inside:
+        raise fail(f"must be {_valid_range(rule)}")
     return number
+
+
+def _valid_range(rule: Rule) -> str:
+    """The valid range of a number in words: "at least 3", "in [3, 1000]", "in (0, 10]"."""
+    lo = f"[{rule.ge:g}" if rule.ge is not None else f"({rule.gt:g}" if rule.gt is not None else ""
+    hi = f"{rule.le:g}]" if rule.le is not None else f"{rule.lt:g})" if rule.lt is not None else ""
+    if lo and hi:
+        return f"in {lo}, {hi}"
+    if rule.ge is not None:
+        return f"at least {rule.ge:g}"
+    if rule.gt is not None:
+        return f"greater than {rule.gt:g}"
+    if rule.le is not None:
+        return f"at most {rule.le:g}"
+    return f"less than {rule.lt:g}"
 
 
 def _validate(cfg: PipelineConfig, source: str | Path) -> None:

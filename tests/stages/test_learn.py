@@ -490,3 +490,22 @@ def test_tables_of_another_configuration_are_refused_by_learn_and_evaluate(
             stage(ws, other, overwrite=True)
         assert err.value.path == ws.tables_dir
     run_learn(ws, default_config())  # the configuration they were made with: up to date
+
+
+def test_an_initial_guess_that_overflows_is_a_config_error(
+    pipeline: Pipeline, tmp_path: Path
+) -> None:
+    """Valid values each (omega 10,000, upsilon 100) whose scores overflow together: one line
+    naming the configuration's keys, not an internal error; the model stays as it was."""
+    from toolkit.errors import ConfigError
+
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    before = ws.model_path.read_bytes()
+    cfg = default_config()
+    huge = dataclasses.replace(
+        cfg, learn=dataclasses.replace(cfg.learn, initial_upsilon=100.0, initial_omega=10_000)
+    )
+    with pytest.raises(ConfigError, match="learn.initial_alpha / initial_upsilon") as err:
+        run_learn(ws, huge, overwrite=True)
+    assert "\n" not in str(err.value) and err.value.path == ws.config_path
+    assert ws.model_path.read_bytes() == before

@@ -31,7 +31,7 @@ import pyarrow.compute as pc
 
 from toolkit import __version__
 from toolkit.config import LearnConfig, ModelConfig, PipelineConfig, config_hash
-from toolkit.errors import StageError
+from toolkit.errors import ConfigError, StageError
 from toolkit.model.ascent import AscentConfig, AscentResult, b_names, coordinate_ascent
 from toolkit.model.patches import POINT_COLUMNS, TyrePatches, build_patches, lead_order
 from toolkit.model.roughness import PairTable, RoughnessParams
@@ -378,7 +378,13 @@ def run_learn(
     timings["pairs"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     search = ascent_config(config.learn)
-    result = coordinate_ascent(pairs, rough, search, progress)
+    try:
+        result = coordinate_ascent(pairs, rough, search, progress)
+    except ValueError as exc:  # an initial guess whose scores overflow: the configuration's
+        raise ConfigError(
+            f"learn.initial_alpha / initial_upsilon / initial_omega / initial_zeta: {exc}",
+            path=workspace.config_path,
+        ) from exc
     timings["ascent"] = time.perf_counter() - t0
     doc = model_json(
         result,
