@@ -683,3 +683,15 @@ def export(workspace: Path, out_dir: Path, overwrite: bool) -> None:
     with ws.lock(shared=True):
         result = run_export(ws, out_dir, cfg, overwrite=overwrite)
     click.echo(result.summary())
+
+
+@main.command("logs")
+@_WORKSPACE_OPTION
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+def logs_(workspace: Path, as_json: bool) -> None:
+    """The workspace's logs: source file, stages done, rows; then tables, learn, evaluate."""
+    from toolkit.listing import list_workspace
+    from toolkit.workspace import Workspace
+
+    listing = list_workspace(Workspace(workspace))
+    click.echo(listing.to_json() if as_json else listing.text())

@@ -1,0 +1,45 @@
+"""``terrain logs``: a workspace's logs and stages, from the manifests."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from tests.stages.test_learn import Pipeline, build_pipeline
+from toolkit.cli import main
+from toolkit.workspace import Workspace
+
+
+@pytest.fixture(scope="module")
+def pipeline(
+    sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
+) -> Pipeline:
+    return build_pipeline(sample_projected, tmp_path_factory)
+
+
+def test_logs_lists_each_log_its_source_stages_and_rows(pipeline: Pipeline) -> None:
+    runner = CliRunner()
+    result = runner.invoke(main, ["logs", "-w", str(pipeline.ws.root), "--json"])
+    assert result.exit_code == 0, result.output
+    doc = json.loads(result.stdout)
+    (entry,) = doc["logs"]
+    assert entry["log_id"] == pipeline.ws.log_ids()[0]
+    assert entry["source"].endswith(".mcap") and entry["size_bytes"] > 0
+    assert entry["stages"] == ["ingest", "pose", "project", "label"]
+    assert entry["rows"]["events"] > 0 and entry["rows"]["points"] > 0
+    assert set(doc["workspace_stages"]) >= {"tables", "learn"}
+    text = runner.invoke(main, ["logs", "-w", str(pipeline.ws.root)]).stdout
+    assert entry["log_id"] in text and "ingest pose project label" in text
+
+
+def test_an_empty_workspace_says_so_and_no_workspace_is_one_line(tmp_path: Path) -> None:
+    ws = Workspace(tmp_path / "ws").create()
+    ws.config_path.write_text("")
+    runner = CliRunner()
+    result = runner.invoke(main, ["logs", "-w", str(ws.root)])
+    assert result.exit_code == 0 and "no log yet" in result.stdout
+    result = runner.invoke(main, ["logs", "-w", str(tmp_path / "nope")])
+    assert result.exit_code == 1 and "no such workspace directory" in result.stderr
