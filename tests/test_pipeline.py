@@ -214,3 +214,18 @@ def test_the_ingest_row_counts_are_a_total_not_rows_of_rows() -> None:
     assert rows == {"total": 8}
     line = StageReport("ingest", 1.0, {"done": 2}, rows, {}, ()).line()
     assert "rows: total 8" in line and "rows: rows" not in line
+
+
+def test_run_json_is_the_summary_a_script_reads(
+    uninterrupted: Path, logs: list[Path], tmp_path: Path
+) -> None:
+    ws = tmp_path / "ws"
+    shutil.copytree(uninterrupted, ws, symlinks=True)
+    proc = subprocess.run(
+        terrain("run", *logs, "-w", ws, "--json"), check=True, capture_output=True, text=True
+    )
+    doc = json.loads(proc.stdout)
+    assert doc["ok"] is True and len(doc["log_ids"]) == 2
+    assert [s["stage"] for s in doc["stages"]] == list(STAGES)
+    assert all(s["statuses"].get("failed", 0) == 0 and not s["failures"] for s in doc["stages"])
+    assert doc["report"].endswith("index.html")

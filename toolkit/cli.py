@@ -590,6 +590,7 @@ def evaluate(workspace: Path, overwrite: bool) -> None:
     help="Last stage to run (default: evaluate).",
 )
 @click.option("--overwrite", is_flag=True, help="Redo every stage in range, even if up to date.")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON on stdout.")
 @_executor_options
 @click.pass_context
 def run(
@@ -600,6 +601,7 @@ def run(
     first: str | None,
     last: str | None,
     overwrite: bool,
+    as_json: bool,
     executor_kind: str,
     scheduler: str | None,
     workers: int | None,
@@ -628,7 +630,7 @@ def run(
         shard_index=shard_index,
         num_shards=num_shards,
     )
-    click.echo(summary.render())
+    click.echo(json.dumps(summary.to_dict(), indent=2) if as_json else summary.render())
     if summary.ok:
         return
     for report in summary.stages:

@@ -38,6 +38,7 @@ from the manifests the stages wrote.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import logging
 import os
@@ -158,6 +159,20 @@ class RunSummary:
     @property
     def ok(self) -> bool:
         return all(not s.failures for s in self.stages)
+
+    def to_dict(self) -> dict[str, Any]:
+        """What ``terrain run --json`` prints: every stage's report, the logs, the time, the
+        notes and the report's page (None when not written)."""
+        return {
+            "ok": self.ok,
+            "stages": [dataclasses.asdict(s) for s in self.stages],
+            "log_ids": list(self.log_ids),
+            "seconds": round(self.seconds, 3),
+            "notes": list(self.notes),
+            "report": str(self.report)
+            if self.report is not None and self.report.is_file()
+            else None,
+        }
 
     def render(self) -> str:
         lines = [s.line() for s in self.stages]
