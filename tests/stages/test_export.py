@@ -537,7 +537,7 @@ def test_tables_of_another_configuration_or_label_rule_are_refused(
     )
     with pytest.raises(StageError, match="another configuration") as err:
         run_export(ws, out, other)
-    assert err.value.path == ws.manifest_path
+    assert err.value.path == ws.tables_dir
 
     relabelled = dataclasses.replace(
         config, label=dataclasses.replace(config.label, rough_threshold_g_per_mph=0.5)
