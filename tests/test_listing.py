@@ -43,3 +43,31 @@ def test_an_empty_workspace_says_so_and_no_workspace_is_one_line(tmp_path: Path)
     assert result.exit_code == 0 and "no log yet" in result.stdout
     result = runner.invoke(main, ["logs", "-w", str(tmp_path / "nope")])
     assert result.exit_code == 1 and "no such workspace directory" in result.stderr
+
+
+def test_every_stage_verb_prints_json_a_script_reads(pipeline: Pipeline) -> None:
+    """``--json`` on ingest, the per-log stages and the workspace stages: one JSON document
+    on stdout with each log's (or the stage's) status and manifest record."""
+    runner = CliRunner()
+    ws = str(pipeline.ws.root)
+    log_id = pipeline.ws.log_ids()[0]
+    for verb in ("pose", "project", "label"):
+        result = runner.invoke(main, [verb, "-w", ws, "--json"])
+        assert result.exit_code == 0, result.output
+        doc = json.loads(result.stdout)
+        (entry,) = doc["logs"]
+        assert doc["stage"] == verb and entry["log_id"] == log_id
+        assert entry["status"] == "up_to_date" and entry["record"]["row_counts"]
+    for verb in ("tables", "learn", "evaluate"):
+        result = runner.invoke(main, [verb, "-w", ws, "--json"])
+        assert result.exit_code == 0, result.output
+        doc = json.loads(result.stdout)
+        assert doc["stage"] == verb and doc["status"] == "up_to_date"
+        assert doc["record"]["row_counts"] and doc["summary"]
+    source = json.loads(runner.invoke(main, ["logs", "-w", ws, "--json"]).stdout)["logs"][0]
+    result = runner.invoke(main, ["ingest", source["source"], "-w", ws, "--json"])
+    assert result.exit_code == 0, result.output
+    (outcome,) = json.loads(result.stdout)["logs"]
+    assert outcome == {
+        "log": source["source"], "status": "up to date", "log_id": log_id, "error": None,
+    }  # fmt: skip

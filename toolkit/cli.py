@@ -344,6 +344,7 @@ _EXECUTOR_OPTIONS = [
 @main.command()
 @_logs_options
 @click.option("--overwrite", is_flag=True, help="Re-ingest logs that are already up to date.")
+@click.option("--json", "as_json", is_flag=True, help="Print each log's outcome as JSON.")
 @_executor_options
 @click.pass_context
 def ingest(
@@ -352,6 +353,7 @@ def ingest(
     workspace: Path,
     config_path: Path | None,
     overwrite: bool,
+    as_json: bool,
     executor_kind: str,
     scheduler: str | None,
     workers: int | None,
@@ -378,7 +380,19 @@ def ingest(
         shard_index=shard_index,
         num_shards=num_shards,
     )
-    click.echo(summary.render(with_reasons=False))
+    if as_json:
+        outcomes = [
+            {
+                "log": str(o.item),
+                "status": o.label,
+                "log_id": getattr(o.result, "log_id", None),
+                "error": o.reason or None,
+            }
+            for o in summary.outcomes
+        ]
+        click.echo(json.dumps({"stage": "ingest", "logs": outcomes}, indent=2))
+    else:
+        click.echo(summary.render(with_reasons=False))
     if summary.ok:
         return
     for outcome in summary.outcomes:
@@ -403,11 +417,13 @@ def _each_log(
     verb: str,
     nothing: str,
     run: Callable[[Any, str, Any], _StageResult],
+    as_json: bool = False,
 ) -> None:
     """Run a per-log stage on one log or every log of the workspace, under its lock: one
     summary line per log, one error line per failed log (the others still run), a total
-    line for several logs, exit 1 when any failed."""
-    from toolkit.workspace import Workspace
+    line for several logs, exit 1 when any failed. With ``as_json`` the summary lines are
+    one JSON document instead (:func:`_stage_json`); the error lines stay on stderr."""
+    from toolkit.workspace import Manifest, Workspace
 
     ws = Workspace(workspace)
     cfg = ws.read_config()
@@ -422,6 +438,7 @@ def _each_log(
         return
     failed: list[str] = []
     done: dict[str, int] = {}
+    results: list[dict[str, Any]] = []
     with ws.lock():
         for one in ids:  # one log's failure never stops the others
             try:
@@ -429,10 +446,23 @@ def _each_log(
             except ToolkitError as exc:
                 _error_line(f"{one}: {exc}")
                 failed.append(one)
+                results.append({"log_id": one, "status": "failed", "error": str(exc)})
                 continue
-            click.echo(result.summary())
+            if not as_json:
+                click.echo(result.summary())
             done[result.status] = done.get(result.status, 0) + 1
-    if len(ids) > 1 or failed:
+            record = Manifest(ws.log_manifest_path(one)).stage(verb)
+            results.append(
+                {
+                    "log_id": one,
+                    "status": result.status,
+                    "summary": result.summary(),
+                    "record": record.to_json() if record is not None else None,
+                }
+            )
+    if as_json:
+        click.echo(json.dumps({"stage": verb, "logs": results}, indent=2))
+    elif len(ids) > 1 or failed:
         parts = [f"{n} {status.replace('_', ' ')}" for status, n in sorted(done.items())]
         logs = f"{len(ids)} log{'s' if len(ids) != 1 else ''}"
         click.echo(f"{verb}: {logs}: {', '.join(parts + [f'{len(failed)} failed'])}")
@@ -440,10 +470,31 @@ def _each_log(
         raise click.exceptions.Exit(1)
 
 
+JSON_HELP = "Print the result as JSON on stdout (each log's status, summary and record)."
+
+
+def _echo_stage(ws: Any, stage: str, status: str, text: str, as_json: bool) -> None:
+    """A workspace stage's result: its summary text, or with ``as_json`` a JSON document of
+    the stage, its status, that text and its manifest record (rows, rejects, timings,
+    warnings, inputs' sha256)."""
+    if not as_json:
+        click.echo(text)
+        return
+    record = ws.manifest().stage(stage)
+    doc = {
+        "stage": stage,
+        "status": status,
+        "summary": text,
+        "record": record.to_json() if record is not None else None,
+    }
+    click.echo(json.dumps(doc, indent=2))
+
+
 def _per_log_options(what: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """The options every per-log verb takes: -w, --log, --overwrite."""
 
     def apply(f: Callable[..., Any]) -> Callable[..., Any]:
+        f = click.option("--json", "as_json", is_flag=True, help=JSON_HELP)(f)
         f = click.option(
             "--overwrite", is_flag=True, help=f"Recompute {what} that are up to date."
         )(f)
@@ -463,7 +514,7 @@ def _per_log_options(what: str) -> Callable[[Callable[..., Any]], Callable[..., 
 
 @main.command()
 @_per_log_options("poses")
-def pose(workspace: Path, log_id: str | None, overwrite: bool) -> None:
+def pose(workspace: Path, log_id: str | None, overwrite: bool, as_json: bool) -> None:
     """UKF pose fusion: WS/logs/<id>/pose.parquet at 100 Hz."""
     from toolkit.stages.pose import run_pose
 
@@ -473,12 +524,13 @@ def pose(workspace: Path, log_id: str | None, overwrite: bool) -> None:
         "pose",
         "pose",
         lambda ws, one, cfg: run_pose(ws, one, cfg, overwrite=overwrite),
+        as_json,
     )
 
 
 @main.command()
 @_per_log_options("point clouds")
-def project(workspace: Path, log_id: str | None, overwrite: bool) -> None:
+def project(workspace: Path, log_id: str | None, overwrite: bool, as_json: bool) -> None:
     """Laser scans + pose -> WS/logs/<id>/points.parquet, the 3-D point cloud (sect. 3)."""
     from toolkit.stages.project import run_project
 
@@ -488,12 +540,13 @@ def project(workspace: Path, log_id: str | None, overwrite: bool) -> None:
         "project",
         "project",
         lambda ws, one, cfg: run_project(ws, one, cfg, overwrite=overwrite),
+        as_json,
     )
 
 
 @main.command()
 @_per_log_options("labels")
-def label(workspace: Path, log_id: str | None, overwrite: bool) -> None:
+def label(workspace: Path, log_id: str | None, overwrite: bool, as_json: bool) -> None:
     """IMU shock -> WS/logs/<id>/events.parquet with ruggedness labels (sect. 5)."""
     from toolkit.stages.label import run_label
 
@@ -503,6 +556,7 @@ def label(workspace: Path, log_id: str | None, overwrite: bool) -> None:
         "label",
         "label",
         lambda ws, one, cfg: run_label(ws, one, cfg, overwrite=overwrite),
+        as_json,
     )
 
 
@@ -515,7 +569,8 @@ def label(workspace: Path, log_id: str | None, overwrite: bool) -> None:
     help="Workspace directory (labelled and projected).",
 )
 @click.option("--overwrite", is_flag=True, help="Rebuild the tables even if up to date.")
-def tables(workspace: Path, overwrite: bool) -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+def tables(workspace: Path, overwrite: bool, as_json: bool) -> None:
     """Events and the points under each rear tyre, split train/test: WS/tables/ (sect. 7)."""
     from toolkit.stages.tables import run_tables
     from toolkit.workspace import Workspace
@@ -524,7 +579,7 @@ def tables(workspace: Path, overwrite: bool) -> None:
     cfg = ws.read_config()
     with ws.lock():
         result = run_tables(ws, cfg, overwrite=overwrite)
-    click.echo(result.summary())
+    _echo_stage(ws, "tables", result.status, result.summary(), as_json)
 
 
 _WORKSPACE_OPTION = click.option(
@@ -539,7 +594,8 @@ _WORKSPACE_OPTION = click.option(
 @main.command()
 @_WORKSPACE_OPTION
 @click.option("--overwrite", is_flag=True, help="Learn again even if the model is up to date.")
-def learn(workspace: Path, overwrite: bool) -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+def learn(workspace: Path, overwrite: bool, as_json: bool) -> None:
     """Coordinate ascent on the training tables -> WS/model.json, the 14 parameters (sect. 6)."""
     from toolkit.progress import progress
     from toolkit.stages.learn import run_learn
@@ -549,13 +605,14 @@ def learn(workspace: Path, overwrite: bool) -> None:
     cfg = ws.read_config()
     with ws.lock(), progress(total=cfg.learn.iterations, desc="learn", unit="rotation") as bar:
         result = run_learn(ws, cfg, overwrite=overwrite, progress=lambda _: bar.update(1))
-    click.echo(result.summary())
+    _echo_stage(ws, "learn", result.status, result.summary(), as_json)
 
 
 @main.command()
 @_WORKSPACE_OPTION
 @click.option("--overwrite", is_flag=True, help="Evaluate again even if the report is up to date.")
-def evaluate(workspace: Path, overwrite: bool) -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+def evaluate(workspace: Path, overwrite: bool, as_json: bool) -> None:
     """ROC against the race's method, speed control, report -> WS/report/ (sect. 7)."""
     from toolkit.progress import progress
     from toolkit.stages.evaluate import run_evaluate
@@ -570,7 +627,7 @@ def evaluate(workspace: Path, overwrite: bool) -> None:
             bar.update(1)
 
         result = run_evaluate(ws, cfg, overwrite=overwrite, step=step)
-    click.echo(result.text())
+    _echo_stage(ws, "evaluate", result.status, result.text(), as_json)
 
 
 @main.command()
