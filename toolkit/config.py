@@ -622,17 +622,11 @@ def config_hash(cfg: PipelineConfig, sections: Iterable[str] | None = None) -> s
         body: dict[str, Any] = full
     else:
         wanted = sorted(set(sections))
-        unknown = [
-            s
-            for s in wanted
-            if s.partition(".")[0] not in full
-            or (s.partition(".")[2] and s.partition(".")[2] not in full[s.partition(".")[0]])
-        ]
-        if unknown:
-            raise ValueError(f"unknown config sections or keys: {unknown}")
         body = {}
-        for s in wanted:
-            section, _, key = s.partition(".")
+        for name in wanted:
+            section, _, key = name.partition(".")
+            if section not in full or (key and key not in full[section]):
+                raise ValueError(f"unknown config section or key: {name!r}")
             if not key:
                 body[section] = full[section]
             elif section not in wanted:  # a whole section asked for holds the key already

@@ -269,9 +269,12 @@ def _log_lock(logs_dir: Path, log_id: str) -> Iterator[None]:
 
 
 @contextlib.contextmanager
-def open_generation(logs_dir: Path, log_id: str) -> Iterator[Generation]:
+def open_generation(
+    logs_dir: Path, log_id: str, *, carry_files: bool = True
+) -> Iterator[Generation]:
     """Open a new generation of ``WS/logs/<log_id>`` holding (hard links to) the current
-    files; yield it; discard it unless it was committed. Raises WorkspaceError when the
+    files, or nothing with ``carry_files=False`` (an output made whole each time, as the
+    report is); yield it; discard it unless it was committed. Raises WorkspaceError when the
     workspace cannot be written (read-only, full, no permission)."""
     try:
         logs_dir.mkdir(parents=True, exist_ok=True)
@@ -284,7 +287,7 @@ def open_generation(logs_dir: Path, log_id: str) -> Iterator[Generation]:
         current = current_generation(logs_dir, log_id)
         path = logs_dir / _hidden_name(log_id, GENERATION_SUFFIX)
         try:
-            if current is None:
+            if current is None or not carry_files:
                 path.mkdir()
             else:
                 shutil.copytree(

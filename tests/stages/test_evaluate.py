@@ -430,7 +430,9 @@ def test_a_report_killed_mid_write_is_the_old_one(
         run_evaluate(ws, default_config(), overwrite=True)
     assert {p.name: file_sha256(p) for p in ws.report_dir.iterdir()} == before
     monkeypatch.undo()
+    (ws.report_dir / "old_figure.png").write_bytes(b"a figure no run draws any more")
     run_evaluate(ws, default_config(), overwrite=True)
+    # Made from nothing: the stale figure is gone, every file of a run is there.
     assert sorted(p.name for p in ws.report_dir.iterdir()) == sorted(before)
     gens = [p for p in ws.root.iterdir() if p.name.startswith(".report.") and p.suffix == ".gen"]
     assert gens == [ws.report_dir.resolve()]  # the current report alone, nothing left over

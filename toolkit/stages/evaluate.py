@@ -54,7 +54,6 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
-import shutil
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -646,8 +645,8 @@ def run_evaluate(
     # The report is replaced as a whole, as a log is: written into a new generation of
     # WS/report (WS/.report.<host>-<pid>-<hex>.gen) and switched to by one rename, so a
     # reader, or an evaluate killed while writing, sees the old report or the new one.
-    with open_generation(workspace.root, REPORT_NAME) as gen:
-        report = _emptied(gen.path)
+    with open_generation(workspace.root, REPORT_NAME, carry_files=False) as gen:
+        report = gen.path  # made from nothing: a figure no longer drawn does not linger
         testable = bool(rough[test].any() and (~rough[test]).any())
         if not testable:
             warnings.append("the test split lacks rough or smooth events: no ROC")
@@ -818,18 +817,6 @@ def run_evaluate(
 
 #: The report's folder under the workspace (a link to its current generation).
 REPORT_NAME = "report"
-
-
-def _emptied(directory: Path) -> Path:
-    """``directory`` (a new generation of the report, holding links to the old one's files)
-    emptied: the new report is made from nothing, so a figure the run no longer draws does
-    not linger. Removing a link leaves the old generation's file in place."""
-    for entry in directory.iterdir():
-        if entry.is_dir() and not entry.is_symlink():
-            shutil.rmtree(entry)
-        else:
-            entry.unlink()
-    return directory
 
 
 def _copy_log_figures(

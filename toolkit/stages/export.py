@@ -473,9 +473,7 @@ def _not_written_by_export(out_dir: Path) -> str | None:
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         return "croissant.json that cannot be read (not an earlier export)"
     ours = {"README.md", "croissant.json", *listed}
-    folders = {str(Path(f).parent) for f in listed} | {
-        str(p) for f in listed for p in Path(f).parents if str(p) != "."
-    }
+    folders = {str(p) for f in listed for p in Path(f).parents if str(p) != "."}
     for entry in sorted(out_dir.rglob("*")):
         rel = str(entry.relative_to(out_dir))
         if entry.is_dir() and not entry.is_symlink():
