@@ -25,12 +25,13 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from importlib.resources.abc import Traversable
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
+from toolkit import fixed_point
 from toolkit.errors import SchemaError, WorkspaceError
 from toolkit.generations import fsync_dir
 from toolkit.workspace import fsync_file, temp_path_beside
@@ -92,6 +93,9 @@ class ColumnSpec:
     nullable: bool
     description: str
     values: tuple[str, ...] | None = None
+    #: Stored as a fixed-point decimal of this many places (:mod:`toolkit.fixed_point`);
+    #: float64 in memory. None: stored as its type says.
+    decimal_places: int | None = None
 
     def arrow_type(self) -> pa.DataType:
         """The column's Arrow type."""
@@ -139,6 +143,11 @@ class TableSchema:
         """A table with the schema's columns and no rows."""
         return self.arrow_schema().empty_table()
 
+    @property
+    def fixed_point(self) -> dict[str, int]:
+        """The columns stored as fixed-point decimals: name -> decimal places."""
+        return {c.name: c.decimal_places for c in self.columns if c.decimal_places is not None}
+
 
 def _tables_dir() -> Traversable:
     return importlib.resources.files("toolkit.schemas").joinpath("tables")
@@ -172,6 +181,7 @@ def load_table_schema(name: str) -> TableSchema:
                 nullable=bool(c["nullable"]),
                 description=str(c["description"]),
                 values=tuple(str(v) for v in c["values"]) if "values" in c else None,
+                decimal_places=int(c["decimal_places"]) if "decimal_places" in c else None,
             )
             for c in obj["columns"]
         )
@@ -183,6 +193,10 @@ def load_table_schema(name: str) -> TableSchema:
         )
         for col in columns:
             col.arrow_type()
+            if col.decimal_places is not None and (
+                col.type != "float64" or not 0 <= col.decimal_places < fixed_point.PRECISION
+            ):
+                raise ValueError(f"column {col.name!r}: decimal_places needs float64 and 0-8")
     except (KeyError, TypeError, ValueError) as exc:
         raise SchemaError(f"malformed table schema: {exc!r}", path=where) from exc
     if schema.name != name:
@@ -273,6 +287,38 @@ def conform_table(table: pa.Table, schema: TableSchema, path: str | Path = "") -
 # --------------------------------------------------------------------------------------
 
 
+_Data = TypeVar("_Data", pa.Table, pa.RecordBatch)
+
+
+def to_storage(table: pa.Table, schema: TableSchema, path: str | Path = "") -> pa.Table:
+    """A conformed table with its fixed-point columns encoded (:func:`fixed_point.encode`);
+    SchemaError naming file, table and column on a value the column cannot hold."""
+    for name, places in schema.fixed_point.items():
+        i = table.schema.get_field_index(name)
+        if i < 0 or fixed_point.is_stored(table.schema.field(i).type):
+            continue
+        try:
+            stored = fixed_point.encode(table.column(i), places)
+        except fixed_point.FixedPointRangeError as exc:
+            raise SchemaError(
+                f"table {schema.name!r}, column {name!r}: {exc}", path=Path(path) if path else None
+            ) from exc
+        table = table.set_column(i, table.schema.field(i).with_type(stored.type), stored)
+    return table
+
+
+def from_storage(data: _Data, schema: TableSchema) -> _Data:
+    """``data`` (a table or record batch as read) with its fixed-point columns back to
+    float64 (:func:`fixed_point.decode`); other columns as they are."""
+    for name in schema.fixed_point:
+        i = data.schema.get_field_index(name)
+        if i < 0 or not fixed_point.is_stored(data.schema.field(i).type):
+            continue
+        field = data.schema.field(i).with_type(pa.float64())
+        data = data.set_column(i, field, fixed_point.decode(data.column(i)))
+    return data
+
+
 def contract_metadata(
     schema_name: str,
     schema_version: int,
@@ -322,7 +368,12 @@ BULK_ROW_GROUP_ROWS = 1_048_576
 
 #: Parquet writer options every table is written with: zstd, and a CRC on every data page so
 #: flipped bytes are an error when read (:func:`read_table` verifies them), not values.
-PARQUET_OPTIONS: dict[str, Any] = {"compression": "zstd", "write_page_checksum": True}
+PARQUET_OPTIONS: dict[str, Any] = {
+    "compression": "zstd",
+    "write_page_checksum": True,
+    # fixed-point columns (toolkit.fixed_point) as Parquet INT32 decimals, not 16-byte ones
+    "store_decimal_as_integer": True,
+}
 
 
 #: What :class:`TableWriter` ``bulk=True`` changes, for a table of hundreds of millions of
@@ -346,6 +397,9 @@ def bulk_options(schema: pa.Schema) -> dict[str, Any]:
     encoding = {
         **{f.name: "BYTE_STREAM_SPLIT" for f in schema if pa.types.is_floating(f.type)},
         **{f.name: "DELTA_BINARY_PACKED" for f in schema if pa.types.is_int64(f.type)},
+        # fixed-point coordinates: neighbouring beams land centimetres apart, so their
+        # whole millimetres differ by small steps (toolkit.fixed_point)
+        **{f.name: "DELTA_BINARY_PACKED" for f in schema if fixed_point.is_stored(f.type)},
     }
     return {"compression_level": BULK_COMPRESSION_LEVEL, "column_encoding": encoding}
 
@@ -471,7 +525,7 @@ class TableWriter:
         """Append rows (checked against the schema; extra columns kept after its own)."""
         self._require("open")
         if self.schema is not None:
-            table = conform_table(table, self.schema, self.path)
+            table = to_storage(conform_table(table, self.schema, self.path), self.schema, self.path)
         writer = self._writer
         if writer is None:
             writer = self._open(table.schema)
@@ -569,7 +623,7 @@ class TableWriter:
                 if self.schema is None:
                     self._state = "finished"
                     return False
-                writer = self._open(self.schema.arrow_schema())
+                writer = self._open(to_storage(self.schema.empty_table(), self.schema).schema)
             if self._gathered:
                 self._write_rows(writer, _concat_pieces(self._gathered))
                 self._gathered, self._gathered_rows = [], 0
@@ -651,6 +705,8 @@ class TableWriter:
             with pq.ParquetFile(self._tmp, pre_buffer=False) as f:
                 for batch in f.iter_batches(batch_size=ROW_GROUP_ROWS):
                     piece = pa.Table.from_batches([batch])
+                    if self.schema is not None:
+                        piece = from_storage(piece, self.schema)
                     new.write(transform(piece, first))
                     first += piece.num_rows
             new.finish()
@@ -781,11 +837,12 @@ def read_table(
     schema = load_table_schema(schema_name)
     _check_contract(path, schema)
     try:
-        return pq.read_table(
+        table = pq.read_table(
             path,
             columns=list(columns) if columns is not None else None,
             page_checksum_verification=True,
         )
+        return from_storage(table, schema)
     except (OSError, pa.ArrowException) as exc:
         raise SchemaError(f"cannot read table {schema.name!r}: {exc}", path=path) from exc
 
@@ -837,6 +894,8 @@ def iter_table_batches(
             batches = f.iter_batches(
                 batch_size=batch_rows, columns=list(columns), use_threads=not lean
             )
+            if schema.fixed_point:
+                batches = (from_storage(b, schema) for b in batches)
             if lean:
                 pool = pa.default_memory_pool()
                 for batch in batches:

@@ -27,7 +27,14 @@ from toolkit.stages.project import (
     project_batch,
     run_project,
 )
-from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
+from toolkit.tableio import (
+    from_storage,
+    iter_table_batches,
+    load_table_schema,
+    read_table,
+    read_table_metadata,
+    to_storage,
+)
 from toolkit.workspace import Workspace, file_sha256
 
 SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
@@ -105,16 +112,19 @@ def test_every_return_is_a_point_or_a_counted_reject(projected) -> None:  # type
 
 
 def test_the_cloud_is_written_as_a_bulk_table(projected) -> None:  # type: ignore[no-untyped-def]
-    """The cloud's floats are byte-stream-split under zstd, its times delta-encoded and its
-    laser column is codes into the topic names (what makes writing it fast and its file
-    small; see tableio.bulk_options)."""
+    """The cloud's coordinates and rates are whole millimetres (1e-6 rad/s) delta-encoded,
+    its range byte-stream-split, all under zstd, its times delta-encoded and its laser column
+    codes into the topic names (what makes writing it fast and its file small; see
+    tableio.bulk_options and toolkit.fixed_point)."""
     ws, log_id, _ = projected
     path = ws.log_table(log_id, "points")
     row_group = pq.ParquetFile(path).metadata.row_group(0)
     by_name = {row_group.column(i).path_in_schema: row_group.column(i) for i in range(11)}
-    for name in ("x", "y", "z", "range", "roll_rate", "pitch_rate"):
-        assert "BYTE_STREAM_SPLIT" in by_name[name].encodings
+    for name in ("x", "y", "z", "roll_rate", "pitch_rate"):
+        assert by_name[name].physical_type == "INT32"
+        assert "DELTA_BINARY_PACKED" in by_name[name].encodings
         assert by_name[name].compression == "ZSTD"
+    assert "BYTE_STREAM_SPLIT" in by_name["range"].encodings
     for name in ("t_ns", "scan_t_ns"):  # times: delta-encoded, 13 % smaller files
         assert "DELTA_BINARY_PACKED" in by_name[name].encodings
         assert "BYTE_STREAM_SPLIT" not in by_name[name].encodings
@@ -215,10 +225,10 @@ def test_a_laser_that_is_not_stanleys(posed_copy: tuple[Workspace, str]) -> None
         [np.interp((t - t_pose[0]) * 1e-9, ts, pose.column(c).to_numpy()) for c in "xyz"], 1
     )
     xyz = np.stack([points.column(c).to_numpy() for c in "xyz"], axis=1)
-    base = rot.inv().apply(xyz - pos)
     theta = -np.pi + beam * np.float32(2 * np.pi / beams) + np.pi / 6
     want = np.c_[0.5 + 5 * np.cos(theta), 5 * np.sin(theta), np.full(theta.size, 1.2)]
-    np.testing.assert_allclose(base, want, atol=1e-6)
+    # Stored to the millimetre: each coordinate within half a millimetre of the exact point.
+    np.testing.assert_allclose(xyz, rot.apply(want) + pos, rtol=0, atol=0.5e-3 + 1e-6)
 
 
 def test_a_laser_nobody_mounted_is_dropped_with_a_warning(
@@ -367,6 +377,8 @@ def test_threads_write_what_one_batch_after_another_would(
     ]
     assert len(tables) > 3 * project_module.WORKERS
     want = pa.concat_tables(tables).select(got.column_names)
+    schema = load_table_schema("points")  # as stored: to the millimetre
+    want = from_storage(to_storage(want, schema), schema)
     assert got.num_rows == want.num_rows == counts.points
     # Column by column, NaN equal to NaN (a laser's first scan has no scan_dt_s before it).
     got = got.cast(want.schema)

@@ -410,7 +410,7 @@ def expected_clouds(points_path: Path) -> list[tuple[int, np.ndarray]]:
 
 def test_clouds_hold_the_points_of_the_table(scored: Made) -> None:
     path = scored.table("points")
-    table = pq.read_table(path, columns=["x", "y", "z"])
+    table = read_table(path, "points", columns=["x", "y", "z"])
     xyz = np.c_[[table.column(a).to_numpy() for a in "xyz"]].T
     expected = expected_clouds(path)
     clouds = scored.view.messages["/points"]
