@@ -395,7 +395,7 @@ def guess_role(role: str, topics: Sequence[TopicSummary]) -> RoleGuess:
     ranked = sorted(usable, key=lambda t: _rank(role, t))
     best = ranked[0]
     if len(ranked) == 1:
-        how = "the only topic of an accepted type"
+        how = f"the only {'usable ' if others else ''}topic of an accepted type"
     else:
         reasons = _name_reasons(role, best)
         how = "chosen among several by " + (
