@@ -260,6 +260,49 @@ def info(log: Path, as_json: bool, full: bool) -> None:
         click.echo(render_table(log_info))
 
 
+@main.group(cls=TerrainGroup)
+def config() -> None:
+    """Pipeline configurations: write a starting one from a log."""
+
+
+@config.command("init")
+@click.argument("log", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    "out_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Write the configuration to this file (default: stdout).",
+)
+@click.option("--overwrite", is_flag=True, help="Replace an existing --out file.")
+def config_init(log: Path, out_path: Path | None, overwrite: bool) -> None:
+    """A starting configuration for LOG.mcap's robot, written from the log itself.
+
+    Topics are matched to roles by message type, then by name; mounts come from /tf_static
+    when the log has it. Every guess is commented, every missing role said, and the head
+    of the file says which stages the log can feed. The output loads as it is; read the
+    lines marked CHECK, then pass it to ingest with -c.
+    """
+    _require_file(log, LogReadError)
+    if out_path is not None:
+        # Checked before the log is read: a configuration someone edited is not replaced
+        # by a fresh guess unless asked.
+        if out_path.exists() and not overwrite:
+            raise ToolkitError("already exists; pass --overwrite to replace it", path=out_path)
+        if not out_path.parent.is_dir():
+            raise ToolkitError("output directory does not exist", path=out_path.parent)
+    from toolkit.config_init import init_config
+
+    text = init_config(log)
+    if out_path is None:
+        click.echo(text, nl=False)
+        return
+    from toolkit.workspace import atomic_write_text
+
+    atomic_write_text(out_path, text)
+    click.echo(f"wrote {out_path}", err=True)
+
+
 def _logs_options(f: Callable[..., Any]) -> Callable[..., Any]:
     """The logs, workspace and configuration of the verbs that start from MCAP files."""
     f = click.option(

@@ -661,14 +661,15 @@ def _dump_table(obj: Any, prefix: str, lines: list[str]) -> None:
         if dataclasses.is_dataclass(value):
             nested.append((f.name, value))
         else:
-            lines.append(f"{f.name} = {_toml_value(value)}")
+            lines.append(f"{f.name} = {toml_value(value)}")
     for name, value in nested:
         dotted = _join(prefix, name)
         lines.extend(["", f"[{dotted}]"])
         _dump_table(value, dotted, lines)
 
 
-def _toml_value(value: Any) -> str:
+def toml_value(value: Any) -> str:
+    """A configuration value as TOML text (None as ``""``, tuples as arrays)."""
     if value is None:
         return '""'
     if isinstance(value, bool):
@@ -680,7 +681,7 @@ def _toml_value(value: Any) -> str:
     if isinstance(value, str):
         return _toml_string(value)
     if isinstance(value, tuple | list):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
     raise TypeError(f"cannot write {value!r} as TOML")
 
 

@@ -223,7 +223,9 @@ def _known_types() -> frozenset[str]:
     return frozenset(known_types())
 
 
-def _decoder(topic: str, channel: Channel) -> Callable[[Sequence[bytes]], dict[str, np.ndarray]]:
+def channel_decoder(
+    topic: str, channel: Channel
+) -> Callable[[Sequence[bytes]], dict[str, np.ndarray]]:
     """decode_batch bound to the channel's type: by name for a type the toolkit ships,
     else by the schema text the log carries (parsed once)."""
     if channel.message_encoding != "cdr":
@@ -301,7 +303,7 @@ def plan_topic(
     spec = ROLE_SPECS[role]
     try:
         convert = spec.converter_for(topic, channel.schema_name)
-        decode = _decoder(topic, channel)
+        decode = channel_decoder(topic, channel)
     except StageError as exc:
         raise StageError(str(exc), path=log_path) from None
     return TopicPlan(
