@@ -80,12 +80,14 @@ def test_default_has_the_papers_settings() -> None:
     assert len(cfg.learn.initial_alpha) == 10
     assert len(cfg.learn.increment_alpha) == 10
     assert cfg.tables.train_fraction == 0.5
+    assert cfg.project.keep == "all"
     assert cfg.evaluate.fpr_points == (0.05, 0.1, 0.2)
     assert SECTIONS == (
         "topics",
         "vehicle",
         "time",
         "pose",
+        "project",
         "label",
         "model",
         "learn",

@@ -292,6 +292,17 @@ class LearnConfig:
 
 
 @dataclass(frozen=True)
+class ProjectConfig:
+    """Which of the projected points the cloud keeps (its size on disk is the user's call)."""
+
+    #: "all": every return; "near_path": only those within the tables' radius
+    #: (``[model] wheel_window_radius_m``) plus ``near_path_margin_m`` of a rear tyre's
+    #: path, the points the tables can use (the rest of the road and its sides are left out).
+    keep: Annotated[str, Rule(choices=("all", "near_path"))] = "all"
+    near_path_margin_m: Annotated[float, Rule(ge=0.1, le=100.0)] = 0.2
+
+
+@dataclass(frozen=True)
 class TablesConfig:
     """Training/test split (sect. 7: first stretch of road trains, the next one tests)."""
 
@@ -349,6 +360,7 @@ class PipelineConfig:
     vehicle: VehicleConfig
     time: TimeConfig
     pose: PoseConfig
+    project: ProjectConfig
     label: LabelConfig
     model: ModelConfig
     learn: LearnConfig

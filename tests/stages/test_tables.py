@@ -315,11 +315,11 @@ def test_matching_equals_brute_force_also_where_samples_crowd(
     crawl: hundreds of samples within the radius, more than the fixed-k query asks for), the
     other every 5 cm; random points around them, some seen after an event started. Both
     ways of the first sieve (a bitmap of cells, sorted cell keys for huge areas)."""
-    from toolkit.stages import tables
+    from toolkit import tyre_paths
     from toolkit.stages.tables import NEIGHBOURS, TyrePaths, _match_batch
 
     if not bitmap:
-        monkeypatch.setattr(tables, "MAX_BITMAP_CELLS", 0)
+        monkeypatch.setattr(tyre_paths, "MAX_BITMAP_CELLS", 0)
 
     rng = np.random.default_rng(7)
     crawl = np.c_[np.arange(0.0, 1.4, 0.001), np.zeros(1400)]
@@ -423,3 +423,54 @@ def test_points_out_of_time_order_are_refused(tabled, tmp_path: Path) -> None:  
     )
     with pytest.raises(StageError, match=r"not in time order.*terrain project --overwrite"):
         run_tables(copy, default_config(), overwrite=True)
+
+
+def _config_keeping(keep: str, radius_m: float = 0.3):  # type: ignore[no-untyped-def]
+    import dataclasses
+
+    cfg = default_config()
+    return dataclasses.replace(
+        cfg,
+        project=dataclasses.replace(cfg.project, keep=keep),
+        model=dataclasses.replace(cfg.model, wheel_window_radius_m=radius_m),
+    )
+
+
+def test_a_cloud_kept_near_the_tyre_paths_makes_the_same_tables_to_the_bit(tabled) -> None:  # type: ignore[no-untyped-def]
+    """``[project] keep = "near_path"`` leaves out most of the cloud, and the tables made from
+    what it keeps are those made from every point, row for row and bit for bit."""
+    from toolkit.stages.project import run_project
+
+    ws, log_id, _, _ = tabled
+    names = {"events": "tables_events", "event_points": "event_points"}
+    every = {n: read_table(ws.root / "tables" / f"{n}.parquet", s) for n, s in names.items()}
+    all_points = read_table(ws.log_table(log_id, "points"), "points")
+    near = _config_keeping("near_path")
+    result = run_project(ws, log_id, near, overwrite=True)
+    kept = read_table(ws.log_table(log_id, "points"), "points")
+    assert result.points == kept.num_rows
+    assert result.far_from_path == all_points.num_rows - kept.num_rows
+    assert kept.num_rows < 0.5 * all_points.num_rows
+    assert "far from the tyres' paths left out" in result.summary()
+
+    # The kept rows are rows of the full cloud, unchanged and in order (a point is its
+    # laser, beam and time).
+    def plain(table: pa.Table) -> pa.Table:
+        return table.set_column(1, "laser", table["laser"].cast(pa.string()))
+
+    def key(table: pa.Table) -> np.ndarray:
+        laser = np.unique(table["laser"].cast(pa.string()).to_numpy(), return_inverse=True)[1]
+        t = table["t_ns"].to_numpy() - int(all_points["t_ns"][0].as_py())
+        return (t * 8 + laser) * 1024 + table["beam"].to_numpy()
+
+    assert kept.num_rows > 0
+    in_kept = np.isin(key(all_points), key(kept))
+    assert plain(all_points).filter(pa.array(in_kept)).equals(plain(kept))
+    run_tables(ws, near, overwrite=True)
+    for name, table in every.items():
+        again = read_table(ws.root / "tables" / f"{name}.parquet", names[name])
+        assert again.equals(table), name
+    # A wider radius than the cloud was cut for: tables refuse, naming the log's points.
+    with pytest.raises(StageError, match="kept only within 0.5 m") as err:
+        run_tables(ws, _config_keeping("near_path", radius_m=0.6), overwrite=True)
+    assert "points.parquet" in str(err.value)

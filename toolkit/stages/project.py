@@ -61,8 +61,9 @@ from toolkit.errors import StageError
 from toolkit.fusion.rotations import euler_to_rot
 from toolkit.mounts import Mount, frame_mounts
 from toolkit.stages.per_log import run_on_log
-from toolkit.tableio import TableWriter, iter_table_batches, read_table_metadata
+from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
 from toolkit.timewindow import TimeWindow
+from toolkit.tyre_paths import META_KEPT_WITHIN_M, NearPath
 from toolkit.workspace import (
     Manifest,
     StageRecord,
@@ -80,8 +81,10 @@ IntArray = NDArray[np.int64]
 
 STAGE = "project"
 OUTPUT = "points.parquet"
-#: Configuration sections projection reads: the vehicle (its base frame, for the mounts).
-CONFIG_SECTIONS = ("vehicle",)
+#: Configuration sections projection reads: the vehicle (its base frame, for the mounts; its
+#: track, for the tyres' paths) and which points to keep; with ``keep = "near_path"`` also
+#: the tables' radius around a tyre (:func:`stage_config_hash`).
+CONFIG_SECTIONS = ("vehicle", "project")
 #: Scans per read batch (5 lasers x 181 beams: ~360 k points, ~40 MB of arrays in flight).
 SCAN_BATCH = 2_000
 #: Points projected at a time within a batch: small enough that the ~40 temporary arrays of
@@ -160,10 +163,14 @@ class ProjectResult:
     points_per_s: float = 0.0
     #: The paper's Fig. 4 from this log, in words (its fit; files beside the points).
     fig4: str = ""
+    #: Points projected but left out, far from the tyres' paths (``keep = "near_path"``).
+    far_from_path: int = 0
 
     def summary(self) -> str:
         """One line for people: points, scans, what was dropped and why."""
         parts = [f"{self.points} points from {self.scans} scans"]
+        if self.far_from_path:
+            parts.append(f"{self.far_from_path} far from the tyres' paths left out")
         dropped = {k: v for k, v in self.rejects.items() if v}
         if dropped:
             parts.append("dropped " + ", ".join(f"{k} {v}" for k, v in dropped.items()))
@@ -175,7 +182,9 @@ class ProjectResult:
 
 
 def stage_config_hash(config: PipelineConfig) -> str:
-    return config_hash(config, sections=CONFIG_SECTIONS)
+    """The hash of what projection reads of ``config`` (a radius only when it cuts by one)."""
+    near = ("model.wheel_window_radius_m",) if config.project.keep == "near_path" else ()
+    return config_hash(config, sections=(*CONFIG_SECTIONS, *near))
 
 
 # --------------------------------------------------------------------------------------
@@ -713,6 +722,7 @@ def _project_in(
             int(record.row_counts.get("scans", 0)),
             {k: int(v) for k, v in record.rejects.items()},
             time.perf_counter() - start,
+            far_from_path=int(record.row_counts.get("far_from_path", 0)),
         )
 
     timings = dict.fromkeys(("read", "project", "write", "figures"), 0.0)
@@ -725,6 +735,10 @@ def _project_in(
     }
     sha = json.loads(json.dumps(manifest.read().get("source", {}))).get("sha256", "")
     poses = PoseStream(pose_path)
+    near_path = _near_path(pose_path, config)
+    if near_path is not None:
+        frame_meta[META_KEPT_WITHIN_M] = repr(near_path.distance_m)
+    far_from_path = 0
     # The paper's Fig. 4 from the log itself, and on simulated logs the points' z error
     # against the true terrain, accumulated batch by batch as the points are made.
     agreement = ScanAgreement()
@@ -765,21 +779,30 @@ def _project_in(
 
         def work(
             prepared: PreparedBatch,
-        ) -> tuple[pa.Table, Counts, _ZSample | None, float]:
+        ) -> tuple[pa.Table, pa.Table, Counts, _ZSample | None, float]:
             t0 = time.perf_counter()
             table, batch_counts = project_prepared(prepared)
             sample = None
             if ground is not None and table.num_rows:
                 sample = _z_sample(ground, table, lock, z_every)
-            return table, batch_counts, sample, time.perf_counter() - t0
+            kept = table
+            if near_path is not None:
+                x, y = table.column("x").to_numpy(), table.column("y").to_numpy()
+                kept = table.filter(pa.array(near_path.mask(x, y)))
+            return table, kept, batch_counts, sample, time.perf_counter() - t0
 
-        def finish(future: Future[tuple[pa.Table, Counts, _ZSample | None, float]]) -> None:
-            nonlocal fig4_until_ns
-            table, batch_counts, sample, seconds = future.result()
+        def finish(
+            future: Future[tuple[pa.Table, pa.Table, Counts, _ZSample | None, float]],
+        ) -> None:
+            nonlocal fig4_until_ns, far_from_path
+            table, kept, batch_counts, sample, seconds = future.result()
             timings["project"] += seconds
             counts.add(batch_counts)
+            far_from_path += table.num_rows - kept.num_rows
             t = time.perf_counter()
-            writer.write(table)
+            # Fig. 4 and the z error below see every point projected; the cloud keeps those
+            # asked for.
+            writer.write(kept)
             timings["write"] += time.perf_counter() - t
             t = time.perf_counter()
             if table.num_rows:
@@ -799,7 +822,7 @@ def _project_in(
             timings["figures"] += time.perf_counter() - t
 
         loop_start = time.perf_counter()
-        pending: deque[Future[tuple[pa.Table, Counts, _ZSample | None, float]]] = deque()
+        pending: deque[Future[tuple[pa.Table, pa.Table, Counts, _ZSample | None, float]]] = deque()
         figure_jobs: deque[Future[None]] = deque()
         with (
             ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="project") as pool,
@@ -861,7 +884,11 @@ def _project_in(
             inputs=inputs,
             config_hash=cfg_hash,
             outputs=(OUTPUT, *figure_files),
-            row_counts={"points": counts.points, "scans": counts.scans},
+            row_counts={
+                "points": counts.points - far_from_path,
+                "scans": counts.scans,
+                "far_from_path": far_from_path,
+            },
             rejects=dict(counts.rejects),
             timings_s={k: round(v, 6) for k, v in sorted(timings.items())},
             warnings=tuple(warnings),
@@ -871,13 +898,29 @@ def _project_in(
     return ProjectResult(
         log_id,
         "projected",
-        counts.points,
+        counts.points - far_from_path,
         counts.scans,
         dict(counts.rejects),
         time.perf_counter() - start,
         warnings=tuple(warnings),
         points_per_s=counts.points / max(timings["loop"], 1e-9),
         fig4=f"Fig. 4 {fit.describe()}",
+        far_from_path=far_from_path,
+    )
+
+
+def _near_path(pose_path: Path, config: PipelineConfig) -> NearPath | None:
+    """What tells the points near the rear tyres' paths (``[project] keep = "near_path"``):
+    within the tables' radius plus the margin; None when every point is kept."""
+    if config.project.keep != "near_path":
+        return None
+    pose = read_table(pose_path, "pose", columns=["t_ns", "x", "y", "yaw"])
+    return NearPath(
+        pose.column("t_ns").to_numpy(),
+        np.c_[pose.column("x").to_numpy(), pose.column("y").to_numpy()],
+        pose.column("yaw").to_numpy(),
+        config.vehicle.track_m,
+        config.model.wheel_window_radius_m + config.project.near_path_margin_m,
     )
 
 

@@ -10,11 +10,12 @@ the paper's ``L_i = [x, y, z, tau, gamma, psi]`` with ``tau`` the point's time i
 The tyres' paths: base_link is on the ground below the rear-axle centre, so the tyres touch
 the ground at ``(0, +-track_m / 2, 0)`` in base_link; their world (x, y) follow from the pose
 (position and yaw; the roll of the body moves the contact patch by millimetres, neglected).
-Each tyre's path over an event is sampled at most :data:`PATH_STEP_M` apart (the pose rows,
-densified), and a point is near it when a sample lies within the radius: a point exactly at
-the radius from the polyline is then within ``sqrt(r^2 + (step/2)^2) - r`` (1 mm) of being
-missed, a known, negligible bias. A point may serve several events (near the end of one
-stretch and the start of the next) and is then listed under each.
+Each tyre's path over an event is sampled at most ``PATH_STEP_M`` apart
+(:mod:`toolkit.tyre_paths`; the pose rows, densified), and a point is near it when a sample
+lies within the radius: a point exactly at the radius from the polyline is then within
+``sqrt(r^2 + (step/2)^2) - r`` (1 mm) of being missed, a known, negligible bias. A point
+may serve several events (near the end of one stretch and the start of the next) and is then
+listed under each.
 
 "Before": the point's time is earlier than the event's start, and by at most
 ``[tables] max_lookahead_s`` (a point seen minutes earlier, on a loop of the course, is not
@@ -56,8 +57,21 @@ from scipy.spatial import cKDTree
 
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
-from toolkit.tableio import TableWriter, iter_table_batches, read_table, table_num_rows
+from toolkit.tableio import (
+    TableWriter,
+    iter_table_batches,
+    read_table,
+    read_table_metadata,
+    table_num_rows,
+)
 from toolkit.timewindow import Columns, TimeWindow
+from toolkit.tyre_paths import (
+    META_KEPT_WITHIN_M,
+    PATH_STEP_M,
+    TyrePaths,
+    near_cells,
+    tyre_paths,
+)
 from toolkit.workspace import (
     Manifest,
     StageRecord,
@@ -78,15 +92,10 @@ STAGE = "tables"
 #: settings, the radius around a tyre's track alone (the patches' sampling and size are
 #: learn's and evaluate's business: changing them leaves the tables as they are).
 CONFIG_SECTIONS = ("tables", "vehicle", "model.wheel_window_radius_m")
-#: Largest spacing of the samples of a tyre's path, m.
-PATH_STEP_M = 0.05
 #: Points per read batch.
 POINT_BATCH = 262_144
 #: Pose rows per read batch (the pose is streamed; 65,536 rows are 11 minutes at 100 Hz).
 POSE_BATCH = 65_536
-#: Largest bitmap of grid cells sieve 1 marks (32 M cells, 32 MB: open tyre paths 1.7 km
-#: across at 30 cm cells; larger ones use sorted cell keys).
-MAX_BITMAP_CELLS = 1 << 25
 #: Threads matching batches at once (the machine's two cores).
 WORKERS = 2
 #: How far before a batch's latest point a later batch's points may still lie, ns: the
@@ -158,77 +167,6 @@ def stage_config_hash(config: PipelineConfig) -> str:
 # --------------------------------------------------------------------------------------
 # Tyre paths
 # --------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class TyrePaths:
-    """Samples of both rear tyres' paths over every event of a log: ``xy`` (M, 2) m,
-    ``event`` (M,) row index into the log's events, ``wheel`` (M,) 0 left / 1 right."""
-
-    xy: FloatArray
-    event: IntArray
-    wheel: IntArray
-    #: Per wheel, the first sample row of each event (E + 1,): event ``e`` of wheel ``w`` is
-    #: rows ``first[w][e]:first[w][e + 1]``.
-    first: tuple[IntArray, IntArray]
-
-
-def tyre_paths(
-    pose_t_ns: IntArray,
-    pose_xy: FloatArray,
-    pose_yaw: FloatArray,
-    t_start_ns: IntArray,
-    t_end_ns: IntArray,
-    track_m: float,
-) -> TyrePaths:
-    """Sample each rear tyre's path over each event ``[t_start, t_end]`` (E,), from the pose
-    (K,) / (K, 2) / (K,) (see the module docstring). Vectorised over events: the pose times
-    inside all events at once, densified so no two samples are more than :data:`PATH_STEP_M`
-    apart."""
-    # The pose rows inside each event, plus its two ends (interpolated).
-    lo = np.searchsorted(pose_t_ns, t_start_ns, side="right")
-    hi = np.searchsorted(pose_t_ns, t_end_ns, side="left")
-    inner = np.maximum(hi - lo, 0)
-    n_ev = t_start_ns.size
-    counts = inner + 2
-    ev = np.repeat(np.arange(n_ev), counts)
-    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    k = np.arange(ev.size) - first[ev]
-    t = np.empty(ev.size, dtype=np.int64)
-    is_start, is_end = k == 0, k == counts[ev] - 1
-    t[is_start] = t_start_ns
-    t[is_end] = t_end_ns
-    mid = ~(is_start | is_end)
-    t[mid] = pose_t_ns[lo[ev[mid]] + k[mid] - 1]
-    tf = (t - pose_t_ns[0]).astype(np.float64)
-    tp = (pose_t_ns - pose_t_ns[0]).astype(np.float64)
-    x = np.interp(tf, tp, pose_xy[:, 0])
-    y = np.interp(tf, tp, pose_xy[:, 1])
-    yaw = np.interp(tf, tp, np.unwrap(pose_yaw))
-    # Densify: each step split into ceil(length / PATH_STEP_M) pieces (within an event).
-    same = ev[1:] == ev[:-1]
-    step = np.hypot(np.diff(x), np.diff(y))
-    pieces = np.where(same, np.maximum(np.ceil(step / PATH_STEP_M), 1), 1).astype(np.int64)
-    j = np.repeat(np.arange(pieces.size), pieces)
-    f = (np.arange(j.size) - np.concatenate([[0], np.cumsum(pieces)[:-1]])[j]) / pieces[j]
-    f = np.where(same[j], f, 0.0)
-
-    def lerp(v: FloatArray) -> FloatArray:
-        return np.concatenate([v[j] + f * (v[j + 1] - v[j]), v[-1:]])
-
-    xs, ys, yaws = lerp(x), lerp(y), lerp(yaw)
-    evs = np.concatenate([ev[j], ev[-1:]])
-    half = 0.5 * track_m
-    # Left tyre at +y of base_link, right at -y: (x, y) + R(yaw) (0, +-half).
-    nx, ny = -np.sin(yaws) * half, np.cos(yaws) * half
-    xy = np.concatenate([np.c_[xs + nx, ys + ny], np.c_[xs - nx, ys - ny]])
-    first_left = np.searchsorted(evs, np.arange(n_ev + 1), side="left").astype(np.int64)
-    return TyrePaths(
-        xy=xy,
-        event=np.concatenate([evs, evs]).astype(np.int64),
-        wheel=np.repeat(np.array([0, 1], dtype=np.int64), xs.size),
-        first=(first_left, first_left + xs.size),
-    )
 
 
 class EventPaths(Protocol):
@@ -343,8 +281,8 @@ def _match_batch(
     """Matches of one batch of points: (point row, event row, wheel) (each (Q,)).
 
     Two sieves, cheapest first: a coarse grid of the cells the open events' tyre paths
-    pass within the radius of (:func:`_near_cells`; ~90 % of the cloud is off the tyre
-    tracks), then every sample within the radius (KD-tree), asked as the
+    pass within the radius of (:func:`~toolkit.tyre_paths.near_cells`; ~90 % of the cloud
+    is off the tyre tracks), then every sample within the radius (KD-tree), asked as the
     :data:`NEIGHBOURS` nearest (a point with that many within the radius is asked again
     with no limit)."""
     t = batch.column("t_ns").to_numpy()
@@ -363,7 +301,7 @@ def _match_batch(
     x, y = batch.column("x").to_numpy(), batch.column("y").to_numpy()
     # Sieve 1: grid cells of side r; a point within r of a sample lies in the sample's cell
     # or one of its 8 neighbours.
-    candidate = _near_cells(sample_xy, x, y, radius_m)
+    candidate = near_cells(sample_xy, x, y, radius_m)
     if candidate.size == 0:
         return empty
     # Sieve 2: every sample within the radius (KD-tree), asked as the NEIGHBOURS nearest,
@@ -402,40 +340,6 @@ def _match_batch(
     return point[ok], event[ok], wheel[ok]
 
 
-def _near_cells(sample_xy: FloatArray, x: FloatArray, y: FloatArray, cell_m: float) -> IntArray:
-    """The points (x, y) (N,) in a grid cell of side ``cell_m`` that holds a sample (M, 2)
-    or is next to one that does: their indices, ascending.
-
-    The cells are marked in a bitmap over the samples' bounding box (a point is then one
-    lookup: ~3x faster than binary search in sorted cell keys, measured). A box too large
-    for a bitmap (open tyre paths kilometres across) falls back to the sorted keys."""
-    sx = np.floor(sample_xy[:, 0] / cell_m).astype(np.int64)
-    sy = np.floor(sample_xy[:, 1] / cell_m).astype(np.int64)
-    x0, y0 = int(sx.min()) - 1, int(sy.min()) - 1
-    nx, ny = int(sx.max()) - x0 + 2, int(sy.max()) - y0 + 2
-    with np.errstate(invalid="ignore"):
-        px, py = np.floor(x / cell_m), np.floor(y / cell_m)
-    if nx * ny > MAX_BITMAP_CELLS:
-        around = np.unique(
-            np.concatenate([_cell_key(sx + dx, sy + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
-        )
-        keys = _cell_key(np.nan_to_num(px), np.nan_to_num(py))
-        at = np.minimum(np.searchsorted(around, keys), around.size - 1)
-        return np.flatnonzero(around[at] == keys)
-    marked = np.zeros((nx, ny), dtype=bool)
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            marked[sx - x0 + dx, sy - y0 + dy] = True
-    ix, iy = px - x0, py - y0
-    inside = np.flatnonzero((ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny))
-    return inside[marked[ix[inside].astype(np.int64), iy[inside].astype(np.int64)]]
-
-
-def _cell_key(cx: FloatArray | IntArray, cy: FloatArray | IntArray) -> IntArray:
-    """One int64 per grid cell (cell indices within +-2^31)."""
-    return (cx.astype(np.int64) << 32) + (cy.astype(np.int64) & 0xFFFFFFFF)
-
-
 @dataclass(frozen=True)
 class MatchedBatch:
     """The event-point rows matched from one batch of points."""
@@ -449,6 +353,20 @@ class MatchedBatch:
     distinct: int
     #: The latest point time of the batch, ns.
     t_hi_ns: int
+
+
+def _require_points_near_enough(points_path: Path, radius_m: float, log_id: str) -> None:
+    """StageError when the cloud keeps only points nearer the tyres' paths than the tables
+    reach (``[project] keep = "near_path"`` under another radius): the events would be
+    scored on a strip narrower than they ask, quietly."""
+    kept = read_table_metadata(points_path).get(META_KEPT_WITHIN_M)
+    if kept is not None and float(kept) < radius_m + PATH_STEP_M:
+        raise StageError(
+            f"{log_id}: its points were kept only within {float(kept):g} m of the tyres' "
+            f"paths, and the tables reach {radius_m:g} m (+ {PATH_STEP_M:g} m of path "
+            f"sampling); run `terrain project --overwrite --log {log_id}` again",
+            path=points_path,
+        )
 
 
 def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[MatchedBatch]:
@@ -470,6 +388,7 @@ def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[
         transform=RunningUnwrap("yaw"),
     )
     radius = config.model.wheel_window_radius_m
+    _require_points_near_enough(log_dir / "points.parquet", radius, inputs.log_id)
     lookahead_ns = int(config.tables.max_lookahead_s * 1e9)
     wheel_names = pa.array(list(WHEELS))
 

@@ -1,0 +1,183 @@
+"""The rear tyres' paths over the ground, and which laser points lie near them.
+
+The tables stage lists, per event, the points within ``[model] wheel_window_radius_m`` of the
+ground each rear tyre traversed (paper sect. 7); the project stage may keep only the points
+near the tyres' paths at all (``[project] keep = "near_path"``). Both sample the paths here
+(:func:`tyre_paths`) and sieve points by grid cells first (:func:`near_cells`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+#: Largest spacing of the samples of a tyre's path, m.
+PATH_STEP_M = 0.05
+#: Key-value metadata of a point cloud that keeps only the points near the tyres' paths: how
+#: near, m (the tables stage refuses a cloud cut narrower than its radius).
+META_KEPT_WITHIN_M = "kept_within_m_of_tyre_paths"
+#: Largest bitmap of grid cells sieve 1 marks (32 M cells, 32 MB: open tyre paths 1.7 km
+#: across at 30 cm cells; larger ones use sorted cell keys).
+MAX_BITMAP_CELLS = 1 << 25
+
+
+@dataclass(frozen=True)
+class TyrePaths:
+    """Samples of both rear tyres' paths over every event of a log: ``xy`` (M, 2) m,
+    ``event`` (M,) row index into the log's events, ``wheel`` (M,) 0 left / 1 right."""
+
+    xy: FloatArray
+    event: IntArray
+    wheel: IntArray
+    #: Per wheel, the first sample row of each event (E + 1,): event ``e`` of wheel ``w`` is
+    #: rows ``first[w][e]:first[w][e + 1]``.
+    first: tuple[IntArray, IntArray]
+
+
+def tyre_paths(
+    pose_t_ns: IntArray,
+    pose_xy: FloatArray,
+    pose_yaw: FloatArray,
+    t_start_ns: IntArray,
+    t_end_ns: IntArray,
+    track_m: float,
+) -> TyrePaths:
+    """Sample each rear tyre's path over each event ``[t_start, t_end]`` (E,), from the pose
+    (K,) / (K, 2) / (K,) (see the module docstring). Vectorised over events: the pose times
+    inside all events at once, densified so no two samples are more than :data:`PATH_STEP_M`
+    apart."""
+    # The pose rows inside each event, plus its two ends (interpolated).
+    lo = np.searchsorted(pose_t_ns, t_start_ns, side="right")
+    hi = np.searchsorted(pose_t_ns, t_end_ns, side="left")
+    inner = np.maximum(hi - lo, 0)
+    n_ev = t_start_ns.size
+    counts = inner + 2
+    ev = np.repeat(np.arange(n_ev), counts)
+    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    k = np.arange(ev.size) - first[ev]
+    t = np.empty(ev.size, dtype=np.int64)
+    is_start, is_end = k == 0, k == counts[ev] - 1
+    t[is_start] = t_start_ns
+    t[is_end] = t_end_ns
+    mid = ~(is_start | is_end)
+    t[mid] = pose_t_ns[lo[ev[mid]] + k[mid] - 1]
+    tf = (t - pose_t_ns[0]).astype(np.float64)
+    tp = (pose_t_ns - pose_t_ns[0]).astype(np.float64)
+    x = np.interp(tf, tp, pose_xy[:, 0])
+    y = np.interp(tf, tp, pose_xy[:, 1])
+    yaw = np.interp(tf, tp, np.unwrap(pose_yaw))
+    # Densify: each step split into ceil(length / PATH_STEP_M) pieces (within an event).
+    same = ev[1:] == ev[:-1]
+    step = np.hypot(np.diff(x), np.diff(y))
+    pieces = np.where(same, np.maximum(np.ceil(step / PATH_STEP_M), 1), 1).astype(np.int64)
+    j = np.repeat(np.arange(pieces.size), pieces)
+    f = (np.arange(j.size) - np.concatenate([[0], np.cumsum(pieces)[:-1]])[j]) / pieces[j]
+    f = np.where(same[j], f, 0.0)
+
+    def lerp(v: FloatArray) -> FloatArray:
+        return np.concatenate([v[j] + f * (v[j + 1] - v[j]), v[-1:]])
+
+    xs, ys, yaws = lerp(x), lerp(y), lerp(yaw)
+    evs = np.concatenate([ev[j], ev[-1:]])
+    half = 0.5 * track_m
+    # Left tyre at +y of base_link, right at -y: (x, y) + R(yaw) (0, +-half).
+    nx, ny = -np.sin(yaws) * half, np.cos(yaws) * half
+    xy = np.concatenate([np.c_[xs + nx, ys + ny], np.c_[xs - nx, ys - ny]])
+    first_left = np.searchsorted(evs, np.arange(n_ev + 1), side="left").astype(np.int64)
+    return TyrePaths(
+        xy=xy,
+        event=np.concatenate([evs, evs]).astype(np.int64),
+        wheel=np.repeat(np.array([0, 1], dtype=np.int64), xs.size),
+        first=(first_left, first_left + xs.size),
+    )
+
+
+def near_cells(sample_xy: FloatArray, x: FloatArray, y: FloatArray, cell_m: float) -> IntArray:
+    """The points (x, y) (N,) in a grid cell of side ``cell_m`` that holds a sample (M, 2)
+    or is next to one that does: their indices, ascending.
+
+    The cells are marked in a bitmap over the samples' bounding box (a point is then one
+    lookup: ~3x faster than binary search in sorted cell keys, measured). A box too large
+    for a bitmap (open tyre paths kilometres across) falls back to the sorted keys."""
+    sx = np.floor(sample_xy[:, 0] / cell_m).astype(np.int64)
+    sy = np.floor(sample_xy[:, 1] / cell_m).astype(np.int64)
+    x0, y0 = int(sx.min()) - 1, int(sy.min()) - 1
+    nx, ny = int(sx.max()) - x0 + 2, int(sy.max()) - y0 + 2
+    with np.errstate(invalid="ignore"):
+        px, py = np.floor(x / cell_m), np.floor(y / cell_m)
+    if nx * ny > MAX_BITMAP_CELLS:
+        around = np.unique(
+            np.concatenate([cell_key(sx + dx, sy + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
+        )
+        keys = cell_key(np.nan_to_num(px), np.nan_to_num(py))
+        at = np.minimum(np.searchsorted(around, keys), around.size - 1)
+        return np.flatnonzero(around[at] == keys)
+    marked = np.zeros((nx, ny), dtype=bool)
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            marked[sx - x0 + dx, sy - y0 + dy] = True
+    ix, iy = px - x0, py - y0
+    inside = np.flatnonzero((ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny))
+    return inside[marked[ix[inside].astype(np.int64), iy[inside].astype(np.int64)]]
+
+
+def cell_key(cx: FloatArray | IntArray, cy: FloatArray | IntArray) -> IntArray:
+    """One int64 per grid cell (cell indices within +-2^31)."""
+    return (cx.astype(np.int64) << 32) + (cy.astype(np.int64) & 0xFFFFFFFF)
+
+
+class NearPath:
+    """Which points lie within ``distance_m`` of either rear tyre's path over a whole log.
+
+    The paths are sampled from the pose as the tables stage samples an event's
+    (:func:`tyre_paths`, one "event" from the first pose row to the last): the tables' own
+    samples then lie within ``PATH_STEP_M / 2`` (plus the millimetres a yaw interpolated
+    between other rows moves a tyre) of these, so every point the tables take within their
+    radius ``r`` of a tyre is within ``r + PATH_STEP_M`` of a sample here. Built once per log
+    (the sorted cell keys and a KD-tree of ~40 samples a metre of path); :meth:`mask` is two
+    vectorised sieves per batch of points, as in the tables stage.
+
+    ``pose_t_ns`` (K,), ``pose_xy`` (K, 2) m, ``pose_yaw`` (K,) rad; ``track_m`` between the
+    rear tyres.
+    """
+
+    def __init__(
+        self,
+        pose_t_ns: IntArray,
+        pose_xy: FloatArray,
+        pose_yaw: FloatArray,
+        track_m: float,
+        distance_m: float,
+    ) -> None:
+        self.distance_m = distance_m
+        if pose_t_ns.size < 2:
+            self._samples = np.zeros((0, 2))
+        else:
+            whole = tyre_paths(
+                pose_t_ns,
+                pose_xy,
+                pose_yaw,
+                pose_t_ns[:1],
+                pose_t_ns[-1:],
+                track_m,
+            )
+            self._samples = whole.xy[np.isfinite(whole.xy).all(axis=1)]
+        self._tree = cKDTree(self._samples) if self._samples.size else None
+
+    def mask(self, x: FloatArray, y: FloatArray) -> NDArray[np.bool_]:
+        """True for each point (x, y) (N,) within ``distance_m`` of a sample (N,)."""
+        keep = np.zeros(x.size, dtype=bool)
+        if self._tree is None or x.size == 0:
+            return keep
+        candidate = near_cells(self._samples, x, y, self.distance_m)
+        if candidate.size:
+            xy = np.c_[np.take(x, candidate), np.take(y, candidate)]
+            dist, _ = self._tree.query(xy, k=1, distance_upper_bound=self.distance_m)
+            keep[candidate[np.isfinite(dist)]] = True
+        return keep
