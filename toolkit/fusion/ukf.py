@@ -467,11 +467,19 @@ class PoseUKF:
 
     # -- the filter -----------------------------------------------------------------------
 
-    def predict(self, inc: ImuIncrement) -> None:
-        """Predict over one pre-integrated IMU increment (see the class docstring)."""
+    def predict(self, inc: ImuIncrement, q_extra: FloatArray | None = None) -> None:
+        """Predict over one pre-integrated IMU increment (see the class docstring).
+
+        ``q_extra`` (16, 16), symmetric positive semidefinite: process noise added to
+        :meth:`NoiseModel.q` for this step (the estimator's measured accelerometer noise in
+        odometry dead reckoning, :func:`toolkit.fusion.estimator.vibration_q`).
+        """
         moved = propagate(self._sigma_points(), inc)
+        q = self._noise.q(inc.T)
+        if q_extra is not None:
+            q = q + _checked(q_extra, (DIM_X, DIM_X), "q_extra")
         self._x, self._P = unscented_transform(
-            moved, self._wm, self._wc, self._noise.q(inc.T), state_mean, state_residual
+            moved, self._wm, self._wc, q, state_mean, state_residual
         )
 
     def update(
