@@ -165,6 +165,34 @@ def test_gating_rejects_an_outlier_and_counts_it() -> None:
     np.testing.assert_array_equal(ukf.P, P_before)
 
 
+def test_a_robust_block_beyond_its_gate_is_down_weighted_to_the_gate() -> None:
+    """A ``robust`` measurement beyond its gate is used with ``S' = (d2 / g) S``: the
+    closed-form Kalman update of the linear GPS position with ``R' = R + (d2/g - 1) S``, and
+    the innovation's distance under ``S'`` is the gate; counted accepted and down-weighted.
+    Inside the gate a robust block is the ordinary update."""
+    hx, R, gate = gps_model(np.zeros(3)), np.eye(3) * 0.25, 21.11
+    z = np.array([6.0, -2.0, 1.0])
+    ukf = make_filter()
+    P = ukf.P.copy()
+    assert ukf.update_joint([Measurement("gps", z, R, hx, gate, robust=True)]) == [True]
+    S = P[POS, POS] + R
+    d2 = float(z @ np.linalg.solve(S, z))
+    assert d2 > gate
+    S_inflated = S * d2 / gate
+    assert float(z @ np.linalg.solve(S_inflated, z)) == pytest.approx(gate)
+    K = np.linalg.solve(S_inflated, P[POS, :]).T  # P H^T S'^-1, H selects the position
+    np.testing.assert_allclose(ukf.x, K @ z, atol=1e-9)
+    np.testing.assert_allclose(ukf.P, P - K @ S_inflated @ K.T, atol=1e-9)
+    assert ukf.accepted["gps"] == 1 and ukf.down_weighted["gps"] == 1 and ukf.gated["gps"] == 0
+
+    inside, plain = make_filter(), make_filter()
+    small = np.array([0.5, -0.3, 0.2])
+    inside.update_joint([Measurement("gps", small, R, hx, gate, robust=True)])
+    plain.update_joint([Measurement("gps", small, R, hx, gate)])
+    np.testing.assert_array_equal(inside.x, plain.x)
+    assert inside.down_weighted["gps"] == 0
+
+
 def stationary_increment(T: float, steps: int) -> ImuIncrement:
     """Level and at rest: the accelerometer reads exactly -g (specific force), gyro 0."""
     inc = ImuIncrement(np.zeros(3), np.zeros(3))

@@ -195,7 +195,7 @@ def test_husky_without_gps_ends_where_odometry_and_imu_say(
     husky_without_gps: tuple[Workspace, str, PoseResult],
 ) -> None:
     """With ``dead_reckoning = "odometry"`` (pipelines/husky.toml) the end is within 5 % of
-    the distance driven from the plain wheel + gyro integral (measured 5.6 m of 359 m; the
+    the distance driven from the plain wheel + gyro integral (measured 3.6 m of 359 m; the
     ``inertial`` mode ends 36 m away, see toolkit/fusion/estimator.py)."""
     ws, log_id, _ = husky_without_gps
     pose = read_table(ws.log_table(log_id, "pose"), "pose")

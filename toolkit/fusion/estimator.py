@@ -8,7 +8,8 @@ last epoch forward to every IMU sample, which gives the output between filter st
 using anything measured later. At each epoch: predict, then one joint update with whatever
 was measured then (GPS, compass yaw, the IMU's own roll and pitch, wheel speed, and the
 non-holonomic constraint), each sensor gated on its own innovation
-(:meth:`~toolkit.fusion.ukf.PoseUKF.update_joint`).
+(:meth:`~toolkit.fusion.ukf.PoseUKF.update_joint`), except the wheels in odometry dead
+reckoning (below).
 
 Heading: from the compass when there is one; else from the GPS track once a run of fixes
 lies on a straight line long enough for its direction (:func:`_start`), whatever the speed,
@@ -38,9 +39,23 @@ constraint in a local frame whose origin and zero yaw are the first pose (headin
   velocity the wheels and NHC keep on the body axes, the UKF still giving roll, pitch and a
   3-D path; robot_localization's odom frame on a ground robot does the same. For a slow robot
   with a MEMS IMU, where a lateral accelerometer error of 0.05 m/s^2 equals a 3 deg/s yaw-rate
-  error at 1 m/s: the Husky log without its GPS ends 5.6 m (1.6 %) from its wheel + gyro
+  error at 1 m/s: the Husky log without its GPS ends 3.6 m (1.0 %) from its wheel + gyro
   integral this way and 36 m (10 %) with ``inertial``, whose corrections turned its yaw by
   17.5 deg and moved its position 306 m in all over a 359 m drive.
+  The velocity's process noise is, in this mode, at least the accelerometer's own noise as
+  measured on the log (:class:`_AccelNoise`, :func:`vibration_q`): with the configured
+  Stanley-class ``accel_noise_mps2`` alone, the filter takes the integral of a vibrating
+  MEMS accelerometer for a better velocity than the wheels', gates them and drifts (a
+  simulated skid-steer robot, ``tests/fusion/skid_steer.py``: 140-510 of 610 wheel updates
+  gated and 13-225 m from the wheel + gyro integral after 80-90 m; with it 16-32 gated,
+  the slipping readings of its turns, and 0.5-1.9 m).
+  Nor is a wheel reading rejected in this mode: beyond its gate it is down-weighted, its
+  variance inflated until its innovation is at the gate (``robust``,
+  :meth:`~toolkit.fusion.ukf.PoseUKF.update_joint`), and counted (``down_weighted``). The
+  wheels are the only velocity reference here: a rejected reading leaves the velocity to
+  the accelerometer's integral, worse than a slipping track's reading, while the plain
+  wheel + gyro integral uses every reading. The simulated robot then has none of 610
+  gated (18-27 down-weighted, seeds 1-8) and ends 0.5-1.8 m from that integral.
 
 Recovery: after ``reinit_after_gated_fixes`` GPS fixes in a row are gated, position and
 velocity are taken from the GPS again (:func:`_reinitialise`), counted and warned about, so a
@@ -59,6 +74,7 @@ from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import lfilter
 
 from toolkit.fusion.rotations import FloatArray, euler_rates, euler_to_rot, rot_to_euler, wrap_angle
 from toolkit.fusion.ukf import (
@@ -104,6 +120,75 @@ TRACK_STRAIGHT_SIGMAS = 1.5
 #: 1 sigma added to a GPS-track yaw: the direction of travel is not exactly the heading (the
 #: slight crabbing of a skid-steer robot, what is left of a turn in a "straight" run), rad.
 TRACK_YAW_FLOOR_RAD = 0.05
+#: Time constant of the running estimate of the accelerometer's noise in odometry dead
+#: reckoning (:class:`_AccelNoise`), s: long against the 20-100 Hz vibration it measures
+#: (hundreds of samples), short against a change of terrain or speed.
+ACCEL_NOISE_TAU_S = 2.0
+
+
+class _AccelNoise:
+    """A causal running estimate of the accelerometer's white noise, per body axis.
+
+    The mean square successive difference of a white sequence of variance ``sigma^2`` is
+    ``2 sigma^2`` (von Neumann 1941, Ann. Math. Stat. 12(4)); half of it at the sample
+    period is the Allan variance at ``tau_0``, whose velocity-random-walk density is
+    ``N^2 = sigma^2 tau_0`` (IEEE Std 952-1997, annex C). So, per axis, with ``d_k = f_k -
+    f_(k-1)`` and an exponential mean ``m_k = m_(k-1) + a (d_k^2 - m_(k-1))``, ``a = 1 -
+    exp(-tau_0 / tau)`` (``tau`` = :data:`ACCEL_NOISE_TAU_S`)::
+
+        N_i^2 = m_i tau_0 / 2                  (m/s^2)^2 s, body axis i
+
+    A real change of acceleration between samples adds ``(jerk tau_0)^2`` to ``d_k^2``, a
+    few (cm/s^2)^2 for a robot at 50 Hz; it can only raise ``N``, that is make the filter
+    lean more on the wheels. Chassis vibration sampled at the IMU's rate (aliased: a 50 Hz
+    IMU does not see a 30 Hz shake, it sees its samples) integrates, sample by sample, into
+    a velocity error that is a random walk of density ``N``; on a skid-steer robot ``N``
+    is several times the configured ``accel_noise_mps2`` (tuned for the Stanley-class IMU).
+    """
+
+    def __init__(self, head_accel: FloatArray, period: float) -> None:
+        """Start from the mean square successive difference of ``head_accel`` (N, 3), the
+        samples the initial attitude is taken from (zero if fewer than two)."""
+        d = np.diff(head_accel, axis=0)
+        self._m = (d**2).mean(axis=0) if d.shape[0] else np.zeros(3)
+        self._period = period
+        self._a = 1.0 - float(np.exp(-period / ACCEL_NOISE_TAU_S))
+        self._last: FloatArray | None = None
+
+    def window(self, accel: FloatArray) -> FloatArray:
+        """The density ``N_i^2`` after each sample of ``accel`` (N, 3), (N, 3) out."""
+        prev = accel[:1] if self._last is None else self._last[None, :]
+        d2 = np.diff(accel, axis=0, prepend=prev) ** 2
+        self._last = accel[-1].copy()
+        # m_k = (1 - a) m_(k-1) + a d_k^2 as a first-order IIR filter with the carried state.
+        m, zi = lfilter(
+            [self._a], [1.0, self._a - 1.0], d2, axis=0, zi=((1.0 - self._a) * self._m)[None, :]
+        )
+        self._m = m[-1].copy()
+        return np.asarray(m * (0.5 * self._period), dtype=np.float64)
+
+
+def vibration_q(
+    rpy: FloatArray, density2_body: FloatArray, accel_noise: float, T: float
+) -> FloatArray:
+    """Process noise (16, 16) for what the accelerometer's measured noise (``density2_body``
+    (3,), ``N_i^2`` of :class:`_AccelNoise`, body axes) exceeds the configured white noise
+    ``accel_noise`` (m/s^2 per sqrt(s)) by, over a step of ``T`` s::
+
+        M = R(rpy) diag(max(N_i^2 - accel_noise^2, 0)) R(rpy)^T
+        Q_pp = M T^3 / 3,   Q_pv = Q_vp = M T^2 / 2,   Q_vv = M T
+
+    (white acceleration noise integrated once into velocity and twice into position;
+    positive semidefinite since ``[[T^3/3, T^2/2], [T^2/2, T]]`` is).
+    """
+    extra = np.maximum(np.asarray(density2_body, dtype=np.float64) - accel_noise**2, 0.0)
+    rot = euler_to_rot(np.asarray(rpy, dtype=np.float64))
+    m = (rot * extra) @ rot.T
+    q = np.zeros((DIM_X, DIM_X))
+    q[POS, POS] = m * T**3 / 3.0
+    q[POS, VEL] = q[VEL, POS] = m * T**2 / 2.0
+    q[VEL, VEL] = m * T
+    return q
 
 
 @dataclass(frozen=True)
@@ -175,6 +260,9 @@ class EstimateResult:
     heading_source: str
     warnings: list[str] = field(default_factory=list)
     reinitialised: int = 0
+    #: Measurements used beyond their gate with inflated noise (odometry dead reckoning's
+    #: wheels), per sensor name; also counted in ``accepted``.
+    down_weighted: dict[str, int] = field(default_factory=dict)
 
 
 def _initial_attitude(d: SensorData, t_start: float, yaw: float) -> FloatArray:
@@ -475,6 +563,7 @@ def estimate_stream(
         wheel_speed=d.wheel_speed,
     )
     att0 = _initial_attitude(head, t_start, yaw0)
+    accel_noise = _AccelNoise(head.accel, period)
     del head, first_t, first_a, first_g
 
     rot0 = euler_to_rot(att0)
@@ -532,6 +621,8 @@ def estimate_stream(
         w_prev = (wt[0] - period) if prev_imu_t is None else prev_imu_t
         imu_dt = np.diff(wt, prepend=w_prev)
         prev_imu_t = float(wt[-1])
+        # Odometry dead reckoning: the accelerometer's own noise, measured (_AccelNoise).
+        acc_density2 = accel_noise.window(accel) if given else None
         after = wt > t_start
         gap_w = (imu_dt > 1.5 * period) & after
         n_restart += int((imu_dt[gap_w] > MAX_BRIDGE_S).sum())
@@ -577,7 +668,14 @@ def estimate_stream(
             if not seg_is_epoch[j]:
                 continue
             t = float(bounds[j])
-            ukf.predict(inc)
+            if acc_density2 is None:
+                ukf.predict(inc)
+            else:
+                # The wheels are the velocity reference here: a filter that took the
+                # accelerometer for cleaner than it is would prefer its own integral of a
+                # vibrating MEMS accelerometer to them, gate them, and drift (issue 27, 17).
+                a2 = acc_density2[min(i, acc_density2.shape[0] - 1)]
+                ukf.predict(inc, vibration_q(post_k[ATT], a2, s.noise.accel, inc.T))
             if restart_pending:
                 ukf.restart(P0)
                 restart_pending = False
@@ -648,6 +746,9 @@ def estimate_stream(
                         wheel_var,
                         wheel_model(w_now, s.lever_axle),
                         s.gate_wheels,
+                        # Odometry dead reckoning: the wheels are the only velocity
+                        # reference, so an outlier is down-weighted, never dropped.
+                        robust=bool(given),
                     )
                 )
             blocks.append(
@@ -747,6 +848,7 @@ def estimate_stream(
 
     result.gated = dict(ukf.gated)
     result.accepted = dict(ukf.accepted)
+    result.down_weighted = dict(ukf.down_weighted)
     result.imu_gaps_bridged = n_bridged
     result.imu_gaps_restarted = n_restart
     result.epochs = int(epochs.size)

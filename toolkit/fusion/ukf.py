@@ -56,6 +56,9 @@ Measurement models (``R(rpy)`` world from body; ``l`` a lever arm from the IMU i
 
 Every measurement is gated: the squared Mahalanobis distance of its innovation,
 ``y^T S^-1 y``, above the sensor's threshold rejects it; rejections are counted per sensor.
+A measurement marked ``robust`` is instead down-weighted beyond its gate: its noise is
+inflated until the distance equals the gate, and it is used (counted as accepted and as
+down-weighted; :meth:`PoseUKF.update_joint` gives the maths and the reason).
 
 An update may be conditioned on some states (``PoseUKF.update_joint(..., given=c)``): they
 are held at their mean for the update, which then moves neither them nor their marginal
@@ -327,7 +330,9 @@ class Measurement:
     """One sensor's measurement for :meth:`PoseUKF.update_joint`: ``z`` (k,), noise
     covariance ``R`` (k, k), model ``hx`` (sigma points (M, 16) -> (M, k)), gate
     ``gate_chi2`` on ``y^T S^-1 y``, and how to average and subtract it (the angle
-    versions for angles). ``name`` counts it as accepted or gated."""
+    versions for angles). ``name`` counts it as accepted or gated. ``robust``: beyond the
+    gate it is down-weighted (noise inflated to bring ``y^T S^-1 y`` to the gate) instead of
+    rejected; see :meth:`PoseUKF.update_joint`."""
 
     name: str
     z: FloatArray
@@ -336,6 +341,7 @@ class Measurement:
     gate_chi2: float
     mean_fn: Callable[[FloatArray, FloatArray], FloatArray] = plain_mean
     residual_fn: Callable[[FloatArray, FloatArray], FloatArray] = plain_residual
+    robust: bool = False
 
 
 @dataclass(frozen=True)
@@ -403,7 +409,8 @@ class PoseUKF:
     position, velocity and attitude block of ``P`` to at least its initial value.
 
     Read-only: :attr:`x`, :attr:`P`, :attr:`gated` (rejected measurements per sensor name),
-    :attr:`accepted` (used ones), :attr:`last_d2` (``d2`` of the last measurement tried).
+    :attr:`accepted` (used ones), :attr:`down_weighted` (used ones beyond their gate, robust
+    blocks of :meth:`update_joint`), :attr:`last_d2` (``d2`` of the last measurement tried).
     """
 
     def __init__(
@@ -431,6 +438,7 @@ class PoseUKF:
         self._wc: FloatArray = np.asarray(self._points.Wc, dtype=np.float64)
         self._gated: Counter[str] = Counter()
         self._accepted: Counter[str] = Counter()
+        self._down_weighted: Counter[str] = Counter()
         self._last_d2 = 0.0
 
     # -- read-only views ----------------------------------------------------------------
@@ -461,17 +469,31 @@ class PoseUKF:
         return MappingProxyType(self._accepted)
 
     @property
+    def down_weighted(self) -> Mapping[str, int]:
+        """Robust measurements used beyond their gate with inflated noise, per sensor name
+        (also counted in :attr:`accepted`; 0 for a name never seen)."""
+        return MappingProxyType(self._down_weighted)
+
+    @property
     def last_d2(self) -> float:
         """Squared Mahalanobis distance ``y^T S^-1 y`` of the last measurement tried."""
         return self._last_d2
 
     # -- the filter -----------------------------------------------------------------------
 
-    def predict(self, inc: ImuIncrement) -> None:
-        """Predict over one pre-integrated IMU increment (see the class docstring)."""
+    def predict(self, inc: ImuIncrement, q_extra: FloatArray | None = None) -> None:
+        """Predict over one pre-integrated IMU increment (see the class docstring).
+
+        ``q_extra`` (16, 16), symmetric positive semidefinite: process noise added to
+        :meth:`NoiseModel.q` for this step (the estimator's measured accelerometer noise in
+        odometry dead reckoning, :func:`toolkit.fusion.estimator.vibration_q`).
+        """
         moved = propagate(self._sigma_points(), inc)
+        q = self._noise.q(inc.T)
+        if q_extra is not None:
+            q = q + _checked(q_extra, (DIM_X, DIM_X), "q_extra")
         self._x, self._P = unscented_transform(
-            moved, self._wm, self._wc, self._noise.q(inc.T), state_mean, state_residual
+            moved, self._wm, self._wc, q, state_mean, state_residual
         )
 
     def update(
@@ -531,6 +553,24 @@ class PoseUKF:
         For measurements linear in the state this equals the sequential updates; it draws
         sigma points once instead of once per sensor. Returns the accepted flag per block.
 
+        A ``robust`` block beyond its gate (``d2_b > g``, finite) is not rejected but
+        down-weighted: its noise is inflated so that its innovation's squared Mahalanobis
+        distance equals the gate, and it is then used like an accepted block::
+
+            lam = d2_b / g,    R_b' = R_b + (lam - 1) S_bb,    so S_bb' = lam S_bb
+            and y_b^T S_bb'^-1 y_b = d2_b / lam = g
+
+        (the cross-blocks of ``S`` do not contain ``R`` and are unchanged; ``S`` stays
+        positive definite, a PSD matrix having been added). It is counted as accepted and as
+        down-weighted. This is the Mahalanobis-distance covariance inflation of Chang (2014,
+        J. Geodesy 88(4), doi:10.1007/s00190-013-0690-8, its analytical scaling of the
+        innovation covariance), a Huber-type M-estimation (Huber 1964, Ann. Math. Stat. 35(1))
+        of the Kalman update: inside the gate the ordinary update, beyond it the correction
+        of a measurement at the gate's distance, shrinking as ``g / sqrt(d2_b)`` standard
+        deviations. Why: for a sensor that is the only reference of what it measures (the
+        wheels in odometry dead reckoning), dropping its outlying readings leaves that state
+        to the process model alone, which is worse than a reading with a heavier tail.
+
         ``given``: state indices ``c`` the update is conditioned on (none by default); see
         :meth:`_conditioned`, which says how and why.
         """
@@ -564,6 +604,11 @@ class PoseUKF:
             d2 = float(yb @ np.linalg.solve(S[sl, sl], yb))
             self._last_d2 = d2
             ok = bool(np.isfinite(d2) and d2 <= b.gate_chi2)
+            if not ok and b.robust and np.isfinite(d2):
+                # Beyond the gate but robust: R_b' = R_b + (lam - 1) S_bb (docstring).
+                S[sl, sl] *= d2 / b.gate_chi2
+                self._down_weighted[b.name] += 1
+                ok = True
             flags.append(ok)
             if ok:
                 keep.extend(range(sl.start, sl.stop))

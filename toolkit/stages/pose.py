@@ -90,6 +90,9 @@ class PoseResult:
     accepted: dict[str, int] = field(default_factory=dict)
     gated: dict[str, int] = field(default_factory=dict)
     warnings: tuple[str, ...] = ()
+    #: Readings used beyond their gate with inflated noise (odometry dead reckoning's
+    #: wheels; also in ``accepted``), per sensor; empty when none.
+    down_weighted: dict[str, int] = field(default_factory=dict)
     #: Without GPS: the mode, the distance (m) and time (s) dead-reckoned; empty with GPS.
     dead_reckoning: dict[str, Any] = field(default_factory=dict)
 
@@ -104,6 +107,12 @@ class PoseResult:
                 + ", ".join(
                     f"{k} {self.accepted.get(k, 0)}/{self.gated.get(k, 0)}" for k in sensors
                 )
+            )
+        if self.down_weighted:
+            # Outliers that were used, not rejected: still worth a reader's eye.
+            parts.append(
+                "down-weighted "
+                + ", ".join(f"{k} {v}" for k, v in sorted(self.down_weighted.items()))
             )
         if self.heading_source:
             parts.append(f"heading from {self.heading_source}")
@@ -603,6 +612,7 @@ def _pose_in(
             heading_source=str(detail.get("heading_source", "")),
             accepted=dict(detail.get("accepted", {})),
             gated=dict(detail.get("gated", {})),
+            down_weighted=dict(detail.get("down_weighted", {})),
             dead_reckoning=dict(detail.get("dead_reckoning", {})),
         )
     timings: dict[str, float] = dict.fromkeys(("read", "filter", "write", "accuracy"), 0.0)
@@ -713,6 +723,8 @@ def _pose_in(
         "imu_samples": est.imu_samples,
         "accepted": dict(sorted(est.accepted.items())),
         "gated": dict(sorted(est.gated.items())),
+        # Only odometry dead reckoning down-weights (its wheels); absent otherwise.
+        **({"down_weighted": dict(sorted(est.down_weighted.items()))} if est.down_weighted else {}),
         "imu_gaps": {"bridged": est.imu_gaps_bridged, "restarted": est.imu_gaps_restarted},
         "reinitialised": est.reinitialised,
         **({"dead_reckoning": dead_reckoning} if dead_reckoning else {}),
@@ -742,6 +754,7 @@ def _pose_in(
         accepted=dict(sorted(est.accepted.items())),
         gated=dict(sorted(est.gated.items())),
         warnings=tuple(warnings),
+        down_weighted=dict(sorted(est.down_weighted.items())),
         dead_reckoning=dead_reckoning,
     )
 
