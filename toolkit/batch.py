@@ -27,17 +27,17 @@ import logging
 import logging.handlers
 import multiprocessing
 import os
-import threading
 import time
 import traceback
 from collections.abc import Callable, Hashable, Iterable, Iterator, Sequence
-from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
+from concurrent.futures import Executor, Future, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 from typing import Any, Literal, TypeVar
 
 from toolkit.config import PipelineConfig, default_config, dump_toml, load_config, parse_config
 from toolkit.errors import ConfigError, ToolkitError
+from toolkit.pools import process_pool
 from toolkit.progress import note, progress
 from toolkit.workspace import Workspace
 
@@ -96,30 +96,11 @@ class _Relay(logging.Handler):
         logging.getLogger(record.name).handle(record)
 
 
-#: How often a pool worker checks that its parent is still alive (s).
-PARENT_CHECK_S = 1.0
-
-
-def _exit_when_orphaned(parent_pid: int) -> None:
-    """Watch the parent from a daemon thread; if it dies (kill -9 included, which no handler
-    of the parent sees) the worker is re-parented, and exits at once rather than live on."""
-
-    def watch() -> None:
-        while True:
-            time.sleep(PARENT_CHECK_S)
-            if os.getppid() != parent_pid:
-                os._exit(1)
-
-    threading.Thread(target=watch, name="terrain-parent-watch", daemon=True).start()
-
-
-def _init_pool_worker(log_queue: Any, level: int, parent_pid: int) -> None:
-    """Set up a pool process: exit if the parent dies, no progress bars (the parent shows one
-    over the batch), and log records sent to the parent, which prints them with its own
-    handlers and format."""
+def _init_pool_worker(log_queue: Any, level: int) -> None:
+    """Set up a pool process: no progress bars (the parent shows one over the batch), and
+    log records sent to the parent, which prints them with its own handlers and format."""
     from toolkit.progress import set_quiet
 
-    _exit_when_orphaned(parent_pid)
     set_quiet(True)
     root = logging.getLogger()
     root.handlers[:] = [logging.handlers.QueueHandler(log_queue)]
@@ -133,25 +114,21 @@ def _local_pool(workers: int) -> Iterator[Executor]:
 
     ``spawn`` (not ``fork``) starts each worker as a fresh interpreter, as a Dask worker
     would be: a task that runs here also runs on a cluster, and no lock or thread of the
-    parent (progress bar, logging, workspace lock) is inherited half-held.
+    parent (progress bar, logging, workspace lock) is inherited half-held. An interrupt or
+    error stops the workers at once (:func:`toolkit.pools.process_pool`).
     """
     ctx = multiprocessing.get_context("spawn")
     log_queue = ctx.Queue()
     listener = logging.handlers.QueueListener(log_queue, _Relay())
     listener.start()
-    pool = ProcessPoolExecutor(
-        max_workers=workers,
-        mp_context=ctx,
-        initializer=_init_pool_worker,
-        initargs=(log_queue, logging.getLogger().getEffectiveLevel(), os.getpid()),
-    )
     try:
-        yield pool
-    except BaseException:
-        pool.shutdown(wait=True, cancel_futures=True)
-        raise
-    else:
-        pool.shutdown(wait=True)
+        with process_pool(
+            workers,
+            mp_context=ctx,
+            initializer=_init_pool_worker,
+            initargs=(log_queue, logging.getLogger().getEffectiveLevel()),
+        ) as pool:
+            yield pool
     finally:
         listener.stop()
         log_queue.close()

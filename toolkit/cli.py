@@ -15,6 +15,7 @@ import dataclasses
 import json
 import logging
 import sys
+import threading
 import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,6 +26,7 @@ import click
 
 from toolkit import __version__
 from toolkit.errors import LogReadError, ToolkitError
+from toolkit.pools import sigterm_as_exit
 from toolkit.progress import set_quiet
 
 PROG = "terrain"
@@ -168,6 +170,14 @@ def main(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
     ctx.obj = CliOptions(verbose=verbose, quiet=quiet, debug=debug)
     configure_logging(verbose, quiet, debug)
     set_quiet(quiet)
+    _stop_on_sigterm(ctx)
+
+
+def _stop_on_sigterm(ctx: click.Context) -> None:
+    """SIGTERM ends the command as Ctrl-C does, every ``with`` unwound (pool workers
+    stopped, temporary files removed, locks released); restored when the command ends."""
+    if threading.current_thread() is threading.main_thread():  # (not in a test's thread)
+        ctx.with_resource(sigterm_as_exit(lambda: _error_line("stopped (SIGTERM)")))
 
 
 def _require_file(path: Path, error: type[ToolkitError] = ToolkitError) -> None:

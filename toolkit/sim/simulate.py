@@ -26,12 +26,13 @@ rebuild the world and check each stage against the truth (clock offsets, noise l
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import os
 from collections import deque
 from collections.abc import Callable
-from concurrent.futures import Executor, Future, ProcessPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -46,6 +47,7 @@ from toolkit.config import default_config
 from toolkit.geodesy import enu_to_geodetic
 from toolkit.mcapio.cdr_encode import Column, encode_batch, encode_message
 from toolkit.mcapio.writer import LogWriter
+from toolkit.pools import process_pool
 from toolkit.progress import progress
 from toolkit.sim.drive import GRAVITY_MPS2, Driver, TrueBlock, make_driven_path
 from toolkit.sim.profiles import SimProfile, make_profile
@@ -880,38 +882,39 @@ def simulate(
         # Laser casting is most of the work; with workers it runs a few blocks ahead in other
         # processes while this one drives. Every random draw happens here, in block order,
         # so the log is the same whatever the number of workers.
-        pool: Executor | None = None
-        start_cast: Callable[[LaserRays], Future[FloatArray]]
-        if workers > 0:
-            executor = ProcessPoolExecutor(
-                max_workers=workers,
-                initializer=_init_caster_worker,
-                initargs=(prof.world, seed, prof.sensors.laser),
-            )
-            pool = executor
+        with contextlib.ExitStack() as stack:
+            start_cast: Callable[[LaserRays], Future[FloatArray]]
+            if workers > 0:
+                # Stopped at once on an interrupt or error (toolkit.pools).
+                executor = stack.enter_context(
+                    process_pool(
+                        workers,
+                        initializer=_init_caster_worker,
+                        initargs=(prof.world, seed, prof.sensors.laser),
+                    )
+                )
 
-            def start_cast(rays: LaserRays) -> Future[FloatArray]:
-                return executor.submit(_cast_in_worker, rays)
-        else:
-            start_cast = partial(_cast_now, LaserCaster(prof.world, seed, prof.sensors.laser))
-        pending: deque[
-            tuple[TrueBlock, ImuSamples | None, LaserRays | None, Future[FloatArray] | None]
-        ] = deque()
-        meter = ShockMeter.for_imu(prof.sensors.imu.rate_hz, default_config().label)
+                def start_cast(rays: LaserRays) -> Future[FloatArray]:
+                    return executor.submit(_cast_in_worker, rays)
+            else:
+                start_cast = partial(_cast_now, LaserCaster(prof.world, seed, prof.sensors.laser))
+            pending: deque[
+                tuple[TrueBlock, ImuSamples | None, LaserRays | None, Future[FloatArray] | None]
+            ] = deque()
+            meter = ShockMeter.for_imu(prof.sensors.imu.rate_hz, default_config().label)
 
-        def finish_oldest() -> None:
-            block, imu, rays, future = pending.popleft()
-            suite.imu(imu, out)
-            suite.wheels(block, out)
-            suite.gps(block, out)
-            suite.truth(block, out)
-            if rays is not None and future is not None:
-                suite.finish_lasers(rays, future.result(), out)
-            out.flush(before_ns=int(block.t_ns[-1]) + driver.dt_ns)
-            if bar is not None:
-                bar.update(1)
+            def finish_oldest() -> None:
+                block, imu, rays, future = pending.popleft()
+                suite.imu(imu, out)
+                suite.wheels(block, out)
+                suite.gps(block, out)
+                suite.truth(block, out)
+                if rays is not None and future is not None:
+                    suite.finish_lasers(rays, future.result(), out)
+                out.flush(before_ns=int(block.t_ns[-1]) + driver.dt_ns)
+                if bar is not None:
+                    bar.update(1)
 
-        try:
             while driver.sigma_m < driver.end_sigma_m:
                 block = driver.step(BLOCK_SAMPLES)
                 ext = _concat_blocks(prev, block, HISTORY_SAMPLES)
@@ -927,9 +930,6 @@ def simulate(
                 prev = block
             while pending:
                 finish_oldest()
-        finally:
-            if pool is not None:
-                pool.shutdown(cancel_futures=True)
         out.flush(before_ns=None)
         if bar is not None:
             bar.close()

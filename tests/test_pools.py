@@ -1,0 +1,166 @@
+"""Pools stop when the command stops: Ctrl-C and SIGTERM leave no worker running.
+
+Each case runs a real process (the command line, or a small script) in a session of its
+own, waits for its pool worker to be busy, signals it as a terminal or ``kill`` would, and
+checks that the process ends within seconds and that no process it started lives on."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+#: Ending after a signal: the workers get SIGTERM, then SIGKILL after TERMINATE_GRACE_S.
+STOP_WITHIN_S = 15.0
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _children(pid: int) -> list[int]:
+    """Live processes whose parent is ``pid`` (from /proc; zombies are not alive)."""
+    found = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        # pid (comm) state ppid ...: comm may hold spaces, so split after its ')'.
+        state, ppid = stat.rsplit(")", 1)[1].split()[:2]
+        if int(ppid) == pid and state != "Z":
+            found.append(int(entry.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+def _wait_for_workers(proc: subprocess.Popen[bytes], at_least: int = 1) -> list[int]:
+    deadline = time.monotonic() + 60.0
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            pytest.fail(f"the process ended before its workers started ({proc.returncode})")
+        workers = _children(proc.pid)
+        if len(workers) >= at_least:
+            time.sleep(1.0)  # let them get busy
+            return _children(proc.pid)
+        time.sleep(0.1)
+    pytest.fail("no pool worker started within 60 s")
+
+
+def _ends_and_leaves_nothing(proc: subprocess.Popen[bytes], workers: list[int]) -> int:
+    start = time.monotonic()
+    try:
+        code = proc.wait(timeout=STOP_WITHIN_S)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        pytest.fail(f"still running {STOP_WITHIN_S} s after the signal")
+    took = time.monotonic() - start
+    time.sleep(0.5)  # an orphan would still be running now
+    left = [pid for pid in workers if _alive(pid)]
+    if left:
+        for pid in left:
+            os.kill(pid, signal.SIGKILL)
+    assert not left, f"workers {left} outlived their parent"
+    assert took < STOP_WITHIN_S
+    return code
+
+
+@pytest.fixture
+def sim_command(tmp_path: Path) -> list[str]:
+    """A long simulation whose laser casting runs in a pool worker (CPU-bound numpy)."""
+    return [
+        sys.executable,
+        "-m",
+        "toolkit",
+        "sim",
+        str(tmp_path / "long.mcap"),
+        "--profile",
+        "race",
+        "--distance-m",
+        "50000",
+        "--workers",
+        "1",
+    ]
+
+
+@pytest.mark.parametrize(
+    ("how", "code"),
+    [("sigint_to_the_group", None), ("sigterm_to_the_command", 128 + signal.SIGTERM)],
+    ids=["ctrl_c", "sigterm"],
+)
+def test_a_signal_ends_the_command_and_its_busy_worker(
+    sim_command: list[str], tmp_path: Path, how: str, code: int | None
+) -> None:
+    proc = subprocess.Popen(
+        sim_command,
+        cwd=ROOT,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    workers = _wait_for_workers(proc)
+    if how == "sigint_to_the_group":  # what Ctrl-C in a terminal does
+        os.killpg(proc.pid, signal.SIGINT)
+    else:
+        os.kill(proc.pid, signal.SIGTERM)
+    got = _ends_and_leaves_nothing(proc, workers)
+    assert proc.stderr is not None
+    err = proc.stderr.read().decode()
+    assert "Traceback" not in err
+    if code is not None:
+        assert got == code
+        assert "stopped (SIGTERM)" in err
+    else:
+        assert got != 0
+    # Nothing half-written is left where the log was to go.
+    assert not (tmp_path / "long.mcap").exists()
+    assert [p.name for p in tmp_path.iterdir()] == []
+
+
+BUSY_SCRIPT = """
+import sys, numpy as np
+from toolkit.pools import process_pool, sigterm_as_exit
+
+def busy(n):
+    x = np.random.default_rng(0).random(4_000_000)
+    while True:  # CPU-bound numpy, as a stage's worker is
+        x = np.sort(x)[::-1].copy()
+
+if __name__ == "__main__":
+    with sigterm_as_exit(), process_pool(2) as pool:
+        for f in [pool.submit(busy, i) for i in range(4)]:
+            f.result()
+"""
+
+
+@pytest.mark.parametrize("ctrl_c", [False, True], ids=["sigterm", "ctrl_c"])
+def test_a_signal_to_a_pool_of_busy_workers_stops_them_all(tmp_path: Path, ctrl_c: bool) -> None:
+    """Workers in an endless numpy loop (each call minutes long in a stage with an absurd
+    size): ``ProcessPoolExecutor.shutdown`` alone would wait for them for ever."""
+    script = tmp_path / "busy.py"
+    script.write_text(BUSY_SCRIPT)
+    proc = subprocess.Popen(
+        [sys.executable, str(script)],
+        cwd=ROOT,
+        start_new_session=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    workers = _wait_for_workers(proc, at_least=2)
+    if ctrl_c:
+        os.killpg(proc.pid, signal.SIGINT)
+        assert _ends_and_leaves_nothing(proc, workers) != 0
+    else:
+        os.kill(proc.pid, signal.SIGTERM)
+        assert _ends_and_leaves_nothing(proc, workers) == 128 + signal.SIGTERM

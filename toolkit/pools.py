@@ -1,0 +1,115 @@
+"""Process pools that stop when the command stops: no worker outlives an interrupt.
+
+A worker busy in C code (a numpy loop, zstd, a KD-tree) does not see Python's signal handling
+until it returns to the interpreter, which may be minutes away; ``ProcessPoolExecutor``'s own
+shutdown waits for it. So the workers ignore Ctrl-C (it reaches the whole process group) and
+the parent decides: on any exception leaving the pool (KeyboardInterrupt, the SystemExit the
+command line raises on SIGTERM, an error) it cancels what has not started and terminates
+the workers it started (SIGTERM, whose default action ends a process wherever it is; SIGKILL
+after :data:`TERMINATE_GRACE_S`), then lets the exception go on. A parent killed outright
+(SIGKILL, which nothing can catch) is noticed by each worker's watcher thread within
+:data:`PARENT_CHECK_S` once the worker's interpreter runs again.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+import signal
+import threading
+import time
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing.context import BaseContext
+from typing import Any
+
+#: How often a pool worker checks that its parent is still alive (s).
+PARENT_CHECK_S = 1.0
+#: How long a terminated worker may take to end before it is killed (s).
+TERMINATE_GRACE_S = 5.0
+
+
+def _exit_when_orphaned(parent_pid: int) -> None:
+    """Watch the parent from a daemon thread; if it dies (kill -9 included, which no handler
+    of the parent sees) the worker is re-parented, and exits at once rather than live on."""
+
+    def watch() -> None:
+        while True:
+            time.sleep(PARENT_CHECK_S)
+            if os.getppid() != parent_pid:
+                os._exit(1)
+
+    threading.Thread(target=watch, name="terrain-parent-watch", daemon=True).start()
+
+
+def _init_worker(
+    parent_pid: int, initializer: Callable[..., None] | None, initargs: tuple[Any, ...]
+) -> None:
+    """Every worker: Ctrl-C ignored (the parent stops the workers), exit with the parent,
+    then the pool user's own initializer."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    _exit_when_orphaned(parent_pid)
+    if initializer is not None:
+        initializer(*initargs)
+
+
+@contextlib.contextmanager
+def process_pool(
+    workers: int,
+    *,
+    mp_context: BaseContext | None = None,
+    initializer: Callable[..., None] | None = None,
+    initargs: tuple[Any, ...] = (),
+) -> Iterator[ProcessPoolExecutor]:
+    """A ``ProcessPoolExecutor`` of ``workers`` processes, shut down normally (waiting for
+    its tasks) when the block ends, and stopped at once (:func:`stop_now`) when an exception
+    of any kind leaves it."""
+    before = {p.pid for p in multiprocessing.active_children()}
+    pool = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=mp_context,
+        initializer=_init_worker,
+        initargs=(os.getpid(), initializer, initargs),
+    )
+    try:
+        yield pool
+    except BaseException:
+        stop_now(pool, before)
+        raise
+    pool.shutdown(wait=True)
+
+
+def stop_now(pool: ProcessPoolExecutor, before: set[int | None]) -> None:
+    """Cancel the pool's pending tasks and end its workers now: those of this process's
+    children whose pids are not in ``before`` (the children there were before the pool)."""
+    pool.shutdown(wait=False, cancel_futures=True)
+    workers = [p for p in multiprocessing.active_children() if p.pid not in before]
+    for p in workers:
+        p.terminate()
+    deadline = time.monotonic() + TERMINATE_GRACE_S
+    for p in workers:
+        p.join(max(deadline - time.monotonic(), 0.0))
+        if p.is_alive():
+            p.kill()
+            p.join()
+
+
+@contextlib.contextmanager
+def sigterm_as_exit(say: Callable[[], None] | None = None) -> Iterator[None]:
+    """Within the block, SIGTERM (``kill``, a CI's timeout, a scheduler) raises SystemExit
+    with status 128 + 15 (as a shell reports a process ended by SIGTERM) where the main
+    thread is, after ``say()``: every ``with`` unwinds, so pools stop their workers and
+    temporary files go. Python's default would end the process on the spot and leave its
+    pool workers running. The previous handler is restored after. Main thread only."""
+
+    def stop(signum: int, _frame: object) -> None:
+        if say is not None:
+            say()
+        raise SystemExit(128 + signum)
+
+    previous = signal.signal(signal.SIGTERM, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
