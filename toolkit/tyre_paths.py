@@ -100,31 +100,48 @@ def tyre_paths(
 
 def near_cells(sample_xy: FloatArray, x: FloatArray, y: FloatArray, cell_m: float) -> IntArray:
     """The points (x, y) (N,) in a grid cell of side ``cell_m`` that holds a sample (M, 2)
-    or is next to one that does: their indices, ascending.
+    or is next to one that does: their indices, ascending (:class:`CellSieve`, built for
+    one use)."""
+    return CellSieve(sample_xy, cell_m).points(x, y)
+
+
+class CellSieve:
+    """The grid cells of side ``cell_m`` that hold a sample (M, 2) or are next to one, built
+    once and asked of many batches of points (:meth:`points`).
 
     The cells are marked in a bitmap over the samples' bounding box (a point is then one
     lookup: ~3x faster than binary search in sorted cell keys, measured). A box too large
     for a bitmap (open tyre paths kilometres across) falls back to the sorted keys."""
-    sx = np.floor(sample_xy[:, 0] / cell_m).astype(np.int64)
-    sy = np.floor(sample_xy[:, 1] / cell_m).astype(np.int64)
-    x0, y0 = int(sx.min()) - 1, int(sy.min()) - 1
-    nx, ny = int(sx.max()) - x0 + 2, int(sy.max()) - y0 + 2
-    with np.errstate(invalid="ignore"):
-        px, py = np.floor(x / cell_m), np.floor(y / cell_m)
-    if nx * ny > MAX_BITMAP_CELLS:
-        around = np.unique(
-            np.concatenate([cell_key(sx + dx, sy + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)])
-        )
-        keys = cell_key(np.nan_to_num(px), np.nan_to_num(py))
-        at = np.minimum(np.searchsorted(around, keys), around.size - 1)
-        return np.flatnonzero(around[at] == keys)
-    marked = np.zeros((nx, ny), dtype=bool)
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            marked[sx - x0 + dx, sy - y0 + dy] = True
-    ix, iy = px - x0, py - y0
-    inside = np.flatnonzero((ix >= 0) & (ix < nx) & (iy >= 0) & (iy < ny))
-    return inside[marked[ix[inside].astype(np.int64), iy[inside].astype(np.int64)]]
+
+    def __init__(self, sample_xy: FloatArray, cell_m: float) -> None:
+        self.cell_m = cell_m
+        sx = np.floor(sample_xy[:, 0] / cell_m).astype(np.int64)
+        sy = np.floor(sample_xy[:, 1] / cell_m).astype(np.int64)
+        self.x0, self.y0 = int(sx.min()) - 1, int(sy.min()) - 1
+        self.nx, self.ny = int(sx.max()) - self.x0 + 2, int(sy.max()) - self.y0 + 2
+        self.keys: IntArray | None = None
+        self.marked: NDArray[np.bool_] | None = None
+        if self.nx * self.ny > MAX_BITMAP_CELLS:
+            shifted = [cell_key(sx + dx, sy + dy) for dx in (-1, 0, 1) for dy in (-1, 0, 1)]
+            self.keys = np.unique(np.concatenate(shifted))
+            return
+        self.marked = np.zeros((self.nx, self.ny), dtype=bool)
+        for dx in (-1, 0, 1):
+            for dy in (-1, 0, 1):
+                self.marked[sx - self.x0 + dx, sy - self.y0 + dy] = True
+
+    def points(self, x: FloatArray, y: FloatArray) -> IntArray:
+        """The indices of the points (x, y) (N,) in a marked cell, ascending."""
+        with np.errstate(invalid="ignore"):
+            px, py = np.floor(x / self.cell_m), np.floor(y / self.cell_m)
+        if self.keys is not None:
+            keys = cell_key(np.nan_to_num(px), np.nan_to_num(py))
+            at = np.minimum(np.searchsorted(self.keys, keys), self.keys.size - 1)
+            return np.flatnonzero(self.keys[at] == keys)
+        assert self.marked is not None  # one of the two is built
+        ix, iy = px - self.x0, py - self.y0
+        inside = np.flatnonzero((ix >= 0) & (ix < self.nx) & (iy >= 0) & (iy < self.ny))
+        return inside[self.marked[ix[inside].astype(np.int64), iy[inside].astype(np.int64)]]
 
 
 def cell_key(cx: FloatArray | IntArray, cy: FloatArray | IntArray) -> IntArray:
@@ -169,13 +186,14 @@ class NearPath:
             )
             self._samples = whole.xy[np.isfinite(whole.xy).all(axis=1)]
         self._tree = cKDTree(self._samples) if self._samples.size else None
+        self._cells = CellSieve(self._samples, distance_m) if self._samples.size else None
 
     def mask(self, x: FloatArray, y: FloatArray) -> NDArray[np.bool_]:
         """True for each point (x, y) (N,) within ``distance_m`` of a sample (N,)."""
         keep = np.zeros(x.size, dtype=bool)
-        if self._tree is None or x.size == 0:
+        if self._tree is None or self._cells is None or x.size == 0:
             return keep
-        candidate = near_cells(self._samples, x, y, self.distance_m)
+        candidate = self._cells.points(x, y)
         if candidate.size:
             xy = np.c_[np.take(x, candidate), np.take(y, candidate)]
             dist, _ = self._tree.query(xy, k=1, distance_upper_bound=self.distance_m)

@@ -346,3 +346,11 @@ def test_impact_shock_of_a_crest_a_twin_and_a_flank() -> None:
     assert narrow.span_peak_mps2 > 0.1 * whole.shock_mps2
     assert narrow.shock_mps2 == 0.0
     assert event_impact_shock(out.t_ns, out.value, out.run, -(10**9), 10**8, env, gap) is None
+
+
+def test_a_design_that_does_not_converge_is_one_line_naming_the_key() -> None:
+    """1,000 taps (the largest the configuration accepts) over a 5 Hz transition at 100 Hz:
+    the Parks-McClellan exchange fails; that is the user's setting, said as such."""
+    with pytest.raises(StageError, match=r"label.fir_taps = 1000: .*does not converge") as err:
+        design_shock_fir(100.0, taps=1000, where="/ws/logs/x/imu.parquet")
+    assert "imu.parquet" in str(err.value) and "\n" not in str(err.value)

@@ -109,6 +109,9 @@ PASSBAND_RIPPLE = 0.05
 #: transition band. A shock lasting tens of ms spreads its energy over tens of Hz; a 30.01 Hz
 #: IMU left 0.005 Hz above a 15 Hz pass edge and "labelled" with it, which measures nothing.
 MIN_PASSBAND_HZ = 5.0
+#: Longest filter the hint of a design that misses the bounds searches up to (the largest
+#: ``[label] fir_taps`` the configuration accepts).
+MAX_TAPS = 1000
 #: Frequency grid of the check (points on [0, fs/2]).
 RESPONSE_POINTS = 8192
 #: Upsampling factor of the peak interpolation: a 25 Hz tone at 1.6 kHz is read within
@@ -186,6 +189,16 @@ def _remez(taps: int, rate_hz: float, stop_hz: float, pass_hz: float) -> FloatAr
     )
 
 
+def _design_meets(taps: int, rate_hz: float, stop_hz: float, pass_hz: float) -> bool:
+    """Whether ``taps`` taps meet the response bounds (a design that does not converge does
+    not)."""
+    try:
+        h = _remez(taps, rate_hz, stop_hz, pass_hz)
+    except ValueError:
+        return False
+    return _meets(*_measure(h, rate_hz, stop_hz, pass_hz))
+
+
 def _measure(
     taps: FloatArray, rate_hz: float, stop_hz: float, pass_hz: float
 ) -> tuple[float, float, float]:
@@ -235,16 +248,24 @@ def design_shock_fir(
             "pass a band above it)",
             path=where,
         )
-    h = _remez(taps, rate_hz, stop_hz, pass_hz)
+    try:
+        h = _remez(taps, rate_hz, stop_hz, pass_hz)
+    except ValueError as exc:  # the exchange's "Failure to converge"
+        raise StageError(
+            f"label.fir_taps = {taps}: the filter's design (Parks-McClellan, "
+            f"scipy.signal.remez) does not converge at IMU rate {rate_hz:.6g} Hz "
+            f"({' '.join(str(exc).split())}); so "
+            f"long a filter is ill-conditioned over the {pass_hz - stop_hz:g} Hz transition "
+            "band: use fewer taps (the paper's 40)",
+            path=where,
+        ) from None
     stop_db, pmin, pmax = _measure(h, rate_hz, stop_hz, pass_hz)
     if not _meets(stop_db, pmin, pmax):
         need = next(
             (
                 n
-                for n in range(taps + 2, 20 * taps + 1, 2)
-                if _meets(
-                    *_measure(_remez(n, rate_hz, stop_hz, pass_hz), rate_hz, stop_hz, pass_hz)
-                )
+                for n in range(taps + 2, MAX_TAPS + 1, 2)
+                if _design_meets(n, rate_hz, stop_hz, pass_hz)
             ),
             None,
         )
