@@ -129,10 +129,16 @@ def _local_pool(workers: int) -> Iterator[Executor]:
             initargs=(log_queue, logging.getLogger().getEffectiveLevel()),
         ) as pool:
             yield pool
-    finally:
-        listener.stop()
+    except BaseException:
+        # The workers were terminated, perhaps while writing a record: the queue's lock
+        # may be held for ever, so nothing here waits on it (the listener's thread is a
+        # daemon, and records not relayed by now are lost with the workers).
+        log_queue.cancel_join_thread()
         log_queue.close()
-        log_queue.join_thread()
+        raise
+    listener.stop()
+    log_queue.close()
+    log_queue.join_thread()
 
 
 def _import_distributed() -> Any:

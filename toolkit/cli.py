@@ -26,7 +26,7 @@ import click
 
 from toolkit import __version__
 from toolkit.errors import LogReadError, ToolkitError
-from toolkit.pools import sigterm_as_exit
+from toolkit.pools import Terminated, sigterm_as_exit
 from toolkit.progress import set_quiet
 
 PROG = "terrain"
@@ -101,6 +101,9 @@ class TerrainGroup(click.Group):
             return super().invoke(ctx)
         except (click.exceptions.ClickException, click.exceptions.Exit, click.Abort):
             raise  # usage errors (exit 2), explicit exits, Ctrl-C: click handles them
+        except Terminated:
+            _error_line("stopped (SIGTERM)")  # said here, not in the signal handler
+            raise
         except ToolkitError as exc:
             if _debug(ctx):
                 traceback.print_exc(file=sys.stderr)
@@ -177,7 +180,7 @@ def _stop_on_sigterm(ctx: click.Context) -> None:
     """SIGTERM ends the command as Ctrl-C does, every ``with`` unwound (pool workers
     stopped, temporary files removed, locks released); restored when the command ends."""
     if threading.current_thread() is threading.main_thread():  # (not in a test's thread)
-        ctx.with_resource(sigterm_as_exit(lambda: _error_line("stopped (SIGTERM)")))
+        ctx.with_resource(sigterm_as_exit())
 
 
 def _require_file(path: Path, error: type[ToolkitError] = ToolkitError) -> None:

@@ -130,7 +130,9 @@ def summarize_log(path: str | Path) -> LogSummary:
     path = Path(path)
     info: LogInfo = scan_log(path)
     types = {t.topic: _type_name(t.message_type) for t in info.topics}
-    wanted = {topic for topic, tp in types.items() if _accepted_by_any(tp)}
+    # A topic with no message has no first batch: asking for it would read the whole log.
+    counts = {t.topic: t.message_count for t in info.topics}
+    wanted = {topic for topic, tp in types.items() if _accepted_by_any(tp) and counts[topic] != 0}
     tf_topic = _tf_static_topic(types)
     tf_count = next((t.message_count for t in info.topics if t.topic == tf_topic), 0)
     first: dict[str, dict[str, np.ndarray]] = {}
@@ -461,6 +463,11 @@ def _base_frame(summary: LogSummary) -> tuple[str, str]:
     roots = sorted(
         {tf.parent for tf in summary.transforms} - {tf.child for tf in summary.transforms}
     )
+    if not roots:  # every frame has a parent: a cycle
+        return "base_link", (
+            f"CHECK: the transforms of {summary.tf_static_topic} form a cycle and name no "
+            "'base_link'; base_link must be on the ground below the rear-axle centre"
+        )
     return roots[0], (
         f"CHECK: no 'base_link' in {summary.tf_static_topic}; using the root of its tree, "
         f"{roots[0]!r}. base_link must be on the ground below the rear-axle centre"

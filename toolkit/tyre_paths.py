@@ -176,14 +176,8 @@ class NearPath:
         if pose_t_ns.size < 2:
             self._samples = np.zeros((0, 2))
         else:
-            whole = tyre_paths(
-                pose_t_ns,
-                pose_xy,
-                pose_yaw,
-                pose_t_ns[:1],
-                pose_t_ns[-1:],
-                track_m,
-            )
+            t, xy, yaw = _densify_turns(pose_t_ns, pose_xy, pose_yaw, 0.5 * track_m)
+            whole = tyre_paths(t, xy, yaw, t[:1], t[-1:], track_m)
             self._samples = whole.xy[np.isfinite(whole.xy).all(axis=1)]
         self._tree = cKDTree(self._samples) if self._samples.size else None
         self._cells = CellSieve(self._samples, distance_m) if self._samples.size else None
@@ -199,3 +193,28 @@ class NearPath:
             dist, _ = self._tree.query(xy, k=1, distance_upper_bound=self.distance_m)
             keep[candidate[np.isfinite(dist)]] = True
         return keep
+
+
+def _densify_turns(
+    t_ns: IntArray, xy: FloatArray, yaw: FloatArray, half_track_m: float
+) -> tuple[IntArray, FloatArray, FloatArray]:
+    """The pose rows (K,) with rows interpolated between them wherever the vehicle turns so
+    fast that a tyre swings more than :data:`PATH_STEP_M` about the axle's centre
+    (``half_track_m * |d yaw|``): :func:`tyre_paths` densifies by the centre's step alone,
+    which a robot turning on the spot does not make. Unwrapped yaw; times strictly rising."""
+    yaw = np.unwrap(yaw)
+    swing = half_track_m * np.abs(np.diff(yaw))
+    pieces = np.maximum(np.ceil(swing / PATH_STEP_M), 1).astype(np.int64)
+    if not (pieces > 1).any():
+        return t_ns, xy, yaw
+    # Never more pieces than nanoseconds between the rows (times must stay distinct).
+    pieces = np.minimum(pieces, np.maximum(np.diff(t_ns), 1))
+    j = np.repeat(np.arange(pieces.size), pieces)
+    f = (np.arange(j.size) - np.concatenate([[0], np.cumsum(pieces)[:-1]])[j]) / pieces[j]
+    t = np.concatenate(
+        [t_ns[j] + np.round(f * (t_ns[j + 1] - t_ns[j])).astype(np.int64), t_ns[-1:]]
+    )
+    x = np.concatenate([xy[j, 0] + f * (xy[j + 1, 0] - xy[j, 0]), xy[-1:, 0]])
+    y = np.concatenate([xy[j, 1] + f * (xy[j + 1, 1] - xy[j, 1]), xy[-1:, 1]])
+    a = np.concatenate([yaw[j] + f * (yaw[j + 1] - yaw[j]), yaw[-1:]])
+    return t, np.c_[x, y], a

@@ -564,12 +564,14 @@ class PoseUKF:
         positive definite, a PSD matrix having been added). It is counted as accepted and as
         down-weighted. This is the Mahalanobis-distance covariance inflation of Chang (2014,
         J. Geodesy 88(4), doi:10.1007/s00190-013-0690-8, its analytical scaling of the
-        innovation covariance), a Huber-type M-estimation (Huber 1964, Ann. Math. Stat. 35(1))
-        of the Kalman update: inside the gate the ordinary update, beyond it the correction
-        of a measurement at the gate's distance, shrinking as ``g / sqrt(d2_b)`` standard
-        deviations. Why: for a sensor that is the only reference of what it measures (the
-        wheels in odometry dead reckoning), dropping its outlying readings leaves that state
-        to the process model alone, which is worse than a reading with a heavier tail.
+        innovation covariance): inside the gate the ordinary update, beyond it a correction
+        that shrinks as the reading goes further out (its gain scales by ``1 / lam``, so the
+        correction, in standard deviations, by ``g / sqrt(d2_b)``: a redescending weight,
+        bounded by the correction at the gate; Huber's (1964, Ann. Math. Stat. 35(1))
+        weight would keep it constant beyond the gate, ``lam = sqrt(d2_b / g)``). Why: for a
+        sensor that is the only reference of what it measures (the wheels in odometry dead
+        reckoning), dropping its outlying readings leaves that state to the process model
+        alone, which is worse than a reading with a heavier tail.
 
         ``given``: state indices ``c`` the update is conditioned on (none by default); see
         :meth:`_conditioned`, which says how and why.

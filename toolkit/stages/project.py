@@ -183,8 +183,10 @@ class ProjectResult:
 
 def stage_config_hash(config: PipelineConfig) -> str:
     """The hash of what projection reads of ``config`` (a radius only when it cuts by one)."""
-    near = ("model.wheel_window_radius_m",) if config.project.keep == "near_path" else ()
-    return config_hash(config, sections=(*CONFIG_SECTIONS, *near))
+    if config.project.keep == "near_path":
+        return config_hash(config, sections=(*CONFIG_SECTIONS, "model.wheel_window_radius_m"))
+    # Keeping every point, the margin is not read: changing it leaves the cloud as it is.
+    return config_hash(config, sections=("vehicle", "project.keep"))
 
 
 # --------------------------------------------------------------------------------------

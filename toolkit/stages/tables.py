@@ -359,10 +359,20 @@ def _require_points_near_enough(points_path: Path, radius_m: float, log_id: str)
     """StageError when the cloud keeps only points nearer the tyres' paths than the tables
     reach (``[project] keep = "near_path"`` under another radius): the events would be
     scored on a strip narrower than they ask, quietly."""
-    kept = read_table_metadata(points_path).get(META_KEPT_WITHIN_M)
-    if kept is not None and float(kept) < radius_m + PATH_STEP_M:
+    text = read_table_metadata(points_path).get(META_KEPT_WITHIN_M)
+    if text is None:
+        return
+    try:
+        kept = float(text)
+    except ValueError:
         raise StageError(
-            f"{log_id}: its points were kept only within {float(kept):g} m of the tyres' "
+            f"{log_id}: metadata {META_KEPT_WITHIN_M} = {text!r} is not a distance; run "
+            f"`terrain project --overwrite --log {log_id}` again",
+            path=points_path,
+        ) from None
+    if kept < radius_m + PATH_STEP_M:
+        raise StageError(
+            f"{log_id}: its points were kept only within {kept:g} m of the tyres' "
             f"paths, and the tables reach {radius_m:g} m (+ {PATH_STEP_M:g} m of path "
             f"sampling); run `terrain project --overwrite --log {log_id}` again",
             path=points_path,
