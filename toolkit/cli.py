@@ -310,7 +310,7 @@ def config_init(log: Path, out_path: Path | None, overwrite: bool) -> None:
     if out_path is None:
         click.echo(text, nl=False)
         return
-    from toolkit.workspace import atomic_write_text
+    from toolkit.atomic import atomic_write_text
 
     atomic_write_text(out_path, text)
     click.echo(f"wrote {out_path}", err=True)

@@ -34,7 +34,6 @@ from pathlib import Path
 
 import numpy as np
 
-from toolkit.analysis.shock import MIN_PASSBAND_HZ, design_shock_fir
 from toolkit.config import (
     DEFAULT_CONFIG_RESOURCE,
     PipelineConfig,
@@ -46,6 +45,7 @@ from toolkit.errors import ConfigError, ToolkitError
 from toolkit.mcapio.info import LogInfo, scan_log
 from toolkit.mcapio.msgdefs import full_type_name
 from toolkit.mcapio.reader import LogReader
+from toolkit.model.shock import MIN_PASSBAND_HZ, design_shock_fir
 from toolkit.mounts import Mount, StaticTransform, chain_to_base
 from toolkit.stages.roles import ROLE_SPECS
 

@@ -12,7 +12,7 @@ the next change of that log removes.
 
 Why hard links: opening a generation costs one directory entry per file instead of a copy
 of gigabytes of tables, and since every writer of the toolkit replaces a file by renaming a
-new one over it (:class:`toolkit.tableio.TableWriter`, :func:`toolkit.workspace.atomic_output`)
+new one over it (:class:`toolkit.tableio.TableWriter`, :func:`toolkit.atomic.atomic_output`)
 and never writes into an existing file, a file shared by two generations is never changed
 under the other.
 
@@ -42,12 +42,12 @@ import logging
 import os
 import re
 import shutil
-import socket
 import time
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
 
+from toolkit.atomic import fsync_dir, host_name
 from toolkit.errors import ToolkitError, WorkspaceError
 
 _log = logging.getLogger(__name__)
@@ -61,11 +61,6 @@ _OLD_SUFFIX = ".old"
 
 #: Age after which another host's unfinished generation counts as abandoned, s.
 FOREIGN_AGE_S = 24 * 3600.0
-
-
-def host_name() -> str:
-    """This host's name as it appears in hidden file names (letters, digits, ``_``)."""
-    return re.sub(r"[^A-Za-z0-9_]", "_", socket.gethostname()) or "host"
 
 
 def _hidden_name(log_id: str, suffix: str) -> str:
@@ -99,21 +94,6 @@ def _abandoned(path: Path) -> bool:
         return time.time() - path.lstat().st_mtime > FOREIGN_AGE_S
     except OSError:
         return False
-
-
-def fsync_dir(directory: Path) -> None:
-    """fsync a directory, so renames in it survive a power cut; best effort, since some
-    file systems cannot fsync a directory (EINVAL), and a rename there is all there is."""
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 def _fsync_tree(directory: Path) -> None:
@@ -317,7 +297,5 @@ __all__ = [
     "GENERATION_SUFFIX",
     "Generation",
     "current_generation",
-    "fsync_dir",
-    "host_name",
     "open_generation",
 ]

@@ -32,9 +32,8 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from toolkit import fixed_point
+from toolkit.atomic import fsync_dir, fsync_file, temp_path_beside
 from toolkit.errors import SchemaError, WorkspaceError
-from toolkit.generations import fsync_dir
-from toolkit.workspace import fsync_file, temp_path_beside
 
 #: Key-value metadata keys every table carries.
 META_SCHEMA_NAME = "schema_name"

@@ -31,15 +31,16 @@ import hashlib
 import json
 import os
 import re
-import uuid
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from toolkit.atomic import atomic_write_json, atomic_write_text
 from toolkit.config import PipelineConfig, config_hash, dump_toml, load_config
-from toolkit.errors import ConfigError, WorkspaceError
-from toolkit.generations import Generation, fsync_dir, host_name, open_generation
+from toolkit.errors import ConfigError, SchemaError, WorkspaceError
+from toolkit.generations import Generation, open_generation
+from toolkit.tableio import load_table_schema, read_table_metadata
 
 #: Version of the manifest's JSON layout.
 MANIFEST_FORMAT = 1
@@ -88,19 +89,6 @@ def log_id_for(path: str | Path) -> str:
 # --------------------------------------------------------------------------------------
 
 
-#: Hidden files written aside: ``.<name>.<host>-<pid>-<random>.<suffix>``.
-_TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<host>[^.]+)-(?P<pid>\d+)-[0-9a-f]{12}\.[a-z]+$")
-
-
-def temp_path_beside(path: Path, suffix: str = "tmp") -> Path:
-    """A fresh hidden name beside ``path`` for writing aside, naming the host and process
-    that writes it (``.<name>.<host>-<pid>-<random>.<suffix>``), so a later run can tell
-    the files of a dead run from those of a live one (:func:`remove_dead_temp_files`)."""
-    return path.with_name(
-        f".{path.name}.{host_name()}-{os.getpid()}-{uuid.uuid4().hex[:12]}.{suffix}"
-    )
-
-
 def workspace_around(path: str | Path) -> Path | None:
     """The workspace ``path`` lies in or is (a folder holding ``config.toml`` and ``logs/``,
     found among its real path's ancestors), or None. An output of export, viz or sim may not
@@ -136,87 +124,6 @@ def _unlink_unheld_lock(path: Path) -> None:
         path.unlink()
     finally:
         os.close(fd)
-
-
-def _pid_alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True  # someone else's live process
-    return True
-
-
-def remove_dead_temp_files(directory: Path) -> list[str]:
-    """Remove the hidden files that runs on this host left behind when they were killed
-    (their process no longer exists); files of live runs, and of other hosts sharing the
-    workspace, are left alone. Returns the names removed."""
-    removed: list[str] = []
-    if not directory.is_dir():
-        return removed
-    host = host_name()
-    for entry in directory.iterdir():
-        m = _TEMP_NAME.match(entry.name)
-        if m is None or m["host"] != host or _pid_alive(int(m["pid"])):
-            continue
-        with contextlib.suppress(FileNotFoundError):
-            entry.unlink()
-            removed.append(entry.name)
-    return removed
-
-
-def fsync_file(path: Path) -> None:
-    """Flush a written file's data to the disk, so a rename after it cannot publish a file
-    whose bytes a crash would lose."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-@contextlib.contextmanager
-def atomic_output(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; on success it is fsynced and renamed over it.
-
-    On any exception the temporary file is removed and ``path`` is left as it was, so a
-    reader never sees a half-written file. Parent directories are created as needed.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temp_path_beside(path)
-    try:
-        yield tmp
-        if not tmp.exists():
-            raise WorkspaceError("nothing was written to the temporary file", path=tmp)
-        fsync_file(tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            tmp.unlink()
-        raise
-    fsync_dir(path.parent)
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically (write aside, fsync, rename)."""
-    path = Path(path)
-    try:
-        with atomic_output(path) as tmp, tmp.open("wb") as fh:
-            fh.write(data)
-    except OSError as exc:
-        raise WorkspaceError(f"cannot write: {exc.strerror or exc}", path=path) from exc
-
-
-def atomic_write_text(path: str | Path, text: str, encoding: str = "utf-8") -> None:
-    """Write ``text`` to ``path`` atomically."""
-    atomic_write_bytes(path, text.encode(encoding))
-
-
-def atomic_write_json(path: str | Path, obj: Any) -> None:
-    """Write ``obj`` as indented, key-sorted JSON atomically."""
-    atomic_write_text(path, json.dumps(obj, indent=2, sort_keys=True, allow_nan=False) + "\n")
 
 
 # --------------------------------------------------------------------------------------
@@ -466,10 +373,6 @@ def _older_table_schema(path: Path) -> str:
     its table schema, which every reader refuses), or "" when it is not."""
     if path.suffix != ".parquet":
         return ""
-    # tableio imports this module; here it is needed only for outputs that are tables.
-    from toolkit.errors import SchemaError
-    from toolkit.tableio import load_table_schema, read_table_metadata
-
     try:
         meta = read_table_metadata(path)
         name, version = meta.get("schema_name"), meta.get("schema_version")

@@ -11,12 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from toolkit.analysis.fig7 import CSV_HEADER, CSV_NAME, PNG_NAME, tradeoff_png, write_tradeoff_csv
 from toolkit.errors import ConfigError, StageError
 from toolkit.model import speed_control as sc
 from toolkit.model.speed_control import (
-    CSV_HEADER,
-    CSV_NAME,
-    PNG_NAME,
     Route,
     SpeedControlParams,
     TradeoffPoint,
@@ -29,8 +27,6 @@ from toolkit.model.speed_control import (
     proactive_curve,
     reactive_curve,
     shock_reduction_at_equal_time,
-    tradeoff_png,
-    write_tradeoff_csv,
 )
 
 MPH = 0.44704

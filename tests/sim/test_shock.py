@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import pytest
 
-from toolkit.analysis.shock import design_shock_fir
+from toolkit.model.shock import design_shock_fir
 from toolkit.sim.profiles import CALIBRATION_SPEEDS_MPS, make_profile
 
 from .logdata import GRAVITY_MPS2, SimLog, on_grid_true_times

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from toolkit.analysis.shock import design_shock_fir
 from toolkit.config import default_config
+from toolkit.model.shock import design_shock_fir
 from toolkit.sim.shock_meter import ShockMeter
 
 RATE_HZ = 100.0

@@ -37,9 +37,9 @@ from tests.stages.test_learn import (
     with_rough,
 )
 from toolkit import __version__
+from toolkit.atomic import host_name
 from toolkit.config import PipelineConfig
 from toolkit.errors import StageError, WorkspaceError
-from toolkit.generations import host_name
 from toolkit.stages import export as export_stage
 from toolkit.stages.export import ExportResult, data_file, run_export
 from toolkit.tableio import load_table_schema, read_table, read_table_metadata, write_table

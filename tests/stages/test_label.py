@@ -11,9 +11,9 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from toolkit.analysis.shock import design_shock_fir, event_shock, filter_stream
 from toolkit.config import PipelineConfig, default_config, parse_config
 from toolkit.errors import ConfigError, StageError
+from toolkit.model.shock import design_shock_fir, event_shock, filter_stream
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.label import (
     FIG5_CSV,

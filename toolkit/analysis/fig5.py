@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from toolkit.workspace import atomic_write_bytes, atomic_write_text
+from toolkit.atomic import atomic_write_bytes, atomic_write_text
 
 FloatArray = NDArray[np.float64]
 

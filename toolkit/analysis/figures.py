@@ -2,7 +2,7 @@
 atomically and byte for byte reproducibly.
 
 A file appears only when complete (contract: written aside, then renamed), through the
-workspace's one atomic writer (:func:`toolkit.workspace.atomic_write_bytes`). PNGs carry no
+workspace's one atomic writer (:func:`toolkit.atomic.atomic_write_bytes`). PNGs carry no
 ``Software`` or date chunk, so the same figure from the same data gives the same bytes.
 """
 
@@ -14,7 +14,7 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from toolkit.workspace import atomic_write_bytes
+from toolkit.atomic import atomic_write_bytes
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -25,7 +25,7 @@ PNG_METADATA: dict[str, str | None] = {"Software": None}
 
 def write_bytes_atomic(path: Path, data: bytes) -> Path:
     """Write ``data`` to ``path`` atomically, creating its directory if needed: the one
-    writer of :func:`toolkit.workspace.atomic_write_bytes` (aside, fsync, rename), so a
+    writer of :func:`toolkit.atomic.atomic_write_bytes` (aside, fsync, rename), so a
     figure gets the mode a plain ``open`` gives (0666 less the umask), as the Parquet and
     JSON beside it do. Returns ``path``."""
     atomic_write_bytes(path, data)

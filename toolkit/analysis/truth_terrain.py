@@ -43,13 +43,13 @@ from scipy.spatial import cKDTree
 from toolkit.analysis.figures import new_figure, save_png_atomic, write_csv_atomic
 from toolkit.errors import ConfigError, StageError, ToolkitError
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.sim.record import SIM_RECORD, sim_origin
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 METADATA_FILE = "mcap_metadata.json"
-SIM_RECORD = "terrain_sim"
 #: Spacing of the route samples the first guess of a point's route position comes from, m.
 ROUTE_GUESS_SPACING_M = 0.5
 #: Columns of points.parquet the streaming driver reads.
@@ -171,7 +171,6 @@ def true_ground(log_dir: Path) -> TrueGround | None:
     without GPS is in a frame of its own, which the simulator's cannot be mapped onto).
     """
     from toolkit.sim.world import WorldParams, make_world
-    from toolkit.stages.truth import sim_origin
 
     log_dir = Path(log_dir)
     meta_path = log_dir / METADATA_FILE

@@ -4,7 +4,7 @@ Stanley's reactive speed controller (Thrun et al. 2006b; the paper's sect. 7.2) 
 after the vehicle *felt* a shock, so it can only know what its IMU reports: 100 Hz samples of
 specific force, each an average over its 10 ms, with the IMU's noise and bias. The meter
 therefore reads the simulated IMU's vertical axis (the samples the log will hold), filters it
-with the label stage's shock filter (:func:`toolkit.analysis.shock.design_shock_fir`: the
+with the label stage's shock filter (:func:`toolkit.model.shock.design_shock_fir`: the
 40-tap type-IV FIR that removes 0-10 Hz, designed from the default configuration's ``[label]``
 section) and reports the largest ``|filtered|`` of each block in G. Reading the true 1 kHz
 acceleration instead (as the simulator did before) let the controller react to shocks no
@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from toolkit.analysis.shock import ShockFir, design_shock_fir
 from toolkit.config import LabelConfig
+from toolkit.model.shock import ShockFir, design_shock_fir
 
 FloatArray = NDArray[np.float64]
 

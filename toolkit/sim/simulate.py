@@ -51,6 +51,7 @@ from toolkit.pools import process_pool
 from toolkit.progress import progress
 from toolkit.sim.drive import GRAVITY_MPS2, Driver, TrueBlock, make_driven_path
 from toolkit.sim.profiles import SimProfile, make_profile
+from toolkit.sim.record import SIM_RECORD
 from toolkit.sim.sensors import (
     LaserParams,
     Mount,
@@ -857,7 +858,7 @@ def simulate(
         }
         for topic, type_name in topics.items():
             writer.register(topic, type_name)
-        writer.add_metadata("terrain_sim", sim_metadata(prof, seed, suite))
+        writer.add_metadata(SIM_RECORD, sim_metadata(prof, seed, suite))
         out = _Outbox(writer)
         t0 = np.array([prof.start_time_ns], dtype=np.int64)
         out.add(

@@ -66,11 +66,12 @@ import scipy.fft
 from numpy.typing import NDArray
 
 from toolkit import __version__
+from toolkit.analysis import fig7
 from toolkit.analysis.figures import write_bytes_atomic
 from toolkit.analysis.report import ReportInputs, roc_png, write_index_html
 from toolkit.analysis.scan_agreement import PNG_NAME as FIG4_PNG
-from toolkit.analysis.shock import MPS_PER_MPH
 from toolkit.analysis.truth_terrain import true_ground, where_beams_hit
+from toolkit.atomic import atomic_write_json
 from toolkit.config import LearnConfig, ModelConfig, PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.generations import open_generation
@@ -88,6 +89,7 @@ from toolkit.model.roughness import (
     model_pairs,
     score_events,
 )
+from toolkit.model.shock import MPS_PER_MPH
 from toolkit.stages.label import FIG5_PNG
 from toolkit.stages.learn import (
     ascent_config,
@@ -104,7 +106,6 @@ from toolkit.tableio import write_table
 from toolkit.workspace import (
     StageRecord,
     Workspace,
-    atomic_write_json,
     check_up_to_date,
     digest_files,
     file_sha256,
@@ -400,8 +401,8 @@ def speed_control(
     )
     curves = [reactive, proactive, [none]]
     files = [
-        sc.write_tradeoff_csv(out_dir, curves),
-        sc.tradeoff_png(out_dir, curves, "Fig. 7 analogue"),
+        fig7.write_tradeoff_csv(out_dir, curves),
+        fig7.tradeoff_png(out_dir, curves, "Fig. 7 analogue"),
     ]
     best = reduction.max_reduction
     return {
@@ -413,7 +414,7 @@ def speed_control(
             }
             for t, r in zip(reduction.time_norm, reduction.reductions, strict=True)
         ],
-        "curves": sc.CSV_NAME,
+        "curves": fig7.CSV_NAME,
         "shock_floor_g": ev.shock_floor_g,
         "no_change": {
             "time_s": round(none.time_s, 3),

@@ -77,10 +77,11 @@ import pyarrow.compute as pc
 from numpy.typing import NDArray
 
 from toolkit import __version__
+from toolkit.atomic import atomic_write_text, fsync_dir, host_name, temp_path_beside
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError, WorkspaceError
-from toolkit.generations import fsync_dir, host_name
 from toolkit.model.patches import POINT_COLUMNS as EVENT_POINT_COLUMNS
+from toolkit.sim.record import SIM_RECORD
 from toolkit.stages import label as label_stage
 from toolkit.stages import tables as tables_stage
 from toolkit.stages.learn import table_inputs
@@ -94,11 +95,9 @@ from toolkit.tableio import (
 from toolkit.workspace import (
     Manifest,
     Workspace,
-    atomic_write_text,
     file_sha256,
     refuse_inside_workspace,
     require_finished,
-    temp_path_beside,
 )
 
 _log = logging.getLogger(__name__)
@@ -308,8 +307,8 @@ def _log_source(workspace: Workspace, log_id: str, config: PipelineConfig) -> Lo
     meta_path = log_dir / "mcap_metadata.json"
     if meta_path.is_file():
         meta = _read_json(meta_path)
-        if isinstance(meta, dict) and isinstance(meta.get("terrain_sim"), dict):
-            sim = meta["terrain_sim"]
+        if isinstance(meta, dict) and isinstance(meta.get(SIM_RECORD), dict):
+            sim = meta[SIM_RECORD]
     header = {k: doc[k] for k in ("label", "pose", "pose_accuracy") if isinstance(doc.get(k), dict)}
     return LogSource(
         log_id=log_id,

@@ -65,23 +65,24 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from toolkit.atomic import atomic_write_json
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import CdrError, LogReadError, SchemaError, StageError
 from toolkit.mcapio.cdr import decode_batch
 from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_text
 from toolkit.mcapio.reader import Channel, Damage, LogReader, MessageBatch, ReadReport
 from toolkit.progress import progress
+from toolkit.sim.record import sim_origin
 from toolkit.stages.dedup import DuplicateFilter
 from toolkit.stages.reorder import DEFAULT_REORDER_BUFFER_BYTES, ReorderBuffer
 from toolkit.stages.roles import ROLE_SPECS, ConvertContext, Converter, RoleRows
 from toolkit.stages.timecheck import stream_time_outliers
-from toolkit.stages.truth import sim_origin, truth_to_pose_frame
+from toolkit.stages.truth import truth_to_pose_frame
 from toolkit.tableio import TableWriter
 from toolkit.workspace import (
     Manifest,
     StageRecord,
     Workspace,
-    atomic_write_json,
     check_up_to_date,
     digest_files,
     file_sha256,

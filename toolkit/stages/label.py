@@ -12,12 +12,12 @@ simulated logs, the truth ingest wrote. Output ``events.parquet`` (schema ``even
   path speed), in mph (1 mph = 0.44704 m/s exactly). Events slower than
   ``label.min_speed_mps`` are rejected (``too_slow``) before anything is divided by their
   speed; a stop lies inside one long slow event, so it makes none.
-* **Shock** (:mod:`toolkit.analysis.shock`): the z axis of the IMU's specific force turned
+* **Shock** (:mod:`toolkit.model.shock`): the z axis of the IMU's specific force turned
   into base_link by the mount (``a_z = R[2, :] a_imu``), filtered by the type-IV FIR designed
   for the IMU's measured rate, each output stamped at its window's centre (the 19.5-sample
   delay compensated exactly); ``shock_g`` = the ``label.shock_statistic`` over the event's
   time span / ``label.gravity_mps2``. For ``max_abs``, ``label.attribution`` says which
-  impacts are the event's (issue 26; :mod:`toolkit.analysis.shock`, "Attribution"):
+  impacts are the event's (issue 26; :mod:`toolkit.model.shock`, "Attribution"):
   ``impact`` (default), the largest crest of the band-limited |filtered| whose compensated time
   lies in the event's span and that no larger crest of another event explains as the filter's
   response to it (its quadrature twin, its taps' ringing): one impact labels one event, not
@@ -62,7 +62,9 @@ import pyarrow as pa
 from numpy.typing import NDArray
 
 from toolkit.analysis.fig5 import LineFit, fit_line, obstacle_passes, write_fig5
-from toolkit.analysis.shock import (
+from toolkit.config import PipelineConfig, config_hash
+from toolkit.errors import StageError
+from toolkit.model.shock import (
     INTERP_MARGIN,
     MPS_PER_MPH,
     ImpactEnvelope,
@@ -73,9 +75,8 @@ from toolkit.analysis.shock import (
     filter_stream,
     impact_envelope,
 )
-from toolkit.config import PipelineConfig, config_hash
-from toolkit.errors import StageError
 from toolkit.mounts import sensor_mounts
+from toolkit.sim.record import SIM_RECORD
 from toolkit.stages.label_truth import truth_under_events
 from toolkit.stages.per_log import run_on_log
 from toolkit.tableio import TableWriter, iter_table_batches
@@ -381,7 +382,7 @@ def _event_shocks(
     """Stream the IMU through the filter and take each wanted event's shock as soon as the
     filtered samples past its end (plus the interpolation margin) have arrived, keeping only
     the samples the next wanted event can still need. ``envelope``: attribute impacts
-    (:func:`~toolkit.analysis.shock.event_impact_shock`; ``max_abs`` only), whose crests
+    (:func:`~toolkit.model.shock.event_impact_shock`; ``max_abs`` only), whose crests
     within the filter's reach of the span are kept as well; None: ``span_peak``."""
     n_events = wanted.size
     shock = np.full(n_events, np.nan)
@@ -468,7 +469,7 @@ def _sim_profile(log_dir: Path) -> str | None:
     if not path.is_file():
         return None
     try:
-        sim = json.loads(path.read_text(encoding="utf-8")).get("terrain_sim") or {}
+        sim = json.loads(path.read_text(encoding="utf-8")).get(SIM_RECORD) or {}
         profile = sim.get("profile")
     except (ValueError, AttributeError) as exc:
         raise StageError(f"unreadable MCAP metadata: {exc}", path=path) from exc

@@ -30,6 +30,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from toolkit import __version__
+from toolkit.atomic import atomic_write_json
 from toolkit.config import LearnConfig, ModelConfig, PipelineConfig, config_hash
 from toolkit.errors import ConfigError, StageError
 from toolkit.model.ascent import AscentConfig, AscentResult, b_names, coordinate_ascent
@@ -40,7 +41,6 @@ from toolkit.tableio import iter_table_batches, read_table
 from toolkit.workspace import (
     StageRecord,
     Workspace,
-    atomic_write_json,
     check_up_to_date,
     digest_files,
     file_sha256,

@@ -51,6 +51,7 @@ from toolkit.fusion.rotations import FloatArray, rot_to_euler, wrap_angle
 from toolkit.fusion.ukf import NoiseModel
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.mounts import Mount, sensor_mounts
+from toolkit.sim.record import SIM_RECORD
 from toolkit.stages.per_log import run_on_log
 from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
 from toolkit.workspace import (
@@ -548,7 +549,7 @@ def truth_accuracy(log_dir: Path, origin: GeodeticOrigin | None) -> TruthAccurac
     if not (meta_path.is_file() and truth_path.is_file()):
         return None
     try:
-        sim = json.loads(meta_path.read_text(encoding="utf-8")).get("terrain_sim")
+        sim = json.loads(meta_path.read_text(encoding="utf-8")).get(SIM_RECORD)
         if not sim or "origin" not in sim:
             return None
         return TruthAccuracy(truth_path, sim, origin)

@@ -15,7 +15,6 @@ stage resolves.
 from __future__ import annotations
 
 import json
-from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -25,25 +24,6 @@ import pyarrow.parquet as pq
 from toolkit.frames import ENU_FRAME_ID, choose_enu_origin
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.tableio import TableWriter
-
-#: The metadata record and key holding the simulator's world-frame origin.
-SIM_RECORD = "terrain_sim"
-SIM_ORIGIN_KEY = "origin"
-
-
-def sim_origin(mcap_metadata: Mapping[str, Mapping[str, str]]) -> GeodeticOrigin | None:
-    """The simulator's world-frame origin from the log's metadata records (None if absent
-    or unreadable: not a simulated log)."""
-    text = mcap_metadata.get(SIM_RECORD, {}).get(SIM_ORIGIN_KEY)
-    if text is None:
-        return None
-    try:
-        o = json.loads(text)
-        return GeodeticOrigin(
-            float(o["latitude_deg"]), float(o["longitude_deg"]), float(o["altitude_m"])
-        )
-    except (ValueError, KeyError, TypeError):
-        return None
 
 
 def origin_json(origin: GeodeticOrigin) -> str:
@@ -81,4 +61,4 @@ def truth_to_pose_frame(
     return truth.rewrite(move, {"enu_origin": origin_json(origin), "frame_id": ENU_FRAME_ID})
 
 
-__all__ = ["SIM_RECORD", "origin_json", "sim_origin", "truth_to_pose_frame"]
+__all__ = ["origin_json", "truth_to_pose_frame"]

@@ -123,20 +123,18 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from toolkit import __version__
+from toolkit.atomic import fsync_dir, fsync_file, temp_path_beside
 from toolkit.config import PipelineConfig
 from toolkit.errors import StageError
 from toolkit.frames import ORIGIN_MIN_STATUS, valid_fixes
-from toolkit.generations import fsync_dir
 from toolkit.stages.tables import EVENT_COLUMNS
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
 from toolkit.workspace import (
     Manifest,
     Workspace,
     file_sha256,
-    fsync_file,
     refuse_inside_workspace,
     require_finished,
-    temp_path_beside,
 )
 
 _log = logging.getLogger(__name__)

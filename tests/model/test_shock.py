@@ -8,7 +8,8 @@ import pytest
 from scipy import signal
 
 from toolkit.analysis.fig5 import fit_line
-from toolkit.analysis.shock import (
+from toolkit.errors import StageError
+from toolkit.model.shock import (
     INTERP_UP,
     band_limited_peak,
     design_shock_fir,
@@ -18,7 +19,6 @@ from toolkit.analysis.shock import (
     impact_envelope,
     upsample,
 )
-from toolkit.errors import StageError
 
 PERIOD_NS = 10_000_000  # 100 Hz
 
@@ -239,7 +239,7 @@ def test_fit_line() -> None:
 
 def test_a_repeated_stamp_is_dropped_not_taken_for_a_gap() -> None:
     """Five repeated stamps in 30 s of 100 Hz: one run, the same outputs as without them."""
-    from toolkit.analysis.shock import design_shock_fir, filter_stream
+    from toolkit.model.shock import design_shock_fir, filter_stream
 
     fir = design_shock_fir(100.0, 40, 10.0, 15.0)
     rng = np.random.default_rng(3)
