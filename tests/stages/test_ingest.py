@@ -28,10 +28,10 @@ from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.mcapio.cdr_encode import encode_batch
 from toolkit.mcapio.info import scan_log
 from toolkit.mcapio.writer import Batch, LogWriter, Record, merge_by_time
+from toolkit.sim.record import sim_origin
 from toolkit.stages import ingest as ingest_mod
 from toolkit.stages.ingest import IngestResult, ingest_log
 from toolkit.stages.roles import ROLE_SPECS
-from toolkit.stages.truth import sim_origin
 from toolkit.tableio import read_table, read_table_metadata
 from toolkit.workspace import Workspace, file_sha256
 
