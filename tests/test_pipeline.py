@@ -95,6 +95,7 @@ def test_the_stage_list_is_the_pipelines() -> None:
         stage_range("learn", "pose")
 
 
+@pytest.mark.slow  # end to end: run by .ci/run, left out of the README's command
 def test_run_equals_the_verbs_one_by_one(
     uninterrupted: Path, logs: list[Path], tmp_path: Path
 ) -> None:
@@ -152,6 +153,7 @@ def test_from_and_to_run_only_their_stages(
     assert state(ws) == before  # learning again gives the same model, and nothing else ran
 
 
+@pytest.mark.slow  # end to end: run by .ci/run, left out of the README's command
 def test_killed_at_random_moments_then_rerun_gives_the_same_outputs(
     first_run: tuple[Path, float], logs: list[Path], tmp_path: Path
 ) -> None:

@@ -411,6 +411,7 @@ def test_the_closest_laser_is_the_one_seen_last_before_the_training_events(
     assert summary["baseline_closest_laser"]["points"]["only_laser"] == lead["laser"][0]
 
 
+@pytest.mark.slow  # end to end: run by .ci/run, left out of the README's command
 def test_a_report_killed_mid_write_is_the_old_one(
     pipeline: Pipeline, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

@@ -238,6 +238,7 @@ def test_datasets_loads_both_configs_and_splits_as_the_tables_hold_them(
     assert default["train"].column_names == expected["events"]["train"].column_names
 
 
+@pytest.mark.slow  # end to end: run by .ci/run, left out of the README's command
 def test_croissant_validates_and_its_records_are_the_tables_rows(
     exported: tuple[Path, ExportResult], expected: dict[str, dict[str, pa.Table]]
 ) -> None:

@@ -124,6 +124,7 @@ def cases(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Case]:
     }
 
 
+@pytest.mark.slow  # end to end: run by .ci/run, left out of the README's command
 @pytest.mark.parametrize("case", ["ingest", "pose"])
 def test_killed_at_random_moments_the_log_is_old_or_new(
     cases: dict[str, Case], tmp_path: Path, case: str
