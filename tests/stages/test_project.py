@@ -411,3 +411,33 @@ def test_a_failing_worker_leaves_the_last_cloud_as_it_was(
     assert file_sha256(points) == before
     leftovers = [p.name for p in ws.log_dir(log_id).iterdir() if p.name.startswith(".")]
     assert leftovers == []
+
+
+def test_a_disk_too_small_for_the_cloud_is_said_before_anything_is_written(
+    posed_copy: tuple[Workspace, str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The cloud's size is estimated from the scans' returns before projecting: a disk that
+    cannot hold it is one line with the size and the setting that keeps less, and nothing is
+    written; the estimate is the cloud's size to within a quarter."""
+    from collections import namedtuple
+
+    ws, log_id = posed_copy
+    points_path = ws.log_table(log_id, "points")
+    Usage = namedtuple("Usage", "total used free")
+    monkeypatch.setattr(
+        project_module.shutil, "disk_usage", lambda _p: Usage(10**9, 10**9 - 10**6, 10**6)
+    )
+    points_path.unlink()  # a first projection (an old cloud's room counts as free)
+    with pytest.raises(StageError, match=r"needs about 0\.0[34] GB.*keep = \"near_path\""):
+        run_project(ws, log_id, default_config(), overwrite=True)
+    assert not points_path.exists()
+    assert not [p.name for p in points_path.parent.iterdir() if p.name.startswith(".points")]
+    monkeypatch.undo()
+    run_project(ws, log_id, default_config(), overwrite=True)
+    laser = pq.ParquetFile(ws.log_table(log_id, "laser")).metadata
+    leaf = next(
+        j for j in range(laser.num_columns) if laser.schema.column(j).path.startswith("ranges")
+    )
+    returns = sum(laser.row_group(i).column(leaf).num_values for i in range(laser.num_row_groups))
+    estimate = returns * project_module.CLOUD_BYTES_PER_RETURN["all"]
+    assert 0.75 < points_path.stat().st_size / estimate < 1.25
