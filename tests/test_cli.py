@@ -527,3 +527,24 @@ def test_sim_writes_no_log_inside_a_workspace(runner: CliRunner, tmp_path: Path)
     assert result.exit_code == 1
     assert "lies inside the workspace" in assert_one_error_line(result.stderr)
     assert not (ws.logs_dir / "x.mcap").exists()
+
+
+def test_label_with_the_longest_valid_filter_refuses_in_one_line(
+    sample_projected: tuple[Path, str], tmp_path: Path
+) -> None:
+    """``fir_taps = 1000``, the largest the configuration accepts: its design does not
+    converge at the sample's IMU rate; the label stage says so in one line naming the key,
+    at once, and writes nothing."""
+    import shutil
+
+    root, log_id = sample_projected
+    ws_root = tmp_path / "ws"
+    shutil.copytree(root, ws_root, symlinks=True)
+    config = ws_root / "config.toml"
+    config.write_text(config.read_text().replace("fir_taps = 40", "fir_taps = 1000", 1))
+    result = CliRunner().invoke(main, ["label", "-w", str(ws_root)])
+    errors = [ln for ln in result.stderr.splitlines() if ln.startswith("terrain: error:")]
+    assert result.exit_code == 1
+    assert len(errors) == 1 and "label.fir_taps = 1000" in errors[0]
+    assert "does not converge" in errors[0] and "Traceback" not in result.stderr
+    assert not (ws_root / "logs" / log_id / "events.parquet").exists()
