@@ -326,3 +326,18 @@ def test_config_init_cli_errors_are_one_line(tmp_path: Path) -> None:
     result = runner.invoke(main, ["config", "init", str(HUSKY_LOG)])
     assert result.exit_code == 0
     assert result.stdout == out.read_text()
+
+
+def test_a_truncated_log_gives_a_configuration_and_a_warning_on_the_terminal(
+    tmp_path: Path,
+) -> None:
+    """Salvageable input: the first chunk of the sample log alone still yields a loadable
+    configuration (exit 0), and the damage is said on the terminal, not only in comments."""
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(SAMPLE_LOG.read_bytes()[:300_000])
+    result = CliRunner().invoke(main, ["config", "init", str(cut)])
+    assert result.exit_code == 0
+    parse_config(result.stdout, source="stdout")
+    warnings = [ln for ln in result.stderr.splitlines() if "warning" in ln]
+    assert len(warnings) == 1 and "cut.mcap" in warnings[0] and "problem(s)" in warnings[0]
+    assert "Traceback" not in result.stderr

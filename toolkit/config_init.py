@@ -25,6 +25,7 @@ a generated file should read like the hand-written ones (comments where the valu
 from __future__ import annotations
 
 import importlib.resources
+import logging
 import math
 import re
 import textwrap
@@ -36,6 +37,7 @@ import numpy as np
 
 from toolkit.config import (
     DEFAULT_CONFIG_RESOURCE,
+    ROLES,
     PipelineConfig,
     default_config,
     parse_config,
@@ -49,17 +51,8 @@ from toolkit.model.shock import MIN_PASSBAND_HZ, design_shock_fir
 from toolkit.mounts import Mount, StaticTransform, chain_to_base
 from toolkit.stages.roles import ROLE_SPECS
 
-#: Roles in the order ``[topics]`` lists them.
-TOPIC_ROLES: tuple[str, ...] = (
-    "lasers",
-    "imu",
-    "gps",
-    "heading",
-    "wheels",
-    "tf_static",
-    "truth_pose",
-    "truth_features",
-)
+_log = logging.getLogger(__name__)
+
 #: Sensor roles whose messages carry the frame their mount is looked up by.
 FRAMED_ROLES: tuple[str, ...] = ("lasers", "imu", "gps")
 #: Largest mount offset the configuration accepts (``[vehicle] *_position_m``), m.
@@ -412,10 +405,10 @@ def guess_role(role: str, topics: Sequence[TopicSummary]) -> RoleGuess:
 
 def guess_roles(summary: LogSummary) -> dict[str, RoleGuess]:
     """A guess for every role of ``[topics]``; a topic plays at most one role (the first
-    role in :data:`TOPIC_ROLES` order that chose it)."""
+    role in :data:`ROLES` order that chose it)."""
     taken: set[str] = set()
     guesses: dict[str, RoleGuess] = {}
-    for role in TOPIC_ROLES:
+    for role in ROLES:
         free = [t for t in summary.topics if t.topic not in taken]
         guess = guess_role(role, free)
         taken.update(guess.topics)
@@ -555,7 +548,7 @@ def _gravity_mount(summary: LogSummary, imu_topic: str) -> tuple[tuple[float, ..
 def _topic_settings(guesses: Mapping[str, RoleGuess], summary: LogSummary) -> Settings:
     """The ``[topics]`` keys: every role's topic(s) with why, and the alternatives."""
     out: Settings = {}
-    for role in TOPIC_ROLES:
+    for role in ROLES:
         guess = guesses[role]
         comments: list[str] = []
         if role == "lasers":
@@ -654,8 +647,8 @@ def _head(
     summary: LogSummary, guesses: Mapping[str, RoleGuess], verdicts: StageVerdicts
 ) -> list[str]:
     """The comments at the top of the file: where it came from and what the log can feed."""
-    found = ", ".join(r for r in TOPIC_ROLES if guesses[r].topics) or "none"
-    missing = ", ".join(r for r in TOPIC_ROLES if not guesses[r].topics) or "none"
+    found = ", ".join(r for r in ROLES if guesses[r].topics) or "none"
+    missing = ", ".join(r for r in ROLES if not guesses[r].topics) or "none"
     lines = [
         f"{summary.path.name}: a starting configuration written by `terrain config init`",
         f"from the log itself ({summary.duration_s:.1f} s, {len(summary.topics)} topics).",
@@ -805,6 +798,14 @@ def init_config(path: str | Path) -> str:
     """``terrain config init``: the starting configuration of a log, as TOML text that
     :func:`~toolkit.config.parse_config` has just loaded without error."""
     summary = summarize_log(path)
+    if summary.problems:  # said on the terminal too, not only in the file's comments
+        _log.warning(
+            "%s: %d problem(s) in this log (damaged or truncated); the configuration is "
+            "guessed from what could be read: see `terrain info %s`",
+            summary.path,
+            summary.problems,
+            summary.path,
+        )
     text = render_config(summary, guess_roles(summary))
     try:
         parse_config(text, source=f"<configuration written for {summary.path}>")
