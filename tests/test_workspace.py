@@ -16,16 +16,8 @@ import pytest
 from toolkit.atomic import atomic_write_bytes
 from toolkit.config import default_config
 from toolkit.errors import ConfigError, WorkspaceError
-from toolkit.workspace import (
-    Manifest,
-    StageRecord,
-    Workspace,
-    check_up_to_date,
-    digest_files,
-    file_sha256,
-    log_id_for,
-    make_log_id,
-)
+from toolkit.manifest import Manifest, StageRecord, check_up_to_date, digest_files, file_sha256
+from toolkit.workspace import Workspace, log_id_for, make_log_id
 
 # -- hashing and log ids ------------------------------------------------------------------
 
@@ -297,7 +289,7 @@ def test_ingest_honours_the_lock_a_pose_holds(tmp_path: Path) -> None:
 
 
 def test_require_finished_refuses_what_the_producer_did_not_write(tmp_path: Path) -> None:
-    from toolkit.workspace import file_sha256, require_finished
+    from toolkit.manifest import file_sha256, require_finished
 
     (tmp_path / "imu.parquet").write_bytes(b"written")
     rec = _record(output_files=digest_files(tmp_path, ["imu.parquet"]))
@@ -317,8 +309,8 @@ def test_an_output_of_an_older_table_schema_is_not_up_to_date(tmp_path: Path) ->
     import pyarrow as pa
     import pyarrow.parquet as pq
 
+    from toolkit.manifest import FileDigest, StageRecord, check_up_to_date
     from toolkit.tableio import load_table_schema, write_table
-    from toolkit.workspace import FileDigest, StageRecord, check_up_to_date
 
     path = tmp_path / "heading.parquet"
     write_table(

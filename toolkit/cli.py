@@ -479,7 +479,8 @@ def _each_log(
     summary line per log, one error line per failed log (the others still run), a total
     line for several logs, exit 1 when any failed. With ``as_json`` the summary lines are
     one JSON document instead (:func:`_stage_json`); the error lines stay on stderr."""
-    from toolkit.workspace import Manifest, Workspace
+    from toolkit.manifest import Manifest
+    from toolkit.workspace import Workspace
 
     ws = Workspace(workspace)
     cfg = ws.read_config()

@@ -13,8 +13,9 @@ import json
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+from toolkit.manifest import Manifest
 from toolkit.pipeline import PER_LOG_STAGES, STAGES
-from toolkit.workspace import Manifest, Workspace
+from toolkit.workspace import Workspace
 
 #: The row count each per-log stage is listed by.
 ROWS_SHOWN = {"pose": "pose", "project": "points", "label": "events"}

@@ -14,7 +14,7 @@ succeeded.
 
 **Skipping.** Nothing here decides what is current: every stage checks its own recorded
 inputs, configuration and outputs (by size and sha256) and reports ``up_to_date`` without
-work when they match (:func:`toolkit.workspace.check_up_to_date`). A second ``run`` on the
+work when they match (:func:`toolkit.manifest.check_up_to_date`). A second ``run`` on the
 same logs and configuration therefore does nothing, and ``--overwrite`` hands each stage its
 own ``overwrite``.
 
@@ -58,8 +58,9 @@ from toolkit.batch import (
 )
 from toolkit.config import PipelineConfig, dump_toml, parse_config
 from toolkit.errors import ToolkitError, WorkspaceError
+from toolkit.manifest import Manifest
 from toolkit.progress import note, progress
-from toolkit.workspace import Manifest, Workspace, log_id_for
+from toolkit.workspace import Workspace, log_id_for
 
 _log = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ from typing import Any
 import pyarrow as pa
 
 from toolkit import tableio
-from toolkit.workspace import Manifest, StageRecord, digest_files
+from toolkit.manifest import Manifest, StageRecord, digest_files
 
 
 def adopt_edits(log_dir: Path) -> None:

@@ -33,11 +33,11 @@ from tests.stages.test_learn import (
 from toolkit.cli import main
 from toolkit.config import default_config
 from toolkit.errors import StageError, ToolkitError
+from toolkit.manifest import file_sha256
 from toolkit.model.roc import MIN_ROUGH_EVENTS
 from toolkit.model.roughness import signed_power
 from toolkit.stages.evaluate import run_evaluate
 from toolkit.tableio import load_table_schema, read_table
-from toolkit.workspace import file_sha256
 
 #: summary.json's methods with an ROC entry (the contract's, ablations apart).
 METHODS = ("self_supervised", "baseline_all_lasers", "baseline_closest_laser", "oracle")

@@ -40,10 +40,10 @@ from toolkit import __version__
 from toolkit.atomic import host_name
 from toolkit.config import PipelineConfig
 from toolkit.errors import StageError, WorkspaceError
+from toolkit.manifest import Manifest, file_sha256
 from toolkit.stages import export as export_stage
 from toolkit.stages.export import ExportResult, data_file, run_export
 from toolkit.tableio import load_table_schema, read_table, read_table_metadata, write_table
-from toolkit.workspace import Manifest, file_sha256
 
 CONFIGS = ("events", "event_points")
 SPLITS = ("train", "test")

@@ -13,6 +13,7 @@ import pytest
 
 from toolkit.config import PipelineConfig, default_config, parse_config
 from toolkit.errors import ConfigError, StageError
+from toolkit.manifest import Manifest, StageRecord, digest_files, file_sha256
 from toolkit.model.shock import design_shock_fir, event_shock, filter_stream
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.label import (
@@ -25,7 +26,7 @@ from toolkit.stages.label import (
 )
 from toolkit.stages.pose import run_pose
 from toolkit.tableio import read_table, write_table
-from toolkit.workspace import Manifest, StageRecord, Workspace, digest_files, file_sha256
+from toolkit.workspace import Workspace
 
 SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
 G = 9.80665

@@ -29,6 +29,7 @@ from sklearn.metrics import roc_auc_score
 from toolkit.cli import main
 from toolkit.config import default_config
 from toolkit.errors import StageError, WorkspaceError
+from toolkit.manifest import Manifest, digest_files, file_sha256
 from toolkit.model.patches import build_patches
 from toolkit.model.roughness import EXPONENTS, PairTable, RoughnessParams, score_events
 from toolkit.stages.evaluate import run_evaluate
@@ -36,7 +37,7 @@ from toolkit.stages.label import run_label
 from toolkit.stages.learn import run_learn
 from toolkit.stages.tables import run_tables
 from toolkit.tableio import read_table, read_table_metadata, write_table
-from toolkit.workspace import Manifest, Workspace, digest_files, file_sha256
+from toolkit.workspace import Workspace
 
 #: Folder (under pytest's base temporary directory) of the shared pipeline run.
 PIPELINE_DIR = "learn_evaluate_pipeline"

@@ -17,6 +17,7 @@ from tests.stages.crafted import write_table
 from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.fusion.rotations import euler_to_rot
+from toolkit.manifest import file_sha256
 from toolkit.mounts import frame_mounts
 from toolkit.stages import project as project_module
 from toolkit.stages.project import (
@@ -35,7 +36,7 @@ from toolkit.tableio import (
     read_table_metadata,
     to_storage,
 )
-from toolkit.workspace import Workspace, file_sha256
+from toolkit.workspace import Workspace
 
 SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
 

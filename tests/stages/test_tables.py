@@ -16,6 +16,7 @@ import pytest
 from tests.stages.crafted import record_stage_outputs
 from toolkit.config import default_config
 from toolkit.errors import StageError
+from toolkit.manifest import file_sha256
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.tables import (
     PathSource,
@@ -25,7 +26,7 @@ from toolkit.stages.tables import (
     tyre_paths,
 )
 from toolkit.tableio import read_table, write_table
-from toolkit.workspace import Workspace, file_sha256
+from toolkit.workspace import Workspace
 
 SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
 EVENT_LENGTH_M = 1.4

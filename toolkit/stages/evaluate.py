@@ -75,6 +75,13 @@ from toolkit.atomic import atomic_write_json
 from toolkit.config import LearnConfig, ModelConfig, PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.generations import open_generation
+from toolkit.manifest import (
+    StageRecord,
+    check_up_to_date,
+    digest_files,
+    file_sha256,
+    require_finished,
+)
 from toolkit.model import boosted
 from toolkit.model import speed_control as sc
 from toolkit.model.ascent import AscentResult, best_threshold, coordinate_ascent
@@ -103,14 +110,7 @@ from toolkit.stages.learn import (
 )
 from toolkit.stages.learn import stage_config_hash as learn_config_hash
 from toolkit.tableio import write_table
-from toolkit.workspace import (
-    StageRecord,
-    Workspace,
-    check_up_to_date,
-    digest_files,
-    file_sha256,
-    require_finished,
-)
+from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 

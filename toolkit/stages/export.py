@@ -80,6 +80,7 @@ from toolkit import __version__
 from toolkit.atomic import atomic_write_text, fsync_dir, host_name, temp_path_beside
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError, WorkspaceError
+from toolkit.manifest import Manifest, file_sha256, require_finished
 from toolkit.model.patches import POINT_COLUMNS as EVENT_POINT_COLUMNS
 from toolkit.sim.record import SIM_RECORD
 from toolkit.stages import label as label_stage
@@ -92,13 +93,7 @@ from toolkit.tableio import (
     load_table_schema,
     read_table,
 )
-from toolkit.workspace import (
-    Manifest,
-    Workspace,
-    file_sha256,
-    refuse_inside_workspace,
-    require_finished,
-)
+from toolkit.workspace import Workspace, refuse_inside_workspace
 
 _log = logging.getLogger(__name__)
 

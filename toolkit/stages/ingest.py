@@ -68,6 +68,7 @@ import pyarrow.parquet as pq
 from toolkit.atomic import atomic_write_json
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import CdrError, LogReadError, SchemaError, StageError
+from toolkit.manifest import Manifest, StageRecord, check_up_to_date, digest_files, file_sha256
 from toolkit.mcapio.cdr import decode_batch
 from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_text
 from toolkit.mcapio.reader import Channel, Damage, LogReader, MessageBatch, ReadReport
@@ -79,15 +80,7 @@ from toolkit.stages.roles import ROLE_SPECS, ConvertContext, Converter, RoleRows
 from toolkit.stages.timecheck import stream_time_outliers
 from toolkit.stages.truth import truth_to_pose_frame
 from toolkit.tableio import TableWriter
-from toolkit.workspace import (
-    Manifest,
-    StageRecord,
-    Workspace,
-    check_up_to_date,
-    digest_files,
-    file_sha256,
-    make_log_id,
-)
+from toolkit.workspace import Workspace, make_log_id
 
 _log = logging.getLogger(__name__)
 

@@ -64,6 +64,14 @@ from numpy.typing import NDArray
 from toolkit.analysis.fig5 import LineFit, fit_line, obstacle_passes, write_fig5
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
+from toolkit.manifest import (
+    Manifest,
+    StageRecord,
+    check_up_to_date,
+    digest_files,
+    file_sha256,
+    require_finished,
+)
 from toolkit.model.shock import (
     INTERP_MARGIN,
     MPS_PER_MPH,
@@ -80,15 +88,7 @@ from toolkit.sim.record import SIM_RECORD
 from toolkit.stages.label_truth import truth_under_events
 from toolkit.stages.per_log import run_on_log
 from toolkit.tableio import TableWriter, iter_table_batches
-from toolkit.workspace import (
-    Manifest,
-    StageRecord,
-    Workspace,
-    check_up_to_date,
-    digest_files,
-    file_sha256,
-    require_finished,
-)
+from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 

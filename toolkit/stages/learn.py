@@ -33,19 +33,19 @@ from toolkit import __version__
 from toolkit.atomic import atomic_write_json
 from toolkit.config import LearnConfig, ModelConfig, PipelineConfig, config_hash
 from toolkit.errors import ConfigError, StageError
-from toolkit.model.ascent import AscentConfig, AscentResult, b_names, coordinate_ascent
-from toolkit.model.patches import POINT_COLUMNS, TyrePatches, build_patches, lead_order
-from toolkit.model.roughness import PairTable, RoughnessParams
-from toolkit.stages import tables as tables_stage
-from toolkit.tableio import iter_table_batches, read_table
-from toolkit.workspace import (
+from toolkit.manifest import (
     StageRecord,
-    Workspace,
     check_up_to_date,
     digest_files,
     file_sha256,
     require_finished,
 )
+from toolkit.model.ascent import AscentConfig, AscentResult, b_names, coordinate_ascent
+from toolkit.model.patches import POINT_COLUMNS, TyrePatches, build_patches, lead_order
+from toolkit.model.roughness import PairTable, RoughnessParams
+from toolkit.stages import tables as tables_stage
+from toolkit.tableio import iter_table_batches, read_table
+from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 

@@ -50,19 +50,19 @@ from toolkit.fusion.estimator import (
 from toolkit.fusion.rotations import FloatArray, rot_to_euler, wrap_angle
 from toolkit.fusion.ukf import NoiseModel
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
-from toolkit.mounts import Mount, sensor_mounts
-from toolkit.sim.record import SIM_RECORD
-from toolkit.stages.per_log import run_on_log
-from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
-from toolkit.workspace import (
+from toolkit.manifest import (
     Manifest,
     StageRecord,
-    Workspace,
     check_up_to_date,
     digest_files,
     file_sha256,
     require_finished,
 )
+from toolkit.mounts import Mount, sensor_mounts
+from toolkit.sim.record import SIM_RECORD
+from toolkit.stages.per_log import run_on_log
+from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
+from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 

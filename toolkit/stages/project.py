@@ -61,20 +61,20 @@ from toolkit.analysis.truth_terrain import (
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.fusion.rotations import euler_to_rot
-from toolkit.mounts import Mount, frame_mounts
-from toolkit.stages.per_log import run_on_log
-from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
-from toolkit.timewindow import TimeWindow
-from toolkit.tyre_paths import META_KEPT_WITHIN_M, NearPath
-from toolkit.workspace import (
+from toolkit.manifest import (
     Manifest,
     StageRecord,
-    Workspace,
     check_up_to_date,
     digest_files,
     file_sha256,
     require_finished,
 )
+from toolkit.mounts import Mount, frame_mounts
+from toolkit.stages.per_log import run_on_log
+from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
+from toolkit.timewindow import TimeWindow
+from toolkit.tyre_paths import META_KEPT_WITHIN_M, NearPath
+from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 

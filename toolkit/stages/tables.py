@@ -57,6 +57,14 @@ from scipy.spatial import cKDTree
 
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
+from toolkit.manifest import (
+    Manifest,
+    StageRecord,
+    check_up_to_date,
+    digest_files,
+    file_sha256,
+    require_finished,
+)
 from toolkit.tableio import (
     TableWriter,
     iter_table_batches,
@@ -72,15 +80,7 @@ from toolkit.tyre_paths import (
     near_cells,
     tyre_paths,
 )
-from toolkit.workspace import (
-    Manifest,
-    StageRecord,
-    Workspace,
-    check_up_to_date,
-    digest_files,
-    file_sha256,
-    require_finished,
-)
+from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 

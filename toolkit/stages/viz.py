@@ -127,15 +127,10 @@ from toolkit.atomic import fsync_dir, fsync_file, temp_path_beside
 from toolkit.config import PipelineConfig
 from toolkit.errors import StageError
 from toolkit.frames import ORIGIN_MIN_STATUS, valid_fixes
+from toolkit.manifest import Manifest, file_sha256, require_finished
 from toolkit.stages.tables import EVENT_COLUMNS
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
-from toolkit.workspace import (
-    Manifest,
-    Workspace,
-    file_sha256,
-    refuse_inside_workspace,
-    require_finished,
-)
+from toolkit.workspace import Workspace, refuse_inside_workspace
 
 _log = logging.getLogger(__name__)
 

@@ -1,0 +1,237 @@
+"""Every path of a workspace, each file name spelled once.
+
+::
+
+    WS/config.toml                   the configuration in force
+    WS/manifest.json                 stages that span logs (tables, learn, evaluate)
+    WS/.lock                         one process at a time (shared by ingests and shards)
+    WS/logs/<log_id>/                a log's current generation (:mod:`toolkit.generations`)
+        manifest.json                its per-log stages (ingest, pose, project, label)
+        <table>.parquet              imu, gps, heading, wheels, laser, pose, points, events, ...
+        tf_static.json, mcap_metadata.json, fig5_shock_speed.{csv,png}
+    WS/tables/events.parquet, WS/tables/event_points.parquet
+    WS/model.json
+    WS/report/index.html, scores.parquet, summary.json, figures
+
+A stage names what it reads and writes by *layout name* (``"pose"``, ``"tf_static"``,
+``"model"``); :meth:`LogFiles.path` and :meth:`WorkspaceLayout.path` turn a name into a path.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import ClassVar
+
+from toolkit.errors import WorkspaceError
+
+#: A per-log file that is not ``<name>.parquet``, by layout name.
+_LOG_FILE_NAMES: dict[str, str] = {
+    "manifest": "manifest.json",
+    "tf_static": "tf_static.json",
+    "mcap_metadata": "mcap_metadata.json",
+    "fig5_csv": "fig5_shock_speed.csv",
+    "fig5_png": "fig5_shock_speed.png",
+}
+
+
+def log_file_name(name: str) -> str:
+    """The file name of a per-log layout name: ``tf_static`` -> ``tf_static.json``, a
+    table ``pose`` -> ``pose.parquet``."""
+    return _LOG_FILE_NAMES.get(name, f"{name}.parquet")
+
+
+def layout_name(file_name: str) -> str:
+    """Inverse of :func:`log_file_name` (a manifest's input key): ``pose.parquet`` -> ``pose``."""
+    for name, file in _LOG_FILE_NAMES.items():
+        if file == file_name:
+            return name
+    return Path(file_name).stem
+
+
+@dataclass(frozen=True)
+class LogFiles:
+    """The files of one log's directory: its current generation (``ws.log(id)``) or a new
+    one a stage is writing (``LogFiles(gen.path)``)."""
+
+    dir: Path
+
+    def path(self, name: str) -> Path:
+        """The file of layout name ``name`` (:func:`log_file_name`)."""
+        return self.dir / log_file_name(name)
+
+    def table(self, name: str) -> Path:
+        """``<dir>/<name>.parquet``: a table ingest or a stage wrote."""
+        return self.dir / f"{name}.parquet"
+
+    @property
+    def manifest(self) -> Path:
+        return self.path("manifest")
+
+    @property
+    def tf_static(self) -> Path:
+        return self.path("tf_static")
+
+    @property
+    def mcap_metadata(self) -> Path:
+        return self.path("mcap_metadata")
+
+    @property
+    def imu(self) -> Path:
+        return self.table("imu")
+
+    @property
+    def gps(self) -> Path:
+        return self.table("gps")
+
+    @property
+    def heading(self) -> Path:
+        return self.table("heading")
+
+    @property
+    def wheels(self) -> Path:
+        return self.table("wheels")
+
+    @property
+    def laser(self) -> Path:
+        return self.table("laser")
+
+    @property
+    def truth_pose(self) -> Path:
+        return self.table("truth_pose")
+
+    @property
+    def truth_features(self) -> Path:
+        return self.table("truth_features")
+
+    @property
+    def pose(self) -> Path:
+        return self.table("pose")
+
+    @property
+    def points(self) -> Path:
+        return self.table("points")
+
+    @property
+    def events(self) -> Path:
+        return self.table("events")
+
+    @property
+    def fig5_csv(self) -> Path:
+        return self.path("fig5_csv")
+
+    @property
+    def fig5_png(self) -> Path:
+        return self.path("fig5_png")
+
+
+#: A workspace-level file by layout name, relative to the root.
+_WORKSPACE_FILES: dict[str, str] = {
+    "config": "config.toml",
+    "manifest": "manifest.json",
+    "lock": ".lock",
+    "events_table": "tables/events.parquet",
+    "event_points_table": "tables/event_points.parquet",
+    "model": "model.json",
+    "scores": "report/scores.parquet",
+    "summary": "report/summary.json",
+    "index": "report/index.html",
+}
+
+
+class WorkspaceLayout:
+    """The paths of a workspace rooted at ``root`` (nothing is read or made here)."""
+
+    CONFIG_NAME: ClassVar[str] = _WORKSPACE_FILES["config"]
+    MANIFEST_NAME: ClassVar[str] = _WORKSPACE_FILES["manifest"]
+    LOCK_NAME: ClassVar[str] = _WORKSPACE_FILES["lock"]
+
+    def __init__(self, root: str | Path) -> None:
+        self.root = Path(root)
+
+    def path(self, name: str) -> Path:
+        """The workspace-level file of layout name ``name`` (``model``, ``events_table``...)."""
+        return self.root / _WORKSPACE_FILES[name]
+
+    @property
+    def config_path(self) -> Path:
+        """``WS/config.toml``: the configuration in force."""
+        return self.path("config")
+
+    @property
+    def manifest_path(self) -> Path:
+        """``WS/manifest.json``: records of the stages that span logs."""
+        return self.path("manifest")
+
+    @property
+    def lock_path(self) -> Path:
+        """``WS/.lock``."""
+        return self.path("lock")
+
+    @property
+    def logs_dir(self) -> Path:
+        """``WS/logs``."""
+        return self.root / "logs"
+
+    def log_dir(self, log_id: str) -> Path:
+        """``WS/logs/<log_id>``. A log id never starts with a dot: those names are the
+        generations' hidden directories and locks (:mod:`toolkit.generations`), which a
+        stage must never take for a log."""
+        if not log_id or "/" in log_id or "\\" in log_id or log_id.startswith("."):
+            raise WorkspaceError(f"invalid log id {log_id!r}", path=self.root)
+        return self.logs_dir / log_id
+
+    def log(self, log_id: str) -> LogFiles:
+        """The files of one log (``ws.log(id).pose``)."""
+        return LogFiles(self.log_dir(log_id))
+
+    def log_table(self, log_id: str, table: str) -> Path:
+        """``WS/logs/<log_id>/<table>.parquet`` (imu, gps, pose, points, events, ...)."""
+        return self.log(log_id).table(table)
+
+    def log_manifest_path(self, log_id: str) -> Path:
+        """``WS/logs/<log_id>/manifest.json``."""
+        return self.log(log_id).manifest
+
+    @property
+    def tables_dir(self) -> Path:
+        """``WS/tables``."""
+        return self.events_table.parent
+
+    @property
+    def events_table(self) -> Path:
+        """``WS/tables/events.parquet`` (schema ``tables_events``)."""
+        return self.path("events_table")
+
+    @property
+    def event_points_table(self) -> Path:
+        """``WS/tables/event_points.parquet``."""
+        return self.path("event_points_table")
+
+    @property
+    def model_path(self) -> Path:
+        """``WS/model.json``."""
+        return self.path("model")
+
+    @property
+    def report_dir(self) -> Path:
+        """``WS/report``."""
+        return self.scores_table.parent
+
+    @property
+    def scores_table(self) -> Path:
+        """``WS/report/scores.parquet``."""
+        return self.path("scores")
+
+    @property
+    def summary_path(self) -> Path:
+        """``WS/report/summary.json``."""
+        return self.path("summary")
+
+    @property
+    def index_path(self) -> Path:
+        """``WS/report/index.html``: the report's page."""
+        return self.path("index")
+
+
+__all__ = ["LogFiles", "WorkspaceLayout", "layout_name", "log_file_name"]
