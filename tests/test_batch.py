@@ -30,7 +30,7 @@ from toolkit.batch import (
     shard,
 )
 from toolkit.cli import main
-from toolkit.config import default_config, load_config
+from toolkit.config import PipelineConfig, default_config, load_config
 from toolkit.errors import ConfigError, LogReadError
 
 # -- fake tasks -----------------------------------------------------------------------------
@@ -244,12 +244,18 @@ def test_render_lists_items_counts_and_reasons() -> None:
 # -- run_ingest_batch with a fake ingest ----------------------------------------------------
 
 
-def fake_ingest_task(
-    log_path: str, *, workspace_root: str, config_toml: str, overwrite: bool, cwd: str
+def fake_stage_task(
+    log_path: str,
+    *,
+    stage: str,
+    workspace_root: str,
+    config: PipelineConfig,
+    overwrite: bool,
+    cwd: str,
 ) -> FakeResult:
-    """Stands in for ingest_task: records what it was given in the workspace."""
+    """Stands in for stage_task: records what it was given in the workspace."""
     Path(workspace_root, f"{Path(log_path).name}.seen").write_text(
-        f"{Path(cwd, log_path).is_file()} {overwrite} {len(config_toml)}"
+        f"{Path(cwd, log_path).is_file()} {overwrite} {stage} {config.name}"
     )
     return FakeResult(Path(log_path).stem, "ingested")
 
@@ -258,7 +264,7 @@ def test_run_ingest_batch_records_the_config_and_shards(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(batch, "ingest_task", fake_ingest_task)
+    monkeypatch.setattr(batch, "stage_task", fake_stage_task)
     for name in ("a", "b", "c"):
         Path(f"{name}.mcap").write_bytes(b"x")
     ws = tmp_path / "ws"
@@ -267,7 +273,7 @@ def test_run_ingest_batch_records_the_config_and_shards(
         logs, ws, None, overwrite=True, shard_index=1, num_shards=2, executor=InlineExecutor()
     )
     assert summary.done == [Path("b.mcap")]
-    assert (ws / "b.mcap.seen").read_text().startswith("True True ")
+    assert (ws / "b.mcap.seen").read_text() == f"True True ingest {default_config().name}"
     assert load_config(ws / "config.toml") == default_config()
     assert "shard 1 of 2: 1 of 3 logs" in summary.render()
 

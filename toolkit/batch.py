@@ -35,10 +35,12 @@ from dataclasses import dataclass, field
 from pathlib import Path, PurePath
 from typing import Any, Literal, TypeVar
 
-from toolkit.config import PipelineConfig, default_config, dump_toml, load_config, parse_config
+from toolkit.config import PipelineConfig, default_config, load_config
 from toolkit.errors import ConfigError, ToolkitError
 from toolkit.pools import process_pool
 from toolkit.progress import note, progress
+from toolkit.stages import registry
+from toolkit.stages.runner import run_stage
 from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
@@ -463,19 +465,38 @@ def run_batch(
 # --------------------------------------------------------------------------------------
 
 
-def ingest_task(
-    log_path: str | Path, *, workspace_root: str, config_toml: str, overwrite: bool, cwd: str
+def stage_task(
+    item: str | tuple[str, str],
+    *,
+    stage: str,
+    workspace_root: str,
+    config: PipelineConfig,
+    overwrite: bool,
+    cwd: str,
 ) -> Any:
-    """Ingest one log where the task runs (a pool process or a Dask worker).
+    """One per-log stage on one log, where the task runs (a pool process or a Dask worker).
 
-    Takes only plain data: the configuration as TOML text (parsed here, so a worker needs
-    no access to the user's config file) and paths, relative ones taken against ``cwd``,
-    the submitting process's working directory. Returns ingest_log's IngestResult.
-    """
-    from toolkit.stages.ingest import ingest_log
+    ``item`` is the log's path as given, or (that path, its log id) once it is ingested;
+    relative paths are taken against ``cwd``, the submitting process's working directory.
+    Plain data in (the frozen configuration is pickled: a worker needs no access to the
+    user's config file), the stage's outcome out."""
+    path, log_id = item if isinstance(item, tuple) else (item, "")
+    spec = registry.stage(stage)
+    extra: dict[str, Any] = {"source": Path(cwd, path)} if spec.source else {}
+    ws = Workspace(workspace_root)
+    return run_stage(spec, ws, config, log_id=log_id, overwrite=overwrite, **extra)
 
-    config = parse_config(config_toml, source=Path(workspace_root, "config.toml"))
-    return ingest_log(Path(cwd, log_path), Workspace(workspace_root), config, overwrite=overwrite)
+
+def this_shard(
+    logs: Sequence[Path], shard_index: int, num_shards: int
+) -> tuple[dict[str, Path], list[Path]]:
+    """The logs once each ("a.mcap" and "./a.mcap" are one log: never run twice at once),
+    by absolute path, and this shard's share of them (:func:`shard`) in the user's order."""
+    unique: dict[str, Path] = {}
+    for log in logs:
+        unique.setdefault(os.path.abspath(log), log)
+    picked = set(shard(list(unique.values()), shard_index, num_shards))
+    return unique, [log for log in unique.values() if log in picked]
 
 
 def _config_in_force(workspace: Workspace, config_path: Path | None) -> PipelineConfig:
@@ -509,8 +530,8 @@ def run_ingest_batch(
     The configuration is read once (``config_path``, else the workspace's recorded
     ``WS/config.toml``, else the built-in default), recorded as the configuration in force
     (one that differs from the workspace's is refused unless ``overwrite``, as ingest_log
-    does) and sent to every task as TOML text. Logs are sharded (:func:`shard`) and each runs
-    through :func:`~toolkit.stages.ingest.ingest_log` on ``executor`` if given, else on
+    does) and sent to every task. Logs are sharded (:func:`shard`) and each runs
+    through the ingest stage (:func:`stage_task`) on ``executor`` if given, else on
     one opened by :func:`make_executor` (and closed before returning). A log that cannot
     be ingested is listed as failed with its reason; the others complete. Re-running
     finishes only what is missing: ingest_log reports unchanged logs as up to date.
@@ -518,11 +539,7 @@ def run_ingest_batch(
     The workspace lock is taken shared: the jobs of an array share one workspace (each log's
     files and manifest are its own), while a stage holding it exclusively refuses them.
     """
-    unique: dict[str, Path] = {}
-    for log in logs:  # "a.mcap" and "./a.mcap" are one log: never ingest it twice at once
-        unique.setdefault(os.path.abspath(log), log)
-    picked = set(shard(list(unique.values()), shard_index, num_shards))
-    mine = [log for log in unique.values() if log in picked]  # reported in the user's order
+    unique, mine = this_shard(logs, shard_index, num_shards)
 
     workspace = Workspace(workspace_root)
     # Validated before anything is made: a bad configuration leaves no workspace.
@@ -532,11 +549,11 @@ def run_ingest_batch(
         # a mismatch fails the command once, not once per log; each ingest_log records the
         # config only when it succeeds with it.
         adopt_config = workspace.check_config(config, overwrite=overwrite)
-        config_toml = dump_toml(config)
         task = functools.partial(
-            ingest_task,
+            stage_task,
+            stage="ingest",
             workspace_root=os.path.abspath(workspace_root),
-            config_toml=config_toml,
+            config=config,
             overwrite=overwrite,
             cwd=os.getcwd(),
         )

@@ -17,10 +17,11 @@ import logging
 import sys
 import threading
 import traceback
+import typing
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import click
 
@@ -28,10 +29,24 @@ from toolkit import __version__
 from toolkit.errors import LogReadError, ToolkitError
 from toolkit.pools import Terminated, sigterm_as_exit
 from toolkit.progress import set_quiet
+from toolkit.stages import registry
 
 PROG = "terrain"
-#: Stage names for --from/--to (toolkit.pipeline.STAGES, listed here so --help needs no import).
-STAGE_NAMES = ("ingest", "pose", "project", "label", "tables", "learn", "evaluate")
+
+
+class _StageName(click.ParamType):  # type: ignore[type-arg]
+    """A registered stage's name (:mod:`toolkit.stages.registry`), checked when parsed."""
+
+    name = "stage"
+
+    def get_metavar(self, param: click.Parameter, ctx: click.Context | None = None) -> str:
+        return "[" + "|".join(registry.names()) + "]"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str:
+        if value in registry.names():
+            return str(value)
+        self.fail(f"{value!r} is not a stage: {', '.join(registry.names())}", param, ctx)
+
 
 _log = logging.getLogger("toolkit")
 
@@ -121,6 +136,21 @@ class TerrainGroup(click.Group):
             ctx.exit(1)
 
 
+class StagesGroup(TerrainGroup):
+    """The ``terrain`` group: its own commands, and one command per registered stage
+    (:mod:`toolkit.stages.registry`), made when first asked for."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*self.commands, *registry.names()})
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        command = super().get_command(ctx, cmd_name)
+        if command is None and cmd_name in registry.names():
+            command = _stage_command(cmd_name)
+            self.add_command(command)
+        return command
+
+
 def _debug(ctx: click.Context) -> bool:
     opts = ctx.find_object(CliOptions)
     return bool(opts and opts.debug)
@@ -162,7 +192,7 @@ def configure_logging(verbose: int, quiet: bool, debug: bool) -> None:
     logging.captureWarnings(True)
 
 
-@click.group(cls=TerrainGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=StagesGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.option("-v", "--verbose", count=True, help="More log output (-v info, -vv debug).")
 @click.option("-q", "--quiet", is_flag=True, help="Only errors; no progress bars.")
 @click.option("--debug", is_flag=True, help="Show tracebacks on errors.")
@@ -460,28 +490,18 @@ def ingest(
     ctx.exit(1)
 
 
-class _StageResult(Protocol):
-    @property
-    def status(self) -> str: ...
-
-    def summary(self) -> str: ...
-
-
 def _each_log(
-    workspace: Path,
-    log_id: str | None,
-    verb: str,
-    nothing: str,
-    run: Callable[[Any, str, Any], _StageResult],
-    as_json: bool = False,
+    workspace: Path, log_id: str | None, verb: str, overwrite: bool, as_json: bool = False
 ) -> None:
     """Run a per-log stage on one log or every log of the workspace, under its lock: one
     summary line per log, one error line per failed log (the others still run), a total
     line for several logs, exit 1 when any failed. With ``as_json`` the summary lines are
     one JSON document instead (:func:`_stage_json`); the error lines stay on stderr."""
     from toolkit.manifest import Manifest
+    from toolkit.stages.runner import run_stage
     from toolkit.workspace import Workspace
 
+    spec = registry.stage(verb)
     ws = Workspace(workspace)
     cfg = ws.read_config()
     ids = ws.log_ids()
@@ -489,9 +509,7 @@ def _each_log(
         ws.require_log(log_id)
         ids = [log_id]
     if not ids:
-        click.echo(
-            f"nothing to {nothing}: no ingested log in {ws.root} (run `terrain ingest` first)"
-        )
+        click.echo(f"nothing to {verb}: no ingested log in {ws.root} (run `terrain ingest` first)")
         return
     failed: list[str] = []
     done: dict[str, int] = {}
@@ -499,21 +517,21 @@ def _each_log(
     with ws.lock():
         for one in ids:  # one log's failure never stops the others
             try:
-                result = run(ws, one, cfg)
+                result = run_stage(spec, ws, cfg, log_id=one, overwrite=overwrite)
             except ToolkitError as exc:
                 _error_line(f"{one}: {exc}")
                 failed.append(one)
                 results.append({"log_id": one, "status": "failed", "error": str(exc)})
                 continue
             if not as_json:
-                click.echo(result.summary())
+                click.echo(spec.describe(result))
             done[result.status] = done.get(result.status, 0) + 1
             record = Manifest(ws.log_manifest_path(one)).stage(verb)
             results.append(
                 {
                     "log_id": one,
                     "status": result.status,
-                    "summary": result.summary(),
+                    "summary": spec.describe(result),
                     "record": record.to_json() if record is not None else None,
                 }
             )
@@ -547,13 +565,13 @@ def _echo_stage(ws: Any, stage: str, status: str, text: str, as_json: bool) -> N
     click.echo(json.dumps(doc, indent=2))
 
 
-def _per_log_options(what: str) -> Callable[[Callable[..., Any]], Callable[..., Any]]:
+def _per_log_options() -> Callable[[Callable[..., Any]], Callable[..., Any]]:
     """The options every per-log verb takes: -w, --log, --overwrite."""
 
     def apply(f: Callable[..., Any]) -> Callable[..., Any]:
         f = click.option("--json", "as_json", is_flag=True, help=JSON_HELP)(f)
         f = click.option(
-            "--overwrite", is_flag=True, help=f"Recompute {what} that are up to date."
+            "--overwrite", is_flag=True, help="Run it again even if it is up to date."
         )(f)
         f = click.option("--log", "log_id", default=None, help="One log id (default: every log).")(
             f
@@ -569,76 +587,6 @@ def _per_log_options(what: str) -> Callable[[Callable[..., Any]], Callable[..., 
     return apply
 
 
-@main.command()
-@_per_log_options("poses")
-def pose(workspace: Path, log_id: str | None, overwrite: bool, as_json: bool) -> None:
-    """UKF pose fusion: WS/logs/<id>/pose.parquet at 100 Hz."""
-    from toolkit.stages.pose import run_pose
-
-    _each_log(
-        workspace,
-        log_id,
-        "pose",
-        "pose",
-        lambda ws, one, cfg: run_pose(ws, one, cfg, overwrite=overwrite),
-        as_json,
-    )
-
-
-@main.command()
-@_per_log_options("point clouds")
-def project(workspace: Path, log_id: str | None, overwrite: bool, as_json: bool) -> None:
-    """Laser scans + pose -> WS/logs/<id>/points.parquet, the 3-D point cloud (sect. 3)."""
-    from toolkit.stages.project import run_project
-
-    _each_log(
-        workspace,
-        log_id,
-        "project",
-        "project",
-        lambda ws, one, cfg: run_project(ws, one, cfg, overwrite=overwrite),
-        as_json,
-    )
-
-
-@main.command()
-@_per_log_options("labels")
-def label(workspace: Path, log_id: str | None, overwrite: bool, as_json: bool) -> None:
-    """IMU shock -> WS/logs/<id>/events.parquet with ruggedness labels (sect. 5)."""
-    from toolkit.stages.label import run_label
-
-    _each_log(
-        workspace,
-        log_id,
-        "label",
-        "label",
-        lambda ws, one, cfg: run_label(ws, one, cfg, overwrite=overwrite),
-        as_json,
-    )
-
-
-@main.command()
-@click.option(
-    "-w",
-    "--workspace",
-    required=True,
-    type=click.Path(file_okay=False, path_type=Path),
-    help="Workspace directory (labelled and projected).",
-)
-@click.option("--overwrite", is_flag=True, help="Rebuild the tables even if up to date.")
-@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
-def tables(workspace: Path, overwrite: bool, as_json: bool) -> None:
-    """Events and the points under each rear tyre, split train/test: WS/tables/ (sect. 7)."""
-    from toolkit.stages.tables import run_tables
-    from toolkit.workspace import Workspace
-
-    ws = Workspace(workspace)
-    cfg = ws.read_config()
-    with ws.lock():
-        result = run_tables(ws, cfg, overwrite=overwrite)
-    _echo_stage(ws, "tables", result.status, result.summary(), as_json)
-
-
 _WORKSPACE_OPTION = click.option(
     "-w",
     "--workspace",
@@ -648,43 +596,53 @@ _WORKSPACE_OPTION = click.option(
 )
 
 
-@main.command()
-@_WORKSPACE_OPTION
-@click.option("--overwrite", is_flag=True, help="Learn again even if the model is up to date.")
-@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
-def learn(workspace: Path, overwrite: bool, as_json: bool) -> None:
-    """Coordinate ascent on the training tables -> WS/model.json, the 14 parameters (sect. 6)."""
+def _stage_command(name: str) -> click.Command:
+    """The command of registered stage ``name``: per log (-w, --log, --overwrite, --json)
+    or over the workspace (-w, --overwrite, --json)."""
+    line = registry.listed(name)
+    if line.scope == "log":
+
+        def per_log(workspace: Path, log_id: str | None, overwrite: bool, as_json: bool) -> None:
+            _each_log(workspace, log_id, name, overwrite, as_json)
+
+        command = typing.cast(
+            click.Command, _per_log_options()(click.Command(name, callback=per_log, help=line.help))
+        )
+        command.params.reverse()  # decorating a made command appends: -w first, as elsewhere
+        return command
+
+    def over_workspace(workspace: Path, overwrite: bool, as_json: bool) -> None:
+        _workspace_stage(name, workspace, overwrite, as_json)
+
+    command = click.Command(name, callback=over_workspace, help=line.help)
+    command = click.option("--json", "as_json", is_flag=True, help=JSON_HELP)(command)
+    command = click.option(
+        "--overwrite", is_flag=True, help="Run it again even if it is up to date."
+    )(command)
+    command = _WORKSPACE_OPTION(command)
+    command.params.reverse()
+    return command
+
+
+def _workspace_stage(name: str, workspace: Path, overwrite: bool, as_json: bool) -> None:
+    """Run a workspace stage under the workspace's lock, with its progress, and say it."""
     from toolkit.progress import progress
-    from toolkit.stages.learn import run_learn
+    from toolkit.stages.runner import run_stage
     from toolkit.workspace import Workspace
 
+    spec = registry.stage(name)
     ws = Workspace(workspace)
     cfg = ws.read_config()
-    with ws.lock(), progress(total=cfg.learn.iterations, desc="learn", unit="rotation") as bar:
-        result = run_learn(ws, cfg, overwrite=overwrite, progress=lambda _: bar.update(1))
-    _echo_stage(ws, "learn", result.status, result.summary(), as_json)
-
-
-@main.command()
-@_WORKSPACE_OPTION
-@click.option("--overwrite", is_flag=True, help="Evaluate again even if the report is up to date.")
-@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
-def evaluate(workspace: Path, overwrite: bool, as_json: bool) -> None:
-    """ROC against the race's method, speed control, report -> WS/report/ (sect. 7)."""
-    from toolkit.progress import progress
-    from toolkit.stages.evaluate import run_evaluate
-    from toolkit.workspace import Workspace
-
-    ws = Workspace(workspace)
-    cfg = ws.read_config()
-    with ws.lock(), progress(desc="evaluate", unit="step") as bar:
+    total = spec.progress_total(cfg) if spec.progress_total is not None else None
+    with ws.lock(), progress(total=total, desc=name, unit=spec.unit) as bar:
 
         def step(what: str) -> None:
-            bar.set_postfix_str(what)
+            if what:
+                bar.set_postfix_str(what)
             bar.update(1)
 
-        result = run_evaluate(ws, cfg, overwrite=overwrite, step=step)
-    _echo_stage(ws, "evaluate", result.status, result.text(), as_json)
+        result = run_stage(spec, ws, cfg, overwrite=overwrite, step=step)
+    _echo_stage(ws, name, result.status, spec.describe(result), as_json)
 
 
 @main.command()
@@ -692,14 +650,14 @@ def evaluate(workspace: Path, overwrite: bool, as_json: bool) -> None:
 @click.option(
     "--from",
     "first",
-    type=click.Choice(STAGE_NAMES),
+    type=_StageName(),
     default=None,
     help="First stage to run (default: ingest).",
 )
 @click.option(
     "--to",
     "last",
-    type=click.Choice(STAGE_NAMES),
+    type=_StageName(),
     default=None,
     help="Last stage to run (default: evaluate).",
 )

@@ -14,11 +14,13 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from toolkit.manifest import Manifest
-from toolkit.pipeline import PER_LOG_STAGES, STAGES
+from toolkit.stages import registry
 from toolkit.workspace import Workspace
 
-#: The row count each per-log stage is listed by.
-ROWS_SHOWN = {"pose": "pose", "project": "points", "label": "events"}
+
+def _rows_shown() -> dict[str, str]:
+    """Per-log stage -> the row count it is listed by (the first its summary shows)."""
+    return {s.name: s.rows[0] for s in registry.stages() if s.scope == "log" and s.rows}
 
 
 @dataclass(frozen=True)
@@ -47,13 +49,14 @@ class Listing:
         """A table a person reads: a line per log, then the workspace stages."""
         if not self.logs:
             return f"{self.workspace}: no log yet (run `terrain ingest LOG.mcap -w WS`)"
+        per_log, later = registry.per_log(), registry.over_workspace()
         width = max(len(e.log_id) for e in self.logs)
-        lines = [f"{'log':<{width}}  {'stages done':<27}  rows  source"]
+        done_width = len(" ".join(per_log))
+        lines = [f"{'log':<{width}}  {'stages done':<{done_width}}  rows  source"]
         for e in self.logs:
-            done = " ".join(s if s in e.stages else "-" * len(s) for s in PER_LOG_STAGES)
+            done = " ".join(s if s in e.stages else "-" * len(s) for s in per_log)
             rows = ", ".join(f"{k} {v:,}" for k, v in e.rows.items()) or "-"
-            lines.append(f"{e.log_id:<{width}}  {done:<27}  {rows}  {e.source}")
-        later = [s for s in STAGES if s not in PER_LOG_STAGES]
+            lines.append(f"{e.log_id:<{width}}  {done:<{done_width}}  {rows}  {e.source}")
         lines.append(
             "workspace: "
             + ", ".join(
@@ -67,6 +70,7 @@ class Listing:
 def list_workspace(workspace: Workspace) -> Listing:
     """The :class:`Listing` of ``workspace`` (which must exist)."""
     workspace.require()
+    per_log, shown = registry.per_log(), _rows_shown()
     entries = []
     for log_id in workspace.log_ids():
         raw: dict[str, Any] = Manifest(workspace.log_manifest_path(log_id)).read()
@@ -74,16 +78,16 @@ def list_workspace(workspace: Workspace) -> Listing:
         source: dict[str, Any] = found if isinstance(found, dict) else {}
         records = Manifest(workspace.log_manifest_path(log_id)).stages()
         rows = {
-            ROWS_SHOWN[s]: int(records[s].row_counts.get(ROWS_SHOWN[s], 0))
-            for s in PER_LOG_STAGES
-            if s in records and s in ROWS_SHOWN
+            shown[s]: int(records[s].row_counts.get(shown[s], 0))
+            for s in per_log
+            if s in records and s in shown
         }
         entries.append(
             LogEntry(
                 log_id=log_id,
                 source=str(source.get("path", "")),
                 size_bytes=source.get("size_bytes"),
-                stages=tuple(s for s in PER_LOG_STAGES if s in records),
+                stages=tuple(s for s in per_log if s in records),
                 rows=rows,
             )
         )
@@ -92,9 +96,7 @@ def list_workspace(workspace: Workspace) -> Listing:
         workspace=str(workspace.root),
         logs=tuple(entries),
         workspace_stages={
-            s: overall[s].finished_utc or "done"
-            for s in STAGES[len(PER_LOG_STAGES) :]
-            if s in overall
+            s: overall[s].finished_utc or "done" for s in registry.over_workspace() if s in overall
         },
     )
 

@@ -54,66 +54,31 @@ from toolkit.batch import (
     _config_in_force,
     make_executor,
     run_batch,
-    shard,
+    stage_task,
+    this_shard,
 )
-from toolkit.config import PipelineConfig, dump_toml, parse_config
 from toolkit.errors import ToolkitError, WorkspaceError
 from toolkit.manifest import Manifest
 from toolkit.progress import note, progress
+from toolkit.stages import registry
+from toolkit.stages.runner import run_stage
 from toolkit.workspace import Workspace, log_id_for
 
 _log = logging.getLogger(__name__)
 
-#: Every stage, in dependency order.
-STAGES: tuple[str, ...] = ("ingest", "pose", "project", "label", "tables", "learn", "evaluate")
-#: The stages that run per log (the rest run once over the workspace).
-PER_LOG_STAGES: tuple[str, ...] = STAGES[:4]
-#: The per-log stage each per-log stage needs.
-DEPENDS_ON: dict[str, str] = {"pose": "ingest", "project": "pose", "label": "pose"}
-
 
 def stage_range(first: str | None, last: str | None) -> tuple[str, ...]:
-    """The stages from ``first`` to ``last`` inclusive (default: all). WorkspaceError if
-    they are unknown or out of order."""
-    i = STAGES.index(first) if first else 0
-    j = STAGES.index(last) if last else len(STAGES) - 1
+    """The registry's stages from ``first`` to ``last`` inclusive (default: all).
+    WorkspaceError if they are unknown or out of order."""
+    names = registry.names()
+    for name in (first, last):
+        if name is not None and name not in names:
+            raise WorkspaceError(f"no stage named {name!r} (stages: {', '.join(names)})")
+    i = names.index(first) if first else 0
+    j = names.index(last) if last else len(names) - 1
     if i > j:
         raise WorkspaceError(f"--from {first} comes after --to {last}")
-    return STAGES[i : j + 1]
-
-
-def log_stage_task(
-    item: tuple[str, str],
-    *,
-    stage: str,
-    workspace_root: str,
-    config_toml: str,
-    overwrite: bool,
-    cwd: str,
-) -> Any:
-    """One per-log stage for one log, where the task runs (a pool process or a Dask
-    worker); ``item`` is (the log's path as given, its log id). Plain data in, the stage's
-    result out."""
-    ws = Workspace(workspace_root)
-    config = parse_config(config_toml, source=Path(workspace_root, "config.toml"))
-    path, log_id = item
-    if stage == "ingest":
-        from toolkit.stages.ingest import ingest_log
-
-        return ingest_log(Path(cwd, path), ws, config, overwrite=overwrite)
-    if stage == "pose":
-        from toolkit.stages.pose import run_pose
-
-        return run_pose(ws, log_id, config, overwrite=overwrite)
-    if stage == "project":
-        from toolkit.stages.project import run_project
-
-        return run_project(ws, log_id, config, overwrite=overwrite)
-    if stage == "label":
-        from toolkit.stages.label import run_label
-
-        return run_label(ws, log_id, config, overwrite=overwrite)
-    raise ValueError(f"not a per-log stage: {stage!r}")
+    return names[i : j + 1]
 
 
 @dataclass(frozen=True)
@@ -184,25 +149,13 @@ class RunSummary:
         return "\n".join(lines)
 
 
-#: The row counts a stage's summary shows, by manifest key (None: every key).
-_ROW_KEYS: dict[str, tuple[str, ...] | None] = {
-    "ingest": None,
-    "pose": ("pose",),
-    "project": ("points",),
-    "label": ("events",),
-    "tables": ("train_events", "test_events", "train_points", "test_points"),
-    "learn": ("train_events", "points", "pairs"),
-    "evaluate": ("scores",),
-}
-
-
 def _record_totals(
     records: Sequence[dict[str, Any]], stage: str
 ) -> tuple[dict[str, int], dict[str, int], tuple[str, ...]]:
     rows: dict[str, int] = {}
     rejects: dict[str, int] = {}
     warnings: list[str] = []
-    keys = _ROW_KEYS.get(stage)
+    keys = registry.stage(stage).rows
     for rec in records:
         counts = rec.get("row_counts", {})
         if keys is None:
@@ -262,23 +215,20 @@ def run_pipeline(
     start = time.perf_counter()
     say = echo or note  # each stage's line as it ends: off a terminal by default
     stages = stage_range(first, last)
-    unique: dict[str, Path] = {}
-    for log in logs:  # "a.mcap" and "./a.mcap" are one log
-        unique.setdefault(os.path.abspath(log), log)
-    picked = set(shard(list(unique.values()), shard_index, num_shards))
-    mine = [log for log in unique.values() if log in picked]
+    unique, mine = this_shard(logs, shard_index, num_shards)
     ws = Workspace(workspace_root)
     # Validated before anything is made: a bad configuration leaves no workspace.
     config = _config_in_force(ws, config_path)
     with ws.created():  # a first run that ingests no log leaves no workspace
         adopt_config = ws.check_config(config, overwrite=overwrite)
-        config_toml = dump_toml(config)
         root = os.path.abspath(workspace_root)
         cwd = os.getcwd()
-        per_log = [s for s in stages if s in PER_LOG_STAGES]
-        workspace_stages = [s for s in stages if s not in PER_LOG_STAGES and num_shards == 1]
+        per_log = [s for s in stages if registry.stage(s).scope == "log"]
+        over_ws = [s for s in stages if s not in per_log]
+        workspace_stages = over_ws if num_shards == 1 else []
+        starts = registry.stage(per_log[0]).source if per_log else False
         notes: list[str] = []
-        if num_shards > 1 and any(s not in PER_LOG_STAGES for s in stages):
+        if num_shards > 1 and over_ws:
             notes.append(
                 f"shard {shard_index} of {num_shards}: per-log stages only for {len(mine)} of "
                 f"{len(unique)} logs; once every shard is done, run `terrain run LOGS... -w "
@@ -288,7 +238,7 @@ def run_pipeline(
         # Items are (path, log id); the id is known once ingested (or, when ingest is not part
         # of this run, from the file's content, as ingest names it).
         items: list[tuple[str, str]] = [(str(p), "") for p in mine]
-        if "ingest" not in per_log and per_log:
+        if per_log and not starts:
             items = [(str(p), log_id_for(p)) for p in mine]
             missing = [i for _, i in items if i not in ws.log_ids()]
             if missing:
@@ -296,6 +246,7 @@ def run_pipeline(
                     f"not ingested: {', '.join(missing)} (run from ingest)", path=ws.root
                 )
         ids: list[str] = [i for _, i in items]
+        every = items  # the logs a stage may take: those its source stage (ingest) passed
         with contextlib.ExitStack() as stack:
             stack.enter_context(ws.lock(shared=num_shards > 1))
             pool = executor
@@ -307,16 +258,16 @@ def run_pipeline(
             with progress(total=total, desc="run", unit="step") as bar:
                 passed: dict[str, list[tuple[str, str]]] = {}
                 for stage in per_log:
-                    # A stage takes the logs its prerequisite passed: label needs pose, not
+                    # A stage takes the logs its prerequisites passed: label needs pose, not
                     # project, so a log without lasers is still labelled.
-                    before = DEPENDS_ON.get(stage)
-                    if before in passed:
-                        items = passed[before]
+                    spec = registry.stage(stage)
+                    needed = [set(passed[b]) for b in spec.after if b in passed]
+                    items = [it for it in every if all(it in ok for ok in needed)]
                     task = functools.partial(
-                        log_stage_task,
+                        stage_task,
                         stage=stage,
                         workspace_root=root,
-                        config_toml=config_toml,
+                        config=config,
                         overwrite=overwrite,
                         cwd=cwd,
                     )
@@ -326,11 +277,12 @@ def run_pipeline(
                     if adopt_config and summary.results:
                         ws.write_config(config)  # a config becomes the workspace's once it worked
                         adopt_config = False
-                    if stage == "ingest":
+                    if spec.source:  # the log ids are known once it has read the files
                         results = summary.results
                         items = [
                             (p, str(results[(p, i)].log_id)) for p, i in items if (p, i) in results
                         ]
+                        every = items
                     else:
                         ok = summary.results
                         items = [it for it in items if it in ok]
@@ -348,7 +300,8 @@ def run_pipeline(
                         notes.append("workspace stages not run: a log failed a per-log stage")
                         break
                     try:
-                        result = _run_workspace_stage(stage, ws, config, overwrite)
+                        spec = registry.stage(stage)
+                        result = run_stage(spec, ws, config, overwrite=overwrite)
                     except ToolkitError as exc:
                         reports.append(
                             StageReport(
@@ -371,8 +324,8 @@ def run_pipeline(
                         )
                     )
                     say(reports[-1].line())
-                    if stage == "evaluate":
-                        report_path = ws.report_dir / "index.html"
+                    if "index" in spec.makes:
+                        report_path = ws.index_path
         if adopt_config and any(
             r.statuses.get("done") or r.statuses.get("up_to_date") for r in reports
         ):
@@ -382,25 +335,9 @@ def run_pipeline(
             tuple(reports),
             all_ids,
             time.perf_counter() - start,
-            report_path if "evaluate" in workspace_stages else None,
+            report_path,
             tuple(notes),
         )
 
 
-def _run_workspace_stage(stage: str, ws: Workspace, config: PipelineConfig, overwrite: bool) -> Any:
-    if stage == "tables":
-        from toolkit.stages.tables import run_tables
-
-        return run_tables(ws, config, overwrite=overwrite)
-    if stage == "learn":
-        from toolkit.stages.learn import run_learn
-
-        return run_learn(ws, config, overwrite=overwrite)
-    if stage == "evaluate":
-        from toolkit.stages.evaluate import run_evaluate
-
-        return run_evaluate(ws, config, overwrite=overwrite)
-    raise ValueError(f"not a workspace stage: {stage!r}")
-
-
-__all__ = ["PER_LOG_STAGES", "STAGES", "RunSummary", "StageReport", "run_pipeline", "stage_range"]
+__all__ = ["RunSummary", "StageReport", "run_pipeline", "stage_range"]

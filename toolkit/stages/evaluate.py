@@ -97,6 +97,7 @@ from toolkit.model.roughness import (
     score_events,
 )
 from toolkit.model.shock import MPS_PER_MPH
+from toolkit.stages.contract import Need, Stage
 from toolkit.stages.label import FIG5_PNG
 from toolkit.stages.learn import (
     ascent_config,
@@ -836,4 +837,33 @@ def _copy_log_figures(
     return out
 
 
-__all__ = ["STAGE", "EvaluateResult", "closest_laser", "oracle_patches", "run_evaluate"]
+def _run(
+    workspace: Workspace,
+    config: PipelineConfig,
+    *,
+    log_id: str,
+    overwrite: bool,
+    step: Callable[[str], None],
+) -> EvaluateResult:
+    """The contract's entry: :func:`run_evaluate`."""
+    del log_id
+    return run_evaluate(workspace, config, overwrite=overwrite, step=step)
+
+
+SPEC = Stage(
+    STAGE,
+    "workspace",
+    needs=(
+        Need("events_table", "tables"),
+        Need("event_points_table", "tables"),
+        Need("model", "learn"),
+    ),
+    makes=("scores", "summary", "index"),
+    sections=CONFIG_SECTIONS,
+    run=_run,
+    rows=("scores",),
+    describe=EvaluateResult.text,
+)
+
+
+__all__ = ["SPEC", "STAGE", "EvaluateResult", "closest_laser", "oracle_patches", "run_evaluate"]

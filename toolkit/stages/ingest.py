@@ -74,6 +74,7 @@ from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_tex
 from toolkit.mcapio.reader import Channel, Damage, LogReader, MessageBatch, ReadReport
 from toolkit.progress import progress
 from toolkit.sim.record import sim_origin
+from toolkit.stages.contract import Stage
 from toolkit.stages.dedup import DuplicateFilter
 from toolkit.stages.reorder import DEFAULT_REORDER_BUFFER_BYTES, ReorderBuffer
 from toolkit.stages.roles import ROLE_SPECS, ConvertContext, Converter, RoleRows
@@ -875,7 +876,34 @@ def _remove_stale_outputs(log_dir: Path, old: StageRecord | None, current: Seque
             (log_dir / name).unlink()
 
 
+def _run(
+    workspace: Workspace,
+    config: PipelineConfig,
+    *,
+    log_id: str,
+    overwrite: bool,
+    step: Callable[[str], None],
+    source: Path,
+) -> IngestResult:
+    """The contract's entry: ingest the log file ``source`` (``log_id`` is not known yet)."""
+    del log_id, step  # the id comes from the file's content; ingest shows no steps
+    return ingest_log(source, workspace, config, overwrite=overwrite)
+
+
+SPEC = Stage(
+    STAGE,
+    "log",
+    makes=("imu", "gps", "heading", "wheels", "laser", "tf_static", "mcap_metadata"),
+    sections=CONFIG_SECTIONS,
+    run=_run,
+    rows=None,
+    unit="log",
+    source=True,
+)
+
+
 __all__ = [
+    "SPEC",
     "CONFIG_SECTIONS",
     "STAGE",
     "IngestResult",

@@ -55,23 +55,16 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
 from numpy.typing import NDArray
 
 from toolkit.analysis.fig5 import LineFit, fit_line, obstacle_passes, write_fig5
-from toolkit.config import PipelineConfig, config_hash
+from toolkit.config import LabelConfig, PipelineConfig, VehicleConfig, config_hash
 from toolkit.errors import StageError
-from toolkit.manifest import (
-    Manifest,
-    StageRecord,
-    check_up_to_date,
-    digest_files,
-    file_sha256,
-    require_finished,
-)
+from toolkit.layout import LogFiles, log_file_name
 from toolkit.model.shock import (
     INTERP_MARGIN,
     MPS_PER_MPH,
@@ -85,8 +78,9 @@ from toolkit.model.shock import (
 )
 from toolkit.mounts import sensor_mounts
 from toolkit.sim.record import SIM_RECORD
+from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.label_truth import truth_under_events
-from toolkit.stages.per_log import run_on_log
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import TableWriter, iter_table_batches
 from toolkit.workspace import Workspace
 
@@ -98,21 +92,16 @@ IntArray = NDArray[np.int64]
 STAGE = "label"
 #: Configuration sections label reads: its own, and the vehicle (IMU mount, track, wheelbase).
 CONFIG_SECTIONS = ("label", "vehicle")
-OUTPUT = "events.parquet"
-FIG5_CSV = "fig5_shock_speed.csv"
-FIG5_PNG = "fig5_shock_speed.png"
+OUTPUT = log_file_name("events")
+FIG5_CSV = log_file_name("fig5_csv")
+FIG5_PNG = log_file_name("fig5_png")
 #: Rows per IMU read batch.
 BATCH_ROWS = 4_096
 IMU_COLUMNS = ["t_ns", "accel_x", "accel_y", "accel_z"]
 #: A step between IMU stamps longer than this many nominal periods is a gap (as pose).
 GAP_PERIODS = 1.5
 #: Files ingest writes that label reads when present (besides imu.parquet).
-INGEST_EXTRAS = (
-    "tf_static.json",
-    "mcap_metadata.json",
-    "truth_pose.parquet",
-    "truth_features.parquet",
-)
+INGEST_EXTRAS = ("tf_static", "mcap_metadata", "truth_pose", "truth_features")
 REJECT_REASONS = ("too_slow", "no_imu")
 
 
@@ -434,38 +423,44 @@ def _event_shocks(
     return _Shocks(shock, when, samples, span_peak, own, runs)
 
 
+@dataclass(frozen=True)
+class LabelSettings:
+    """What label reads of the configuration: its section and the vehicle (the IMU's mount,
+    the track and wheelbase)."""
+
+    label: LabelConfig
+    vehicle: VehicleConfig
+
+
 def run_label(
     workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
 ) -> LabelResult:
     """Label one posed log (see the module docstring)."""
-    return run_on_log(
-        workspace,
-        log_id,
-        lambda log_dir, start: _label_in(log_dir, log_id, config, overwrite=overwrite, start=start),
-        _log,
+    result = run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
+    return cast(LabelResult, result)
+
+
+def _recall(last: Recalled) -> LabelResult:
+    """The outcome of an up-to-date label, from its record and the manifest's header."""
+    header = last.header.get("label") or {}
+    return LabelResult(
+        last.log_id,
+        "up_to_date",
+        int(last.record.row_counts.get("events", 0)),
+        int(header.get("rough", 0)),
+        dict(last.record.rejects),
+        float(header.get("imu_rate_hz", 0.0)),
+        last.seconds,
+        truth=header.get("truth"),
+        fig5=header.get("fig5"),
+        outputs=tuple(last.record.outputs),
+        attribution=header.get("attribution"),
     )
-
-
-def _inputs(log_dir: Path, manifest: Manifest) -> dict[str, str]:
-    """Input name -> sha256, after checking each is what the stage that wrote it recorded."""
-    imu_path, pose_path = log_dir / "imu.parquet", log_dir / "pose.parquet"
-    if not imu_path.is_file():
-        raise StageError("input table missing; run `terrain ingest` first", path=imu_path)
-    if not pose_path.is_file():
-        raise StageError("input table missing; run `terrain pose` first", path=pose_path)
-    from_ingest = {imu_path.name: file_sha256(imu_path)}
-    for name in INGEST_EXTRAS:
-        if (log_dir / name).is_file():
-            from_ingest[name] = file_sha256(log_dir / name)
-    require_finished(manifest.stage("ingest"), "ingest", from_ingest, log_dir)
-    pose_sha = file_sha256(pose_path)
-    require_finished(manifest.stage("pose"), "pose", {pose_path.name: pose_sha}, log_dir)
-    return {Path(n).stem: sha for n, sha in {**from_ingest, pose_path.name: pose_sha}.items()}
 
 
 def _sim_profile(log_dir: Path) -> str | None:
     """The simulator profile the log says it was made with, or None (a real log)."""
-    path = log_dir / "mcap_metadata.json"
+    path = LogFiles(log_dir).mcap_metadata
     if not path.is_file():
         return None
     try:
@@ -476,43 +471,21 @@ def _sim_profile(log_dir: Path) -> str | None:
     return str(profile) if profile is not None else None
 
 
-def _label_in(
-    log_dir: Path, log_id: str, config: PipelineConfig, *, overwrite: bool, start: float
-) -> LabelResult:
-    """:func:`run_label` inside an open generation ``log_dir`` (not committed here)."""
-    manifest = Manifest(log_dir / Workspace.MANIFEST_NAME)
-    inputs = _inputs(log_dir, manifest)
-    cfg = config.label
-    cfg_hash = stage_config_hash(config)
-    out_path = log_dir / OUTPUT
-    record = manifest.stage(STAGE)
-    if not overwrite and record is not None:
-        written = [log_dir / o for o in record.outputs] or [out_path]
-        if check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=written):
-            header = manifest.read().get("label") or {}
-            return LabelResult(
-                log_id,
-                "up_to_date",
-                int(record.row_counts.get("events", 0)),
-                int(header.get("rough", 0)),
-                dict(record.rejects),
-                float(header.get("imu_rate_hz", 0.0)),
-                time.perf_counter() - start,
-                truth=header.get("truth"),
-                fig5=header.get("fig5"),
-                outputs=tuple(record.outputs),
-                attribution=header.get("attribution"),
-            )
+def _compute(call: Call) -> Made:
+    """Label the log in ``call.files`` (the module docstring); the runner records it."""
+    config: LabelSettings = call.settings
+    log_dir, log_id, start = call.files.dir, call.log_id, call.start
+    cfg, cfg_hash, manifest = config.label, call.config_hash, call.manifest
     timings: dict[str, float] = {}
     t = time.perf_counter()
-    imu_path = log_dir / "imu.parquet"
-    mounts = sensor_mounts(log_dir / "tf_static.json", config.vehicle, gps=False)
+    imu_path = call.files.imu
+    mounts = sensor_mounts(call.files.tf_static, config.vehicle, gps=False)
     warnings = list(mounts.warnings)
     row_z = np.asarray(mounts.imu.rotation[2], np.float64)
     period_ns = _imu_period_ns(imu_path)
     rate_hz = 1e9 / period_ns
     fir = design_shock_fir(rate_hz, cfg.fir_taps, cfg.fir_stop_hz, cfg.fir_pass_hz, where=imu_path)
-    bounds_ns, s_b = _streamed_path_events(log_dir / "pose.parquet", cfg.event_length_m)
+    bounds_ns, s_b = _streamed_path_events(call.files.pose, cfg.event_length_m)
     n_events = max(bounds_ns.size - 1, 0)
     duration_s = np.diff(bounds_ns) * 1e-9
     # Every event has a positive duration (s rises through each boundary); a zero one (two
@@ -594,7 +567,9 @@ def _label_in(
     if changed:
         _log.info("%s: %s", log_id, changed)
     sha = str((manifest.read().get("source") or {}).get("sha256", ""))
-    with TableWriter(out_path, "events", source_sha256=sha, config_hash=cfg_hash) as writer:
+    with TableWriter(
+        call.files.events, "events", source_sha256=sha, config_hash=cfg_hash
+    ) as writer:
         writer.write(pa.table(columns))
     outputs = [OUTPUT]
     fig5: LineFit | None = None
@@ -635,21 +610,7 @@ def _label_in(
         "truth": truth_summary,
         "fig5": fig5.to_json() if fig5 is not None else None,
     }
-    manifest.set_header(label=detail)
-    manifest.record_stage(
-        STAGE,
-        StageRecord(
-            inputs=inputs,
-            config_hash=cfg_hash,
-            outputs=tuple(outputs),
-            row_counts={"events": int(keep.size)},
-            rejects=rejects,
-            timings_s={k: round(v, 6) for k, v in sorted(timings.items())},
-            warnings=tuple(warnings),
-            output_files=digest_files(log_dir, outputs),
-        ),
-    )
-    return LabelResult(
+    outcome = LabelResult(
         log_id,
         "labelled",
         int(keep.size),
@@ -663,11 +624,39 @@ def _label_in(
         outputs=tuple(outputs),
         attribution=attribution,
     )
+    return Made(
+        outcome,
+        tuple(outputs),
+        row_counts={"events": int(keep.size)},
+        rejects=rejects,
+        timings_s=timings,
+        warnings=tuple(warnings),
+        header={"label": detail},
+    )
+
+
+SPEC = Stage(
+    STAGE,
+    "log",
+    needs=(
+        Need("imu", "ingest"),
+        *(Need(name, "ingest", optional=True) for name in INGEST_EXTRAS),
+        Need("pose", "pose"),
+    ),
+    makes=("events",),
+    sections=CONFIG_SECTIONS,
+    settings=LabelSettings,
+    compute=_compute,
+    recall=_recall,
+    rows=("events",),
+)
 
 
 __all__ = [
+    "SPEC",
     "STAGE",
     "LabelResult",
+    "LabelSettings",
     "PathCarry",
     "attribution_summary",
     "path_events",

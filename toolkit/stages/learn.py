@@ -44,6 +44,7 @@ from toolkit.model.ascent import AscentConfig, AscentResult, b_names, coordinate
 from toolkit.model.patches import POINT_COLUMNS, TyrePatches, build_patches, lead_order
 from toolkit.model.roughness import PairTable, RoughnessParams
 from toolkit.stages import tables as tables_stage
+from toolkit.stages.contract import Need, Stage
 from toolkit.tableio import iter_table_batches, read_table
 from toolkit.workspace import Workspace
 
@@ -420,7 +421,34 @@ def run_learn(
     return LearnResult("written", doc, time.perf_counter() - start)
 
 
+def _run(
+    workspace: Workspace,
+    config: PipelineConfig,
+    *,
+    log_id: str,
+    overwrite: bool,
+    step: Callable[[str], None],
+) -> LearnResult:
+    """The contract's entry: :func:`run_learn`, a step a rotation of the search."""
+    del log_id
+    return run_learn(workspace, config, overwrite=overwrite, progress=lambda _: step(""))
+
+
+SPEC = Stage(
+    STAGE,
+    "workspace",
+    needs=(Need("events_table", "tables"), Need("event_points_table", "tables")),
+    makes=("model",),
+    sections=CONFIG_SECTIONS,
+    run=_run,
+    rows=("train_events", "points", "pairs"),
+    unit="rotation",
+    progress_total=lambda config: config.learn.iterations,
+)
+
+
 __all__ = [
+    "SPEC",
     "STAGE",
     "LearnResult",
     "ascent_config",

@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
@@ -34,7 +34,14 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 from scipy.spatial.transform import Rotation
 
-from toolkit.config import PipelineConfig, config_hash
+from toolkit.config import (
+    PipelineConfig,
+    PoseConfig,
+    TimeConfig,
+    TopicsConfig,
+    VehicleConfig,
+    config_hash,
+)
 from toolkit.errors import StageError
 from toolkit.frames import ENU_FRAME_ID, choose_enu_origin
 from toolkit.fusion.estimator import (
@@ -50,17 +57,11 @@ from toolkit.fusion.estimator import (
 from toolkit.fusion.rotations import FloatArray, rot_to_euler, wrap_angle
 from toolkit.fusion.ukf import NoiseModel
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
-from toolkit.manifest import (
-    Manifest,
-    StageRecord,
-    check_up_to_date,
-    digest_files,
-    file_sha256,
-    require_finished,
-)
+from toolkit.layout import LogFiles, log_file_name
 from toolkit.mounts import Mount, sensor_mounts
 from toolkit.sim.record import SIM_RECORD
-from toolkit.stages.per_log import run_on_log
+from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
 from toolkit.workspace import Workspace
 
@@ -72,7 +73,7 @@ LOCAL_FRAME_ID = "local_first_pose"
 INPUT_TABLES = ("imu", "gps", "heading", "wheels")
 #: Configuration sections pose reads: the filter, timing, and the vehicle's mounts.
 CONFIG_SECTIONS = ("pose", "time", "vehicle")
-OUTPUT = "pose.parquet"
+OUTPUT = log_file_name("pose")
 #: Rows per IMU / truth read batch and per output row group.
 BATCH_ROWS = 4_096
 IMU_COLUMNS = ["t_ns"] + [f"{q}_{a}" for q in ("accel", "gyro") for a in "xyz"]
@@ -155,7 +156,7 @@ def _last_t_ns(path: Path) -> int:
 
 
 def _require_roles(
-    log_dir: Path, n_imu: int, n_fixes: int, n_gps: int, n_wheels: int, config: PipelineConfig
+    log_dir: Path, n_imu: int, n_fixes: int, n_gps: int, n_wheels: int, config: PoseSettings
 ) -> None:
     """One StageError naming every role pose needs and the log lacks: the IMU drives the
     filter, and a valid GPS fix places the log in the world (without one, wheel speeds let
@@ -251,7 +252,7 @@ def _imu_attitude(
 
 
 def _sensor_data(
-    log_dir: Path, config: PipelineConfig, imu_mount: Mount
+    log_dir: Path, config: PoseSettings, imu_mount: Mount
 ) -> tuple[
     SensorData,
     GeodeticOrigin | None,
@@ -272,11 +273,12 @@ def _sensor_data(
     period (s, the median interval of the first batch), the IMU gaps the filter restarts
     across (K, 2), s).
     """
-    imu_path = log_dir / "imu.parquet"
+    files = LogFiles(log_dir)
+    imu_path = files.imu
     n_imu = read_table(imu_path, "imu", columns=[]).num_rows  # checks the contract
-    gps = read_table(log_dir / "gps.parquet", "gps")
-    head = read_table(log_dir / "heading.parquet", "heading")
-    wheels = read_table(log_dir / "wheels.parquet", "wheels", columns=["t_ns", "speed"])
+    gps = read_table(files.gps, "gps")
+    head = read_table(files.heading, "heading")
+    wheels = read_table(files.wheels, "wheels", columns=["t_ns", "speed"])
     status = np.asarray(gps.column("status").to_numpy(zero_copy_only=False))
     lat, lon, alt = _col(gps, "latitude"), _col(gps, "longitude"), _col(gps, "altitude")
     valid = (status >= config.pose.gps_min_status) & np.isfinite(lat) & np.isfinite(lon)
@@ -372,7 +374,7 @@ def _sensor_data(
 
 
 def _settings(
-    config: PipelineConfig, lever_gps: FloatArray, lever_axle: FloatArray
+    config: PoseSettings, lever_gps: FloatArray, lever_axle: FloatArray
 ) -> FilterSettings:
     p = config.pose
     return FilterSettings(
@@ -544,8 +546,7 @@ class TruthAccuracy:
 
 def truth_accuracy(log_dir: Path, origin: GeodeticOrigin | None) -> TruthAccuracy | None:
     """An accumulator against the simulator's truth, or None for a real log."""
-    meta_path = log_dir / "mcap_metadata.json"
-    truth_path = log_dir / "truth_pose.parquet"
+    meta_path, truth_path = LogFiles(log_dir).mcap_metadata, LogFiles(log_dir).truth_pose
     if not (meta_path.is_file() and truth_path.is_file()):
         return None
     try:
@@ -561,61 +562,48 @@ def truth_accuracy(log_dir: Path, origin: GeodeticOrigin | None) -> TruthAccurac
         ) from exc
 
 
+@dataclass(frozen=True)
+class PoseSettings:
+    """What pose reads of the configuration: its section, the clocks, the vehicle (mounts,
+    lever arms) and the topics (whether the log has a GPS role)."""
+
+    pose: PoseConfig
+    time: TimeConfig
+    vehicle: VehicleConfig
+    topics: TopicsConfig
+
+
 def run_pose(
     workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
 ) -> PoseResult:
     """Estimate the pose of one ingested log (see the module docstring)."""
-    return run_on_log(
-        workspace,
-        log_id,
-        lambda log_dir, start: _pose_in(log_dir, log_id, config, overwrite=overwrite, start=start),
-        _log,
+    result = run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
+    return cast(PoseResult, result)
+
+
+def _recall(last: Recalled) -> PoseResult:
+    """The outcome of an up-to-date pose, from its record and the manifest's header."""
+    detail = last.header.get("pose") or {}
+    return PoseResult(
+        last.log_id,
+        "up_to_date",
+        int(last.record.row_counts.get("pose", 0)),
+        last.header.get("pose_accuracy"),
+        last.seconds,
+        heading_source=str(detail.get("heading_source", "")),
+        accepted=dict(detail.get("accepted", {})),
+        gated=dict(detail.get("gated", {})),
+        down_weighted=dict(detail.get("down_weighted", {})),
+        dead_reckoning=dict(detail.get("dead_reckoning", {})),
     )
 
 
-def _pose_in(
-    log_dir: Path, log_id: str, config: PipelineConfig, *, overwrite: bool, start: float
-) -> PoseResult:
-    """:func:`run_pose` inside an open generation ``log_dir`` (not committed here)."""
-    manifest = Manifest(log_dir / Workspace.MANIFEST_NAME)
-    in_files = [log_dir / f"{n}.parquet" for n in INPUT_TABLES]
-    tf_path = log_dir / "tf_static.json"
-    meta_path = log_dir / "mcap_metadata.json"
-    for f in in_files:
-        if not f.is_file():
-            raise StageError("input table missing; run `terrain ingest` first", path=f)
-    inputs = {f.stem: file_sha256(f) for f in in_files}
-    if tf_path.is_file():
-        inputs["tf_static"] = file_sha256(tf_path)
-    if meta_path.is_file():
-        inputs["mcap_metadata"] = file_sha256(meta_path)
-    # Only what a finished ingest wrote: not a table an interrupted run left, nor one edited.
-    require_finished(
-        manifest.stage("ingest"),
-        "ingest",
-        {f.name: inputs[f.stem] for f in [*in_files, tf_path, meta_path] if f.stem in inputs},
-        log_dir,
-    )
-    cfg_hash = stage_config_hash(config)
-    out_path = log_dir / OUTPUT
-    record = manifest.stage(STAGE)
-    if not overwrite and check_up_to_date(
-        record, inputs=inputs, config_hash=cfg_hash, outputs=[out_path]
-    ):
-        header = manifest.read()
-        detail = header.get("pose") or {}
-        return PoseResult(
-            log_id,
-            "up_to_date",
-            int(record.row_counts.get("pose", 0)) if record is not None else 0,
-            header.get("pose_accuracy"),
-            time.perf_counter() - start,
-            heading_source=str(detail.get("heading_source", "")),
-            accepted=dict(detail.get("accepted", {})),
-            gated=dict(detail.get("gated", {})),
-            down_weighted=dict(detail.get("down_weighted", {})),
-            dead_reckoning=dict(detail.get("dead_reckoning", {})),
-        )
+def _compute(call: Call) -> Made:
+    """Estimate the pose of the log in ``call.files`` (the module docstring)."""
+    config: PoseSettings = call.settings
+    log_dir, log_id, start = call.files.dir, call.log_id, call.start
+    manifest, cfg_hash, out_path = call.manifest, call.config_hash, call.files.pose
+    tf_path = call.files.tf_static
     timings: dict[str, float] = dict.fromkeys(("read", "filter", "write", "accuracy"), 0.0)
     t = time.perf_counter()
     mounts = sensor_mounts(tf_path, config.vehicle, gps=config.topics.gps is not None)
@@ -731,21 +719,7 @@ def _pose_in(
         **({"dead_reckoning": dead_reckoning} if dead_reckoning else {}),
         "x_real_time": round(duration_s / max(timings["filter"], 1e-9), 1),
     }
-    manifest.set_header(pose=filter_detail, pose_accuracy=accuracy)
-    manifest.record_stage(
-        STAGE,
-        StageRecord(
-            inputs=inputs,
-            config_hash=cfg_hash,
-            outputs=(OUTPUT,),
-            row_counts={"pose": rows},
-            rejects={f"gated_{k}": v for k, v in sorted(est.gated.items())},
-            timings_s={k: round(v, 6) for k, v in sorted(timings.items())},
-            warnings=tuple(warnings),
-            output_files=digest_files(log_dir, (OUTPUT,)),
-        ),
-    )
-    return PoseResult(
+    outcome = PoseResult(
         log_id,
         "estimated",
         rows,
@@ -758,11 +732,39 @@ def _pose_in(
         down_weighted=dict(sorted(est.down_weighted.items())),
         dead_reckoning=dead_reckoning,
     )
+    return Made(
+        outcome,
+        (OUTPUT,),
+        row_counts={"pose": rows},
+        rejects={f"gated_{k}": v for k, v in sorted(est.gated.items())},
+        timings_s=timings,
+        warnings=tuple(warnings),
+        header={"pose": filter_detail, "pose_accuracy": accuracy},
+    )
+
+
+SPEC = Stage(
+    STAGE,
+    "log",
+    needs=(
+        *(Need(name, "ingest") for name in INPUT_TABLES),
+        Need("tf_static", "ingest", optional=True),
+        Need("mcap_metadata", "ingest", optional=True),
+    ),
+    makes=("pose",),
+    sections=CONFIG_SECTIONS,
+    settings=PoseSettings,
+    compute=_compute,
+    recall=_recall,
+    rows=("pose",),
+)
 
 
 __all__ = [
+    "SPEC",
     "STAGE",
     "PoseResult",
+    "PoseSettings",
     "TruthAccuracy",
     "run_pose",
     "stage_config_hash",

@@ -42,7 +42,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 import pyarrow as pa
@@ -58,19 +58,20 @@ from toolkit.analysis.truth_terrain import (
     true_ground,
     write_z_error,
 )
-from toolkit.config import PipelineConfig, config_hash
+from toolkit.config import (
+    ModelConfig,
+    PipelineConfig,
+    ProjectConfig,
+    TopicsConfig,
+    VehicleConfig,
+    config_hash,
+)
 from toolkit.errors import StageError
 from toolkit.fusion.rotations import euler_to_rot
-from toolkit.manifest import (
-    Manifest,
-    StageRecord,
-    check_up_to_date,
-    digest_files,
-    file_sha256,
-    require_finished,
-)
+from toolkit.layout import LogFiles, log_file_name
 from toolkit.mounts import Mount, frame_mounts
-from toolkit.stages.per_log import run_on_log
+from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
 from toolkit.timewindow import TimeWindow
 from toolkit.tyre_paths import META_KEPT_WITHIN_M, NearPath
@@ -82,7 +83,7 @@ FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
 STAGE = "project"
-OUTPUT = "points.parquet"
+OUTPUT = log_file_name("points")
 #: Configuration sections projection reads: the vehicle (its base frame, for the mounts; its
 #: track, for the tyres' paths) and which points to keep; with ``keep = "near_path"`` also
 #: the tables' radius around a tyre (:func:`stage_config_hash`).
@@ -183,12 +184,17 @@ class ProjectResult:
         return f"{self.log_id}: points {self.status.replace('_', ' ')} ({'; '.join(parts)})"
 
 
-def stage_config_hash(config: PipelineConfig) -> str:
-    """The hash of what projection reads of ``config`` (a radius only when it cuts by one)."""
+def hashed_sections(config: PipelineConfig) -> tuple[str, ...]:
+    """What projection reads of ``config`` (a radius only when it cuts by one)."""
     if config.project.keep == "near_path":
-        return config_hash(config, sections=(*CONFIG_SECTIONS, "model.wheel_window_radius_m"))
+        return (*CONFIG_SECTIONS, "model.wheel_window_radius_m")
     # Keeping every point, the margin is not read: changing it leaves the cloud as it is.
-    return config_hash(config, sections=("vehicle", "project.keep"))
+    return ("vehicle", "project.keep")
+
+
+def stage_config_hash(config: PipelineConfig) -> str:
+    """The hash of what projection reads of ``config`` (:func:`hashed_sections`)."""
+    return config_hash(config, sections=hashed_sections(config))
 
 
 # --------------------------------------------------------------------------------------
@@ -674,61 +680,56 @@ def _beam_directions(
 # --------------------------------------------------------------------------------------
 
 
+@dataclass(frozen=True)
+class ProjectSettings:
+    """What projection reads of the configuration: its section, the vehicle (the lasers'
+    mounts), the topics (whether the log has lasers) and the model (the tyres' radius, for
+    ``keep = "near_path"``)."""
+
+    project: ProjectConfig
+    vehicle: VehicleConfig
+    topics: TopicsConfig
+    model: ModelConfig
+
+
 def run_project(
     workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
 ) -> ProjectResult:
     """Project one log's scans into the world (see the module docstring)."""
-    return run_on_log(
-        workspace,
-        log_id,
-        lambda log_dir, start: _project_in(
-            log_dir, log_id, config, overwrite=overwrite, start=start
-        ),
-        _log,
-    )
+    result = run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
+    return cast(ProjectResult, result)
 
 
-def _project_in(
-    log_dir: Path, log_id: str, config: PipelineConfig, *, overwrite: bool, start: float
-) -> ProjectResult:
-    manifest = Manifest(log_dir / Workspace.MANIFEST_NAME)
-    laser_path = log_dir / "laser.parquet"
-    pose_path = log_dir / "pose.parquet"
-    tf_path = log_dir / "tf_static.json"
-    if config.topics.lasers == () or not laser_path.is_file():
+def _require_lasers(files: LogFiles, config: ProjectSettings) -> None:
+    """StageError when the log has no laser to project."""
+    if config.topics.lasers == () or not files.laser.is_file():
         raise StageError(
             "projection needs the lasers role, and this log has none (no laser.parquet; "
             "[topics] lasers accepts sensor_msgs/msg/LaserScan topics)",
-            path=laser_path,
-        )
-    if not pose_path.is_file():
-        raise StageError("no pose; run `terrain pose` first", path=pose_path)
-    inputs = {"laser": file_sha256(laser_path), "pose": file_sha256(pose_path)}
-    if tf_path.is_file():
-        inputs["tf_static"] = file_sha256(tf_path)
-    ingest_files = {"laser.parquet": inputs["laser"]}
-    if "tf_static" in inputs:
-        ingest_files["tf_static.json"] = inputs["tf_static"]
-    require_finished(manifest.stage("ingest"), "ingest", ingest_files, log_dir)
-    require_finished(manifest.stage("pose"), "pose", {"pose.parquet": inputs["pose"]}, log_dir)
-    cfg_hash = stage_config_hash(config)
-    out_path = log_dir / OUTPUT
-    record = manifest.stage(STAGE)
-    if (
-        record is not None
-        and not overwrite
-        and check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=[out_path])
-    ):
-        return ProjectResult(
-            log_id,
-            "up_to_date",
-            int(record.row_counts.get("points", 0)),
-            int(record.row_counts.get("scans", 0)),
-            {k: int(v) for k, v in record.rejects.items()},
-            time.perf_counter() - start,
-            far_from_path=int(record.row_counts.get("far_from_path", 0)),
+            path=files.laser,
         )
 
+
+def _recall(last: Recalled) -> ProjectResult:
+    """The outcome of an up-to-date projection, from its record."""
+    record = last.record
+    return ProjectResult(
+        last.log_id,
+        "up_to_date",
+        int(record.row_counts.get("points", 0)),
+        int(record.row_counts.get("scans", 0)),
+        {k: int(v) for k, v in record.rejects.items()},
+        last.seconds,
+        far_from_path=int(record.row_counts.get("far_from_path", 0)),
+    )
+
+
+def _compute(call: Call) -> Made:
+    """Project the scans of the log in ``call.files`` (the module docstring)."""
+    config: ProjectSettings = call.settings
+    log_dir, log_id, start = call.files.dir, call.log_id, call.start
+    manifest, cfg_hash, out_path = call.manifest, call.config_hash, call.files.points
+    laser_path, pose_path, tf_path = call.files.laser, call.files.pose, call.files.tf_static
     _require_disk_for_cloud(laser_path, config)
     timings = dict.fromkeys(("read", "project", "write", "figures"), 0.0)
     frames = _laser_frames(laser_path)
@@ -862,8 +863,8 @@ def _project_in(
         figure_files += [p.name for p in write_z_error(z_error.result(), log_dir, title=log_id)]
     timings["figures"] += time.perf_counter() - t
     fit = fig4.fit
-    manifest.set_header(
-        project={
+    header = {
+        "project": {
             "fig4": {  # NaN (too few pairs for a line) is written as null
                 "slope_m_per_s": _finite_or_none(fit.slope_m_per_s),
                 "intercept_m": _finite_or_none(fit.intercept_m),
@@ -873,7 +874,7 @@ def _project_in(
                 "files": figure_files,
             }
         }
-    )
+    }
     dropped = {k: v for k, v in counts.rejects.items() if v}
     returns = counts.points + sum(counts.rejects.values())
     if dropped:
@@ -883,24 +884,7 @@ def _project_in(
             + ")"
         )
     timings["total"] = time.perf_counter() - start
-    manifest.record_stage(
-        STAGE,
-        StageRecord(
-            inputs=inputs,
-            config_hash=cfg_hash,
-            outputs=(OUTPUT, *figure_files),
-            row_counts={
-                "points": counts.points - far_from_path,
-                "scans": counts.scans,
-                "far_from_path": far_from_path,
-            },
-            rejects=dict(counts.rejects),
-            timings_s={k: round(v, 6) for k, v in sorted(timings.items())},
-            warnings=tuple(warnings),
-            output_files=digest_files(log_dir, (OUTPUT, *figure_files)),
-        ),
-    )
-    return ProjectResult(
+    outcome = ProjectResult(
         log_id,
         "projected",
         counts.points - far_from_path,
@@ -912,6 +896,19 @@ def _project_in(
         fig4=f"Fig. 4 {fit.describe()}",
         far_from_path=far_from_path,
     )
+    return Made(
+        outcome,
+        (OUTPUT, *figure_files),
+        row_counts={
+            "points": counts.points - far_from_path,
+            "scans": counts.scans,
+            "far_from_path": far_from_path,
+        },
+        rejects=dict(counts.rejects),
+        timings_s=timings,
+        warnings=tuple(warnings),
+        header=header,
+    )
 
 
 #: Bytes a point of the cloud takes on disk, measured on a 20-mile race (benchmarks/README.md,
@@ -920,7 +917,7 @@ def _project_in(
 CLOUD_BYTES_PER_RETURN = {"all": 9.0, "near_path": 1.6}
 
 
-def _require_disk_for_cloud(laser_path: Path, config: PipelineConfig) -> None:
+def _require_disk_for_cloud(laser_path: Path, config: ProjectSettings) -> None:
     """StageError, before anything is written, when the disk cannot hold the cloud: its
     size estimated from the scans' returns (the ``ranges`` values counted in the Parquet
     footer, not read) at :data:`CLOUD_BYTES_PER_RETURN`, against the free space beside it
@@ -954,7 +951,7 @@ def _require_disk_for_cloud(laser_path: Path, config: PipelineConfig) -> None:
         )
 
 
-def _near_path(pose_path: Path, config: PipelineConfig) -> NearPath | None:
+def _near_path(pose_path: Path, config: ProjectSettings) -> NearPath | None:
     """What tells the points near the rear tyres' paths (``[project] keep = "near_path"``):
     within the tables' radius plus the margin; None when every point is kept."""
     if config.project.keep != "near_path":
@@ -1006,8 +1003,29 @@ def _laser_frames(laser_path: Path) -> list[str]:
     return sorted(frames)
 
 
+SPEC = Stage(
+    STAGE,
+    "log",
+    needs=(
+        Need("laser", "ingest"),
+        Need("tf_static", "ingest", optional=True),
+        Need("pose", "pose"),
+    ),
+    makes=("points",),
+    sections=CONFIG_SECTIONS,
+    hashed=hashed_sections,
+    settings=ProjectSettings,
+    check=_require_lasers,
+    compute=_compute,
+    recall=_recall,
+    rows=("points",),
+)
+
+
 __all__ = [
+    "SPEC",
     "STAGE",
+    "ProjectSettings",
     "PoseStream",
     "PoseWindow",
     "ProjectResult",

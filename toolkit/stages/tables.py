@@ -43,7 +43,7 @@ from __future__ import annotations
 import logging
 import time
 from collections import defaultdict, deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -65,6 +65,7 @@ from toolkit.manifest import (
     file_sha256,
     require_finished,
 )
+from toolkit.stages.contract import Need, Stage
 from toolkit.tableio import (
     TableWriter,
     iter_table_batches,
@@ -735,7 +736,32 @@ def run_tables(
     )
 
 
+def _run(
+    workspace: Workspace,
+    config: PipelineConfig,
+    *,
+    log_id: str,
+    overwrite: bool,
+    step: Callable[[str], None],
+) -> TablesResult:
+    """The contract's entry: :func:`run_tables`."""
+    del log_id, step
+    return run_tables(workspace, config, overwrite=overwrite)
+
+
+SPEC = Stage(
+    STAGE,
+    "workspace",
+    needs=(Need("events", "label"), Need("points", "project"), Need("pose", "pose")),
+    makes=("events_table", "event_points_table"),
+    sections=CONFIG_SECTIONS,
+    run=_run,
+    rows=("train_events", "test_events", "train_points", "test_points"),
+)
+
+
 __all__ = [
+    "SPEC",
     "STAGE",
     "PathSource",
     "RunningUnwrap",

@@ -1,0 +1,164 @@
+"""The stage contract: what every stage declares, what it is handed, what it gives back.
+
+A stage is a :class:`Stage`: its name, its scope (once per log, or once over the workspace),
+the files it needs and makes by layout name (:mod:`toolkit.layout`), the configuration
+sections it reads, and a compute function over named inputs. The runner
+(:mod:`toolkit.stages.runner`) does the rest, once for every stage: the freshness check, the
+manifest record, the log's generation, the summary; the registry
+(:mod:`toolkit.stages.registry`) lists the stages in the order they run. Modelled on
+Kedro's node (a pure function over named inputs and outputs) and rosbags' name-to-class map.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal, Protocol
+
+from toolkit.config import PipelineConfig
+from toolkit.layout import LogFiles
+from toolkit.manifest import Manifest, StageRecord
+from toolkit.workspace import Workspace
+
+#: Where a stage runs: once per log (in parallel over logs), or once over the workspace.
+Scope = Literal["log", "workspace"]
+
+
+class Outcome(Protocol):
+    """What a stage returns: at least whether it computed anything (:attr:`Stage.describe`
+    says the rest)."""
+
+    @property
+    def status(self) -> str: ...  # "up_to_date" when it found nothing to do
+
+
+def _summary(outcome: Any) -> str:
+    """An outcome's own summary line(s)."""
+    return str(outcome.summary())
+
+
+@dataclass(frozen=True)
+class Need:
+    """A file a stage reads, by layout name, and the stage that makes it: the runner
+    refuses it unless that stage's last finished run wrote it as it is now. An optional
+    need (``tf_static``: not every log has one) is read when present."""
+
+    name: str
+    made_by: str
+    optional: bool = False
+
+
+@dataclass(frozen=True)
+class Call:
+    """What the runner hands a stage's compute function.
+
+    ``settings`` is the stage's own frozen configuration (its :attr:`Stage.settings`
+    built from the sections it reads); ``inputs`` the sha256 of every need present, by
+    layout name; ``files`` the directory it writes into (a per-log stage: the log's new
+    generation); ``manifest`` that directory's manifest, for the header fields of the
+    stages before it; ``config_hash`` the hash the runner records (and the stage stamps on
+    its tables); ``start`` when the stage began (``time.perf_counter()``); ``step`` a
+    progress hook (a word on what it is doing)."""
+
+    workspace: Workspace
+    log_id: str
+    settings: Any
+    files: LogFiles
+    manifest: Manifest
+    inputs: Mapping[str, str]
+    config_hash: str
+    start: float
+    step: Callable[[str], None]
+
+
+@dataclass(frozen=True)
+class Made:
+    """What a stage's compute function gives back: its outcome, and what the runner records
+    (the files it wrote, relative to its directory; rows per table; rejects by reason;
+    seconds per step; warnings; and the manifest's header fields it sets)."""
+
+    outcome: Outcome
+    outputs: tuple[str, ...]
+    row_counts: Mapping[str, int] = field(default_factory=dict)
+    rejects: Mapping[str, int] = field(default_factory=dict)
+    timings_s: Mapping[str, float] = field(default_factory=dict)
+    warnings: tuple[str, ...] = ()
+    header: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Recalled:
+    """An up-to-date stage's last run, for its :attr:`Stage.recall`: its record, the
+    manifest's header, the log, the settings, the seconds the check took."""
+
+    log_id: str
+    record: StageRecord
+    header: Mapping[str, Any]
+    settings: Any
+    seconds: float
+
+
+@dataclass(frozen=True)
+class Stage:
+    """One stage's declaration.
+
+    ``needs`` and ``makes`` are layout names; ``sections`` the configuration it reads
+    (sections such as ``"label"`` or single keys such as ``"model.wheel_window_radius_m"``:
+    their hash is its configuration's part of the up-to-date key; ``hashed`` overrides them
+    when what it reads depends on the configuration); ``settings`` the frozen dataclass it
+    receives, whose fields are named after the configuration's sections; ``compute`` makes
+    its outputs; ``recall`` gives its outcome when it is up to date; ``rows`` the row counts
+    its summary line shows (None: all, summed); ``check`` refuses, before anything is
+    hashed, a log the stage cannot work on (a role it needs missing). A stage not yet moved
+    onto the runner's freshness check gives ``run`` instead of ``compute``/``recall`` (it
+    checks and records itself). ``unit`` what its
+    progress counts and ``progress_total`` how many; ``describe`` its outcome in words;
+    ``source`` that it reads the log file itself (ingest: handed ``source``, the file's
+    path, and no ``log_id``)."""
+
+    name: str
+    scope: Scope
+    needs: tuple[Need, ...] = ()
+    makes: tuple[str, ...] = ()
+    sections: tuple[str, ...] = ()
+    settings: type | None = None
+    compute: Callable[[Call], Made] | None = None
+    recall: Callable[[Recalled], Outcome] | None = None
+    hashed: Callable[[PipelineConfig], tuple[str, ...]] | None = None
+    check: Callable[[LogFiles, Any], None] | None = None
+    run: Callable[..., Outcome] | None = None
+    rows: tuple[str, ...] | None = None
+    unit: str = "step"
+    progress_total: Callable[[PipelineConfig], int | None] | None = None
+    describe: Callable[[Any], str] = _summary
+    source: bool = False
+
+    @property
+    def after(self) -> tuple[str, ...]:
+        """The stages whose outputs this one reads, in the order first needed."""
+        return tuple(dict.fromkeys(n.made_by for n in self.needs if n.made_by != self.name))
+
+    def hashed_sections(self, config: PipelineConfig) -> tuple[str, ...]:
+        """The configuration whose hash keys this stage's up-to-date check."""
+        return self.hashed(config) if self.hashed is not None else self.sections
+
+    def settings_from(self, config: PipelineConfig) -> Any:
+        """The stage's own frozen configuration: its ``settings`` class, each field the
+        configuration's section of that name (the whole configuration when it declares none)."""
+        if self.settings is None:
+            return config
+        return self.settings(
+            **{f.name: getattr(config, f.name) for f in dataclasses.fields(self.settings)}
+        )
+
+
+__all__ = [
+    "Call",
+    "Made",
+    "Need",
+    "Outcome",
+    "Recalled",
+    "Scope",
+    "Stage",
+]
