@@ -41,14 +41,6 @@ def log_file_name(name: str) -> str:
     return _LOG_FILE_NAMES.get(name, f"{name}.parquet")
 
 
-def layout_name(file_name: str) -> str:
-    """Inverse of :func:`log_file_name` (a manifest's input key): ``pose.parquet`` -> ``pose``."""
-    for name, file in _LOG_FILE_NAMES.items():
-        if file == file_name:
-            return name
-    return Path(file_name).stem
-
-
 @dataclass(frozen=True)
 class LogFiles:
     """The files of one log's directory: its current generation (``ws.log(id)``) or a new
@@ -137,6 +129,11 @@ _WORKSPACE_FILES: dict[str, str] = {
     "summary": "report/summary.json",
     "index": "report/index.html",
 }
+
+
+def workspace_file_name(name: str) -> str:
+    """The file name of a workspace-level layout name: ``model`` -> ``model.json``."""
+    return Path(_WORKSPACE_FILES[name]).name
 
 
 class WorkspaceLayout:
@@ -234,4 +231,4 @@ class WorkspaceLayout:
         return self.path("index")
 
 
-__all__ = ["LogFiles", "WorkspaceLayout", "layout_name", "log_file_name"]
+__all__ = ["LogFiles", "WorkspaceLayout", "log_file_name", "workspace_file_name"]

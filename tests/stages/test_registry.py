@@ -15,12 +15,13 @@ from pathlib import Path
 import pytest
 from click.testing import CliRunner
 
-from conftest import SAMPLE_LOG
 from toolkit.cli import main
 from toolkit.errors import ToolkitError
 from toolkit.stages import registry
 from toolkit.stages.registry import Listed
 from toolkit.workspace import Workspace
+
+SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
 
 TOY_MODULE = '''
 """A toy stage: counts a log's IMU rows into toy.parquet."""

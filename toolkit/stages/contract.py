@@ -16,7 +16,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal, Protocol
 
-from toolkit.config import PipelineConfig
+from toolkit.config import PipelineConfig, config_hash
 from toolkit.layout import LogFiles
 from toolkit.manifest import Manifest, StageRecord
 from toolkit.workspace import Workspace
@@ -142,6 +142,11 @@ class Stage:
     def hashed_sections(self, config: PipelineConfig) -> tuple[str, ...]:
         """The configuration whose hash keys this stage's up-to-date check."""
         return self.hashed(config) if self.hashed is not None else self.sections
+
+    def config_hash(self, config: PipelineConfig) -> str:
+        """The hash of the configuration this stage reads (:meth:`hashed_sections`): its part
+        of the up-to-date key, stamped on its tables."""
+        return config_hash(config, self.hashed_sections(config))
 
     def settings_from(self, config: PipelineConfig) -> Any:
         """The stage's own frozen configuration: its ``settings`` class, each field the

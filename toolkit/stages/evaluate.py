@@ -72,9 +72,10 @@ from toolkit.analysis.report import ReportInputs, roc_png, write_index_html
 from toolkit.analysis.scan_agreement import PNG_NAME as FIG4_PNG
 from toolkit.analysis.truth_terrain import true_ground, where_beams_hit
 from toolkit.atomic import atomic_write_json
-from toolkit.config import LearnConfig, ModelConfig, PipelineConfig, config_hash
+from toolkit.config import LearnConfig, ModelConfig, PipelineConfig
 from toolkit.errors import StageError
 from toolkit.generations import open_generation
+from toolkit.layout import workspace_file_name
 from toolkit.manifest import (
     StageRecord,
     check_up_to_date,
@@ -117,9 +118,10 @@ _log = logging.getLogger(__name__)
 
 STAGE = "evaluate"
 CONFIG_SECTIONS = ("model", "learn", "evaluate")
-SCORES_NAME = "scores.parquet"
-SUMMARY_NAME = "summary.json"
-INDEX_NAME = "index.html"
+SCORES_NAME = workspace_file_name("scores")
+SUMMARY_NAME = workspace_file_name("summary")
+INDEX_NAME = workspace_file_name("index")
+MODEL_NAME = workspace_file_name("model")
 ROC_PNG = "roc.png"
 
 BoolArray = NDArray[np.bool_]
@@ -151,10 +153,6 @@ METHOD_NAMES = (
 )
 #: The methods beside the ablations that the summary lists at its top level.
 MAIN_METHODS = METHOD_NAMES[: -len(ABLATION_NAMES)]
-
-
-def stage_config_hash(config: PipelineConfig) -> str:
-    return config_hash(config, CONFIG_SECTIONS)
 
 
 @dataclass(frozen=True)
@@ -453,7 +451,7 @@ def run_evaluate(
         raise StageError("no model; run `terrain learn` first", path=model_path)
     model_sha = file_sha256(model_path)
     learned_from = workspace.manifest().stage("learn")
-    require_finished(learned_from, "learn", {"model.json": model_sha}, workspace.root)
+    require_finished(learned_from, "learn", {MODEL_NAME: model_sha}, workspace.root)
     # The model must come from these tables: one learned before a relabelling or a new split
     # would be scored on events it may have trained on, and its rates would not be these.
     if learned_from is not None and dict(learned_from.inputs) != inputs:
@@ -470,7 +468,7 @@ def run_evaluate(
             "one in force; run `terrain learn` again",
             path=model_path,
         )
-    inputs["model.json"] = model_sha
+    inputs[MODEL_NAME] = model_sha
     cfg_hash = stage_config_hash(config)
     report = workspace.report_dir
     outputs = [report / SCORES_NAME, report / SUMMARY_NAME, report / INDEX_NAME]
@@ -864,6 +862,9 @@ SPEC = Stage(
     rows=("scores",),
     describe=EvaluateResult.text,
 )
+
+#: The hash of the configuration this stage reads (its up-to-date key).
+stage_config_hash = SPEC.config_hash
 
 
 __all__ = ["SPEC", "STAGE", "EvaluateResult", "closest_laser", "oracle_patches", "run_evaluate"]

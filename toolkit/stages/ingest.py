@@ -66,8 +66,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from toolkit.atomic import atomic_write_json
-from toolkit.config import PipelineConfig, config_hash
+from toolkit.config import PipelineConfig
 from toolkit.errors import CdrError, LogReadError, SchemaError, StageError
+from toolkit.layout import log_file_name
 from toolkit.manifest import Manifest, StageRecord, check_up_to_date, digest_files, file_sha256
 from toolkit.mcapio.cdr import decode_batch
 from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_text
@@ -108,10 +109,10 @@ TRUTH_TABLES: dict[str, str] = {"truth_pose": "truth_pose", "truth_features": "t
 SCHEMA_TABLES: frozenset[str] = frozenset({*SENSOR_TABLES.values(), "truth_pose"})
 
 #: Output name of the static transforms.
-TF_STATIC_OUTPUT = "tf_static.json"
+TF_STATIC_OUTPUT = log_file_name("tf_static")
 
 #: Output name of the log's MCAP metadata records (record name -> key -> value).
-MCAP_METADATA_OUTPUT = "mcap_metadata.json"
+MCAP_METADATA_OUTPUT = log_file_name("mcap_metadata")
 
 #: A topic rejecting more than this fraction of its messages is a warning on the terminal.
 REJECT_WARN_FRACTION = 0.01
@@ -410,11 +411,6 @@ def convert_batch(
 # --------------------------------------------------------------------------------------
 # The stage
 # --------------------------------------------------------------------------------------
-
-
-def stage_config_hash(config: PipelineConfig) -> str:
-    """Hash of the configuration sections ingest reads (its up-to-date key)."""
-    return config_hash(config, CONFIG_SECTIONS)
 
 
 def _result_from_record(
@@ -900,6 +896,9 @@ SPEC = Stage(
     unit="log",
     source=True,
 )
+
+#: The hash of the configuration this stage reads (its up-to-date key).
+stage_config_hash = SPEC.config_hash
 
 
 __all__ = [

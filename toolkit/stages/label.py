@@ -62,7 +62,7 @@ import pyarrow as pa
 from numpy.typing import NDArray
 
 from toolkit.analysis.fig5 import LineFit, fit_line, obstacle_passes, write_fig5
-from toolkit.config import LabelConfig, PipelineConfig, VehicleConfig, config_hash
+from toolkit.config import LabelConfig, PipelineConfig, VehicleConfig
 from toolkit.errors import StageError
 from toolkit.layout import LogFiles, log_file_name
 from toolkit.model.shock import (
@@ -158,10 +158,6 @@ class LabelResult:
         if self.warnings:
             parts.append(f"{len(self.warnings)} warning(s)")
         return f"{self.log_id}: label {self.status.replace('_', ' ')} ({'; '.join(parts)})"
-
-
-def stage_config_hash(config: PipelineConfig) -> str:
-    return config_hash(config, sections=CONFIG_SECTIONS)
 
 
 def _attribution_line(attribution: dict[str, Any] | None) -> str:
@@ -650,6 +646,9 @@ SPEC = Stage(
     recall=_recall,
     rows=("events",),
 )
+
+#: The hash of the configuration this stage reads (its up-to-date key).
+stage_config_hash = SPEC.config_hash
 
 
 __all__ = [

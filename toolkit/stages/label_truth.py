@@ -35,6 +35,7 @@ from numpy.typing import NDArray
 
 from toolkit.errors import StageError
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.layout import LogFiles
 from toolkit.sim.record import SIM_RECORD, sim_origin
 from toolkit.sim.world import Route, WorldParams, make_world
 from toolkit.tableio import iter_table_batches, read_table_metadata
@@ -114,9 +115,8 @@ def truth_under_events(
     """(what lies under the rear tyres in each event ``[bounds[k], bounds[k+1])``, a warning)
     for a simulated log; (None, None) for a real one; (None, warning) when the truth cannot be
     placed. ``bounds_ns`` (E + 1,) increasing."""
-    meta_path = log_dir / "mcap_metadata.json"
-    truth_path = log_dir / "truth_pose.parquet"
-    feat_path = log_dir / "truth_features.parquet"
+    files = LogFiles(log_dir)
+    meta_path, truth_path, feat_path = files.mcap_metadata, files.truth_pose, files.truth_features
     if not (meta_path.is_file() and truth_path.is_file() and feat_path.is_file()):
         return None, None
     try:

@@ -31,8 +31,9 @@ import pyarrow.compute as pc
 
 from toolkit import __version__
 from toolkit.atomic import atomic_write_json
-from toolkit.config import LearnConfig, ModelConfig, PipelineConfig, config_hash
+from toolkit.config import LearnConfig, ModelConfig, PipelineConfig
 from toolkit.errors import ConfigError, StageError
+from toolkit.layout import workspace_file_name
 from toolkit.manifest import (
     StageRecord,
     check_up_to_date,
@@ -63,11 +64,6 @@ POINT_BATCH = 1_048_576
 MAX_PAIR_BYTES = 6 << 30
 #: String columns of the event points read as dictionaries (a few distinct values each).
 DICTIONARY_COLUMNS = ("log_id", "wheel", "laser")
-
-
-def stage_config_hash(config: PipelineConfig) -> str:
-    """The hash of the configuration sections learning depends on."""
-    return config_hash(config, CONFIG_SECTIONS)
 
 
 def table_inputs(workspace: Workspace, config: PipelineConfig) -> dict[str, str]:
@@ -404,7 +400,7 @@ def run_learn(
         StageRecord(
             inputs=inputs,
             config_hash=cfg_hash,
-            outputs=("model.json",),
+            outputs=(workspace_file_name("model"),),
             row_counts={
                 "train_events": train.num_rows,
                 "train_positives": int(rough.sum()),
@@ -415,7 +411,7 @@ def run_learn(
                 **{k: round(v, 6) for k, v in timings.items()},
                 "total": round(time.perf_counter() - start, 6),
             },
-            output_files=digest_files(workspace.root, ["model.json"]),
+            output_files=digest_files(workspace.root, [workspace_file_name("model")]),
         ),
     )
     return LearnResult("written", doc, time.perf_counter() - start)
@@ -445,6 +441,9 @@ SPEC = Stage(
     unit="rotation",
     progress_total=lambda config: config.learn.iterations,
 )
+
+#: The hash of the configuration this stage reads (its up-to-date key).
+stage_config_hash = SPEC.config_hash
 
 
 __all__ = [

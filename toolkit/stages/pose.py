@@ -40,7 +40,6 @@ from toolkit.config import (
     TimeConfig,
     TopicsConfig,
     VehicleConfig,
-    config_hash,
 )
 from toolkit.errors import StageError
 from toolkit.frames import ENU_FRAME_ID, choose_enu_origin
@@ -133,10 +132,6 @@ class PoseResult:
         if self.warnings:
             parts.append(f"{len(self.warnings)} warning(s)")
         return f"{self.log_id}: pose {self.status.replace('_', ' ')} ({'; '.join(parts)})"
-
-
-def stage_config_hash(config: PipelineConfig) -> str:
-    return config_hash(config, sections=CONFIG_SECTIONS)
 
 
 def _col(table: pa.Table, name: str) -> FloatArray:
@@ -758,6 +753,9 @@ SPEC = Stage(
     recall=_recall,
     rows=("pose",),
 )
+
+#: The hash of the configuration this stage reads (its up-to-date key).
+stage_config_hash = SPEC.config_hash
 
 
 __all__ = [

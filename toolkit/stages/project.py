@@ -64,7 +64,6 @@ from toolkit.config import (
     ProjectConfig,
     TopicsConfig,
     VehicleConfig,
-    config_hash,
 )
 from toolkit.errors import StageError
 from toolkit.fusion.rotations import euler_to_rot
@@ -190,11 +189,6 @@ def hashed_sections(config: PipelineConfig) -> tuple[str, ...]:
         return (*CONFIG_SECTIONS, "model.wheel_window_radius_m")
     # Keeping every point, the margin is not read: changing it leaves the cloud as it is.
     return ("vehicle", "project.keep")
-
-
-def stage_config_hash(config: PipelineConfig) -> str:
-    """The hash of what projection reads of ``config`` (:func:`hashed_sections`)."""
-    return config_hash(config, sections=hashed_sections(config))
 
 
 # --------------------------------------------------------------------------------------
@@ -1020,6 +1014,9 @@ SPEC = Stage(
     recall=_recall,
     rows=("points",),
 )
+
+#: The hash of the configuration this stage reads (its up-to-date key).
+stage_config_hash = SPEC.config_hash
 
 
 __all__ = [

@@ -24,7 +24,7 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from toolkit.config import PipelineConfig, config_hash
+from toolkit.config import PipelineConfig
 from toolkit.errors import StageError
 from toolkit.layout import LogFiles, log_file_name
 from toolkit.manifest import (
@@ -97,7 +97,7 @@ def _fresh_or_computed(
     if spec.check is not None:
         spec.check(files, settings)
     inputs = hash_needs(spec, files, manifest)
-    cfg_hash = config_hash(config, spec.hashed_sections(config))
+    cfg_hash = spec.config_hash(config)
     record = manifest.stage(spec.name)
     if not overwrite and record is not None:
         written = [files.dir / o for o in record.outputs] or [files.path(m) for m in spec.makes]

@@ -55,8 +55,9 @@ import pyarrow.compute as pc
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from toolkit.config import PipelineConfig, config_hash
+from toolkit.config import PipelineConfig
 from toolkit.errors import StageError
+from toolkit.layout import LogFiles
 from toolkit.manifest import (
     Manifest,
     StageRecord,
@@ -159,10 +160,6 @@ class TablesResult:
         return f"tables {self.status.replace('_', ' ')} from {self.logs} log(s): " + "; ".join(
             parts
         )
-
-
-def stage_config_hash(config: PipelineConfig) -> str:
-    return config_hash(config, sections=CONFIG_SECTIONS)
 
 
 # --------------------------------------------------------------------------------------
@@ -383,11 +380,11 @@ def _require_points_near_enough(points_path: Path, radius_m: float, log_id: str)
 def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[MatchedBatch]:
     """The event-point rows of one log, batch by batch, in the order of the points."""
     log_dir = inputs.log_dir
-    events = read_table(log_dir / "events.parquet", "events", columns=list(EVENT_COLUMNS))
+    events = read_table(LogFiles(log_dir).events, "events", columns=list(EVENT_COLUMNS))
     t_start = events.column("t_start_ns").to_numpy().astype(np.int64)
     t_end = events.column("t_end_ns").to_numpy().astype(np.int64)
     event_id = events.column("event_id").to_numpy().astype(np.int64)
-    pose_path = log_dir / "pose.parquet"
+    pose_path = LogFiles(log_dir).pose
     if table_num_rows(pose_path, "pose") < 2 or t_start.size == 0:
         return
     # The pose is streamed: each batch of points gets the rows around its open events.
@@ -399,7 +396,7 @@ def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[
         transform=RunningUnwrap("yaw"),
     )
     radius = config.model.wheel_window_radius_m
-    _require_points_near_enough(log_dir / "points.parquet", radius, inputs.log_id)
+    _require_points_near_enough(LogFiles(log_dir).points, radius, inputs.log_id)
     lookahead_ns = int(config.tables.max_lookahead_s * 1e9)
     wheel_names = pa.array(list(WHEELS))
 
@@ -419,7 +416,7 @@ def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[
                 f"points are not in time order (a batch reaches back "
                 f"{(latest_lo - t_lo) * 1e-9:.3f} s); run `terrain project --overwrite` "
                 f"on {inputs.log_id}",
-                path=log_dir / "points.parquet",
+                path=LogFiles(log_dir).points,
             )
         latest_lo = max(latest_lo, t_lo)
         open_events = np.flatnonzero((t_start > t_lo) & (t_start <= t_hi + lookahead_ns))
@@ -472,7 +469,7 @@ def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[
     # batch after another; at most WORKERS + 1 batches are in flight.
     pending: deque[Future[MatchedBatch]] = deque()
     batches = iter_table_batches(
-        log_dir / "points.parquet",
+        LogFiles(log_dir).points,
         "points",
         columns=POINT_COLUMNS,
         batch_rows=POINT_BATCH,
@@ -528,11 +525,11 @@ def _log_inputs(workspace: Workspace) -> tuple[list[LogInputs], list[str]]:
                 raise StageError(
                     f"{log_id}: its {stage} was made from an earlier pose; run `terrain "
                     f"{stage} -w {workspace.root} --log {log_id}` again",
-                    path=log_dir / "pose.parquet",
+                    path=LogFiles(log_dir).pose,
                 )
         # The pose is in time order: its first row is its first time (read alone).
         head = next(
-            iter_table_batches(log_dir / "pose.parquet", "pose", columns=["t_ns"], batch_rows=1),
+            iter_table_batches(LogFiles(log_dir).pose, "pose", columns=["t_ns"], batch_rows=1),
             None,
         )
         first = int(head.column(0)[0].as_py()) if head is not None and head.num_rows else 0
@@ -603,7 +600,7 @@ def run_tables(
         )
 
     events_by_log = [
-        read_table(li.log_dir / "events.parquet", "events", columns=list(EVENT_COLUMNS))
+        read_table(LogFiles(li.log_dir).events, "events", columns=list(EVENT_COLUMNS))
         for li in logs
     ]
     split_of = _splits(events_by_log, config)
@@ -758,6 +755,9 @@ SPEC = Stage(
     run=_run,
     rows=("train_events", "test_events", "train_points", "test_points"),
 )
+
+#: The hash of the configuration this stage reads (its up-to-date key).
+stage_config_hash = SPEC.config_hash
 
 
 __all__ = [
