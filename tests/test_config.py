@@ -328,7 +328,7 @@ def test_ranges_are_validated_before_anything_runs(
 
 def _numeric_fields() -> list[tuple[str, str, Any, Any]]:
     """(section, key, value, rule) of every number or list of numbers in the configuration."""
-    from toolkit.config import _fields
+    from toolkit.config.loading import _fields
 
     cfg = default_config()
     out = []
