@@ -65,12 +65,12 @@ from __future__ import annotations
 
 from collections.abc import Collection, Iterator
 from pathlib import Path
-from types import TracebackType
 from typing import IO
 
 import numpy as np
 from mcap import records as mr
 
+from toolkit.mcapio.closing import Closing
 from toolkit.mcapio.damage import (
     BAD_INDEX,
     BAD_RECORD,
@@ -89,7 +89,7 @@ from toolkit.mcapio.summary import open_mcap, read_header, read_summary
 from toolkit.mcapio.walk import SEGMENT_BYTES, Walk
 
 
-class LogReader:
+class LogReader(Closing):
     """An MCAP log opened for reading; use as a context manager.
 
     >>> with LogReader(path, topics={"/imu"}) as log:     # doctest: +SKIP
@@ -117,18 +117,7 @@ class LogReader:
             self._layout.summary if self._layout.channels_complete else None
         )
 
-    # -- context manager ---------------------------------------------------------------------
-
-    def __enter__(self) -> LogReader:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
+    # -- closing -----------------------------------------------------------------------------
 
     def close(self) -> None:
         """Close the file (batches() can no longer be iterated)."""
