@@ -139,9 +139,9 @@ def test_decompression_bomb_costs_bounded_memory(
     a 64 MiB run of zeros against a limit lowered to 1 MiB, with no size in the frame."""
     import zstandard
 
-    from toolkit.mcapio import reader
+    from toolkit.mcapio import chunks
 
-    monkeypatch.setattr(reader, "MAX_CHUNK_BYTES", 1024 * 1024)
+    monkeypatch.setattr(chunks, "MAX_CHUNK_BYTES", 1024 * 1024)
     intact = write_log(tmp_path / "intact.mcap", basic_topics(), chunk_size=4 * 1024)
     ci = _chunks(intact)[2]
     bomb = zstandard.ZstdCompressor(write_content_size=False).compress(bytes(64 * 1024 * 1024))

@@ -22,7 +22,6 @@ import contextlib
 import os
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
-from types import TracebackType
 from typing import IO, NamedTuple
 
 import numpy as np
@@ -31,6 +30,7 @@ from mcap.writer import CompressionType, IndexType, Writer
 
 import toolkit
 from toolkit.errors import SchemaError
+from toolkit.mcapio.closing import Closing
 from toolkit.mcapio.msgdefs import full_type_name, load_msgdef
 
 #: Target uncompressed size of a chunk.
@@ -106,7 +106,7 @@ def merge_by_time(batches: Iterable[Batch | tuple[object, ...]]) -> Iterator[Rec
         yield Record(topics[b], int(all_log[k]), payloads[b][k - int(starts[b])], int(all_pub[k]))
 
 
-class LogWriter:
+class LogWriter(Closing):
     """An MCAP log being written; use as a context manager.
 
     >>> with LogWriter(path) as log:                      # doctest: +SKIP
@@ -150,22 +150,6 @@ class LogWriter:
         self._channels: dict[str, tuple[int, str]] = {}
         self._sequence: dict[int, int] = {}
         self._closed = False
-
-    # -- context manager ------------------------------------------------------------------
-
-    def __enter__(self) -> LogWriter:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
     # -- registration -----------------------------------------------------------------------
 

@@ -1,20 +1,15 @@
-"""Tests of toolkit.config: the default, validation errors, merging, hashing, TOML round-trip."""
+"""toolkit.config.loading: user files over the default, every value checked, errors naming
+file, key and value."""
 
 from __future__ import annotations
 
 import dataclasses
-import subprocess
-import sys
-import tomllib
 from pathlib import Path
 from typing import Any
 
 import pytest
 
 from toolkit.config import (
-    SECTIONS,
-    PipelineConfig,
-    config_hash,
     default_config,
     dump_toml,
     load_config,
@@ -22,95 +17,7 @@ from toolkit.config import (
 )
 from toolkit.errors import ConfigError
 
-REPO = Path(__file__).resolve().parents[1]
-PIPELINE = REPO / "pipelines" / "stanley2005.toml"
-PACKAGED = REPO / "toolkit" / "default_config.toml"
-
-
-def write(tmp_path: Path, text: str, name: str = "user.toml") -> Path:
-    path = tmp_path / name
-    path.write_text(text, encoding="utf-8")
-    return path
-
-
-# -- the default ------------------------------------------------------------------------
-
-
-def test_packaged_default_is_identical_to_pipeline_file() -> None:
-    assert PACKAGED.read_bytes() == PIPELINE.read_bytes(), (
-        "toolkit/default_config.toml must be a copy of pipelines/stanley2005.toml"
-    )
-
-
-def test_packaged_default_is_declared_as_package_data() -> None:
-    """An installed (non-editable) toolkit must ship default_config.toml."""
-    pyproject = tomllib.loads((REPO / "pyproject.toml").read_text(encoding="utf-8"))
-    package_data = pyproject["tool"]["setuptools"].get("package-data", {})
-    patterns = package_data.get("toolkit", [])
-    assert any(Path("default_config.toml").match(p) for p in patterns), (
-        'pyproject.toml [tool.setuptools.package-data] needs "toolkit" = ["default_config.toml"]'
-    )
-
-
-def test_default_equals_loading_the_pipeline_file() -> None:
-    assert load_config(PIPELINE) == default_config()
-
-
-def test_default_has_the_papers_settings() -> None:
-    cfg = default_config()
-    assert cfg.name == "stanley2005"
-    assert cfg.topics.lasers == tuple(f"/laser/front_{i}" for i in range(1, 6))
-    assert cfg.topics.imu == "/imu/data"
-    assert cfg.topics.gps == "/gps/fix"
-    assert cfg.topics.heading == "/gps/heading"
-    assert cfg.topics.wheels == "/vehicle/wheel_speeds"
-    assert cfg.topics.tf_static == "/tf_static"
-    assert cfg.topics.truth_pose == "/truth/odom"
-    assert cfg.topics.truth_features == "/truth/features"
-    assert cfg.vehicle.wheelbase_m == 2.855
-    assert cfg.vehicle.track_m == 1.65
-    assert cfg.pose.output_rate_hz == 100.0
-    assert cfg.label.fir_taps == 40
-    assert cfg.label.fir_stop_hz == 10.0
-    assert cfg.label.event_length_m == 1.4
-    assert cfg.label.rough_threshold_g_per_mph == 0.02
-    assert cfg.label.gravity_mps2 == 9.80665
-    assert cfg.model.wheel_window_radius_m == 0.3
-    assert cfg.learn.lambda_fp == 5.0
-    assert len(cfg.learn.initial_alpha) == 10
-    assert len(cfg.learn.increment_alpha) == 10
-    assert cfg.tables.train_fraction == 0.5
-    assert cfg.project.keep == "all"
-    assert cfg.evaluate.fpr_points == (0.05, 0.1, 0.2)
-    assert SECTIONS == (
-        "topics",
-        "vehicle",
-        "time",
-        "pose",
-        "project",
-        "label",
-        "model",
-        "learn",
-        "tables",
-        "evaluate",
-    )
-
-
-def test_config_is_frozen() -> None:
-    cfg = default_config()
-    with pytest.raises(dataclasses.FrozenInstanceError):
-        cfg.label.fir_taps = 41  # type: ignore[misc]
-
-
-def test_topics_by_role_and_role_of() -> None:
-    topics = default_config().topics
-    assert topics.by_role()["lasers"] == topics.lasers
-    assert topics.role_of("/laser/front_3") == "lasers"
-    assert topics.role_of("/gps/heading") == "heading"
-    assert topics.role_of("/nowhere") is None
-
-
-# -- loading user files -----------------------------------------------------------------
+from .files import write
 
 
 def test_partial_file_takes_defaults_for_missing_keys(tmp_path: Path) -> None:
@@ -206,94 +113,6 @@ def test_non_utf8_file(tmp_path: Path) -> None:
         load_config(path)
 
 
-# -- hashing ----------------------------------------------------------------------------
-
-
-def test_hash_is_sha256_hex_and_deterministic() -> None:
-    h = config_hash(default_config())
-    assert len(h) == 64 and int(h, 16) >= 0
-    assert config_hash(default_config()) == h
-
-
-def test_hash_is_stable_across_processes() -> None:
-    code = "from toolkit.config import *; print(config_hash(default_config()))"
-    env_hashes = {
-        subprocess.run(
-            [sys.executable, "-c", code],
-            check=True,
-            capture_output=True,
-            text=True,
-            env={"PYTHONHASHSEED": seed},
-        ).stdout.strip()
-        for seed in ("1", "2")
-    }
-    assert env_hashes == {config_hash(default_config())}
-
-
-def test_hash_changes_with_any_value() -> None:
-    cfg = default_config()
-    changed = dataclasses.replace(cfg, label=dataclasses.replace(cfg.label, event_length_m=1.5))
-    assert config_hash(changed) != config_hash(cfg)
-
-
-def test_section_hash_ignores_other_sections() -> None:
-    cfg = default_config()
-    changed = dataclasses.replace(cfg, evaluate=dataclasses.replace(cfg.evaluate, lookahead_m=5))
-    assert config_hash(changed, ["label", "pose"]) == config_hash(cfg, ["pose", "label"])
-    assert config_hash(changed, ["evaluate"]) != config_hash(cfg, ["evaluate"])
-    assert config_hash(cfg, ["label"]) != config_hash(cfg)
-    with pytest.raises(ValueError):
-        config_hash(cfg, ["nope"])
-
-
-def test_a_hash_of_one_key_ignores_the_rest_of_its_section() -> None:
-    """What the tables read of [model] is the tyre window's radius: the patch size does not
-    change their hash, the radius does."""
-    cfg = default_config()
-    keys = ["tables", "model.wheel_window_radius_m"]
-    fewer = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, max_points_per_wheel=30))
-    wider = dataclasses.replace(cfg, model=dataclasses.replace(cfg.model, wheel_window_radius_m=1))
-    assert config_hash(fewer, keys) == config_hash(cfg, keys)
-    assert config_hash(wider, keys) != config_hash(cfg, keys)
-    assert config_hash(cfg, ["model", "model.wheel_window_radius_m"]) == config_hash(cfg, ["model"])
-    with pytest.raises(ValueError, match="model.nope"):
-        config_hash(cfg, ["model.nope"])
-
-
-# -- writing ----------------------------------------------------------------------------
-
-
-def test_dump_round_trips_default() -> None:
-    cfg = default_config()
-    text = dump_toml(cfg)
-    assert tomllib.loads(text)  # valid TOML
-    assert parse_config(text) == cfg
-    assert config_hash(cfg) in text
-
-
-def test_dump_round_trips_unusual_values() -> None:
-    cfg = default_config()
-    odd = dataclasses.replace(
-        cfg,
-        name='quote " back \\ tab \t nl \n del \x7f é 🚙',
-        topics=dataclasses.replace(cfg.topics, wheels=None, truth_features=None),
-        vehicle=dataclasses.replace(cfg.vehicle, wheel_radius_m=1e-7, track_m=1e16),
-        evaluate=dataclasses.replace(cfg.evaluate, baseline_closest_laser="/laser/front_2"),
-    )
-    back = parse_config(dump_toml(odd))
-    assert back == odd
-    assert isinstance(back, PipelineConfig)
-
-
-def test_dump_is_complete_without_defaults(tmp_path: Path) -> None:
-    """A dumped file holds every key: it must not depend on the default to be complete."""
-    cfg = default_config()
-    raw = tomllib.loads(dump_toml(cfg))
-    assert set(raw) == {"name", *SECTIONS}
-    assert set(raw["label"]) == {f.name for f in dataclasses.fields(cfg.label)}
-    assert set(raw["time"]["latency_ns"]) == {"lasers", "imu", "gps", "heading", "wheels"}
-
-
 def test_every_role_may_be_absent(tmp_path: Path) -> None:
     """A vehicle without lasers, IMU or GPS is a configuration, not an error: "" (or [])."""
     cfg = load_config(write(tmp_path, "[topics]\nlasers = []\nimu = ''\ngps = ''\nheading = ''\n"))
@@ -328,7 +147,7 @@ def test_ranges_are_validated_before_anything_runs(
 
 def _numeric_fields() -> list[tuple[str, str, Any, Any]]:
     """(section, key, value, rule) of every number or list of numbers in the configuration."""
-    from toolkit.config import _fields
+    from toolkit.config.loading import _fields
 
     cfg = default_config()
     out = []

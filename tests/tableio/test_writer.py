@@ -1,4 +1,4 @@
-"""Tests of toolkit.tableio: the contract's schemas, validation, metadata, atomic writes."""
+"""toolkit.tableio.writer: validation on write, metadata, atomic and gathered writes."""
 
 from __future__ import annotations
 
@@ -13,182 +13,18 @@ import pyarrow.parquet as pq
 import pytest
 
 import toolkit
-import toolkit.tableio as tableio
+import toolkit.tableio.writer as tableio_writer
 from toolkit.errors import SchemaError, WorkspaceError
 from toolkit.tableio import (
     ROW_GROUP_ROWS,
     TableWriter,
     load_table_schema,
-    parse_arrow_type,
     read_table,
     read_table_metadata,
-    table_schema_names,
     write_table,
 )
 
-SHA = "ab" * 32
-CFG = "cd" * 32
-
-# The contract's minimum columns and units, per table (units in the contract's conventions).
-POSE: dict[str, str | None] = {
-    "t_ns": "ns",
-    **dict.fromkeys(["x", "y", "z"], "m"),
-    **dict.fromkeys(["roll", "pitch", "yaw"], "rad"),
-    **dict.fromkeys(["vx", "vy", "vz", "speed"], "m/s"),
-    **dict.fromkeys(["roll_rate", "pitch_rate", "yaw_rate"], "rad/s"),
-}
-EVENTS: dict[str, str | None] = {
-    "event_id": "",
-    "t_start_ns": "ns",
-    "t_end_ns": "ns",
-    "s_start_m": "m",
-    "s_end_m": "m",
-    "speed_mph": "mph",
-    "shock_g": "G",
-    "ruggedness": "G/mph",
-    "rough": "",
-}
-CONTRACT: dict[str, dict[str, str | None]] = {
-    "imu": {
-        "t_ns": "ns",
-        **dict.fromkeys(["accel_x", "accel_y", "accel_z"], "m/s^2"),
-        **dict.fromkeys(["gyro_x", "gyro_y", "gyro_z"], "rad/s"),
-    },
-    "gps": {
-        "t_ns": "ns",
-        "latitude": None,
-        "longitude": None,
-        "altitude": "m",
-        "status": None,
-        "position_covariance": None,
-    },
-    "heading": {"t_ns": "ns", "yaw": "rad", "yaw_std": "rad"},
-    "wheels": {
-        "t_ns": "ns",
-        **dict.fromkeys(["speed", "front_left", "front_right", "rear_left", "rear_right"], "m/s"),
-    },
-    "laser": {
-        "t_ns": "ns",
-        "laser": None,
-        "angle_min": "rad",
-        "angle_increment": "rad",
-        "time_increment": "s",
-        "ranges": "m",
-    },
-    "pose": POSE,
-    "truth_pose": POSE,
-    "points": {
-        "t_ns": "ns",
-        "laser": None,
-        "beam": None,
-        "range": "m",
-        **dict.fromkeys(["x", "y", "z"], "m"),
-        **dict.fromkeys(["roll_rate", "pitch_rate"], "rad/s"),
-    },
-    "events": EVENTS,
-    "tables_events": {"log_id": None, "event_id": None, "split": None, **EVENTS},
-    "event_points": {
-        "log_id": None,
-        "event_id": None,
-        "wheel": None,
-        **dict.fromkeys(["x", "y", "z"], "m"),
-        "tau": "s",
-        **dict.fromkeys(["roll_rate", "pitch_rate"], "rad/s"),
-        "laser": None,
-    },
-    "scores": dict.fromkeys(
-        ["log_id", "event_id", "split", "r_left", "r_right", "r_combined", "predicted", "rough"]
-    ),
-}
-
-
-def test_every_contract_table_has_a_schema() -> None:
-    assert set(table_schema_names()) == set(CONTRACT)
-
-
-@pytest.mark.parametrize("name", sorted(CONTRACT))
-def test_schema_has_contract_columns_and_units(name: str) -> None:
-    schema = load_table_schema(name)
-    assert schema.name == name and schema.version >= 1
-    for column, unit in CONTRACT[name].items():
-        spec = schema.column(column)
-        if unit is not None:
-            assert spec.unit == unit, f"{name}.{column}"
-        assert spec.description
-    arrow = schema.arrow_schema()
-    assert arrow.names == list(schema.column_names)
-    assert arrow.field("t_ns" if "t_ns" in arrow.names else "event_id").type == pa.int64()
-    assert arrow.metadata[b"schema_name"] == name.encode()
-
-
-def test_specific_types() -> None:
-    assert load_table_schema("laser").column("ranges").arrow_type() == pa.list_(pa.float32())
-    assert load_table_schema("wheels").column("front_left").nullable
-    assert not load_table_schema("wheels").column("speed").nullable
-    assert load_table_schema("scores").column("rough").arrow_type() == pa.bool_()
-    assert load_table_schema("event_points").column("wheel").values == ("left", "right")
-
-
-def test_unknown_schema() -> None:
-    with pytest.raises(SchemaError, match="no table schema named 'nope'"):
-        load_table_schema("nope")
-
-
-def test_parse_arrow_type() -> None:
-    assert parse_arrow_type("list<list<int8>>") == pa.list_(pa.list_(pa.int8()))
-    assert parse_arrow_type("dictionary<string>") == pa.dictionary(pa.int32(), pa.string())
-    with pytest.raises(ValueError):
-        parse_arrow_type("decimal")
-
-
-def test_a_dictionary_column_takes_codes_or_plain_values(tmp_path: Path) -> None:
-    """points' laser is stored as codes into a few names: pieces may come as strings or as
-    codes into dictionaries that differ from piece to piece; read back, the values are the
-    same, as codes, and a column of numbers is still refused."""
-    n = 4
-
-    def piece(laser: pa.Array) -> pa.Table:
-        return pa.table(
-            {
-                "t_ns": pa.array(range(n), pa.int64()),
-                "laser": laser,
-                "beam": pa.array(range(n), pa.int32()),
-                "range": pa.array([1.0] * n, pa.float32()),
-                **{c: pa.array([0.5] * n) for c in ("x", "y", "z", "roll_rate", "pitch_rate")},
-                "scan_t_ns": pa.array([0] * n, pa.int64()),
-                "scan_dt_s": pa.array([0.01] * n),
-            }
-        )
-
-    codes = pa.DictionaryArray.from_arrays(pa.array([0, 1, 1, 0], pa.int32()), pa.array(["b", "a"]))
-    path = tmp_path / "points.parquet"
-    with TableWriter(path, "points", source_sha256=SHA, config_hash=CFG) as writer:
-        writer.write(piece(codes))
-        writer.write(piece(pa.array(["a", "c", "a", "a"])))
-    back = read_table(path, "points")
-    assert pa.types.is_dictionary(back.schema.field("laser").type)
-    assert back.column("laser").cast(pa.string()).to_pylist() == list("baabacaa")
-    with pytest.raises(SchemaError, match="column 'laser': has type int64"):
-        write_table(
-            tmp_path / "bad.parquet",
-            piece(pa.array(range(n), pa.int64())),
-            "points",
-            source_sha256=SHA,
-            config_hash=CFG,
-        )
-
-
-# -- writing ------------------------------------------------------------------------------
-
-
-def heading_table(n: int = 3) -> pa.Table:
-    return pa.table(
-        {
-            "t_ns": pa.array(range(n), pa.int64()),
-            "yaw": pa.array([0.1 * i for i in range(n)], pa.float64()),
-            "yaw_std": pa.array([None] * n, pa.float64()),
-        }
-    )
+from .tables import CFG, SHA, heading_rows, heading_table
 
 
 def test_write_and_read_back_with_metadata(tmp_path: Path) -> None:
@@ -306,15 +142,10 @@ def test_reserved_metadata_keys(tmp_path: Path) -> None:
         )
 
 
-def _heading(t_ns: list[int]) -> pa.Table:
-    n = len(t_ns)
-    return pa.table({"t_ns": t_ns, "yaw": [0.1] * n, "yaw_std": [0.01] * n})
-
-
 def test_failed_write_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """The disk fills up on the second piece: no partial file, and an older table is kept."""
     path = tmp_path / "heading.parquet"
-    write_table(path, _heading([1, 2]), "heading", source_sha256=SHA, config_hash=CFG)
+    write_table(path, heading_rows([1, 2]), "heading", source_sha256=SHA, config_hash=CFG)
     before = path.read_bytes()
     real = pq.ParquetWriter.write_table
     calls = {"n": 0}
@@ -331,8 +162,8 @@ def test_failed_write_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyP
         pytest.raises(WorkspaceError, match="No space left"),
         TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG) as writer,
     ):
-        writer.write(_heading(list(range(rows))))
-        writer.write(_heading(list(range(rows, 2 * rows))))
+        writer.write(heading_rows(list(range(rows))))
+        writer.write(heading_rows(list(range(rows, 2 * rows))))
     assert calls["n"] == 2
     assert sorted(p.name for p in tmp_path.iterdir()) == ["heading.parquet"]
     assert path.read_bytes() == before
@@ -344,7 +175,7 @@ def test_a_failed_write_of_gathered_pieces_leaves_nothing(
     """Small pieces are written when the table is finished: the disk filling up then is an
     error there, and no partial file is left beside an older table."""
     path = tmp_path / "heading.parquet"
-    write_table(path, _heading([1, 2]), "heading", source_sha256=SHA, config_hash=CFG)
+    write_table(path, heading_rows([1, 2]), "heading", source_sha256=SHA, config_hash=CFG)
     before = path.read_bytes()
 
     def full_disk(self: pq.ParquetWriter, table: pa.Table, **kwargs: object) -> None:
@@ -352,8 +183,8 @@ def test_a_failed_write_of_gathered_pieces_leaves_nothing(
 
     monkeypatch.setattr(pq.ParquetWriter, "write_table", full_disk)
     writer = TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG)
-    writer.write(_heading([5, 6]))  # gathered: nothing written yet
-    writer.write(_heading([7, 8]))
+    writer.write(heading_rows([5, 6]))  # gathered: nothing written yet
+    writer.write(heading_rows([7, 8]))
     with pytest.raises(WorkspaceError, match="No space left"), writer:
         pass
     assert sorted(p.name for p in tmp_path.iterdir()) == ["heading.parquet"]
@@ -372,7 +203,7 @@ def test_gathered_pieces_share_one_dictionary(tmp_path: Path) -> None:
         order = np.roll(np.arange(3), k)
         laser = pa.DictionaryArray.from_arrays(codes, names.take(pa.array(order)))
         pieces.append(
-            _heading(list(range(k * 1_000, (k + 1) * 1_000))).append_column("laser", laser)
+            heading_rows(list(range(k * 1_000, (k + 1) * 1_000))).append_column("laser", laser)
         )
     with TableWriter(path, schema.name, source_sha256=SHA, config_hash=CFG) as writer:
         for piece in pieces:
@@ -400,7 +231,7 @@ def test_small_pieces_are_gathered_into_row_groups(tmp_path: Path, bulk: bool) -
     with TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG, bulk=bulk) as writer:
         first = 0
         for n in sizes:
-            writer.write(_heading(list(range(first, first + n))))
+            writer.write(heading_rows(list(range(first, first + n))))
             first += n
     meta = pq.ParquetFile(path).metadata
     assert meta.num_rows == sum(sizes) == writer.rows
@@ -420,7 +251,7 @@ def test_interrupted_writer_leaves_nothing(tmp_path: Path) -> None:
         pytest.raises(KeyboardInterrupt),
         TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG) as writer,
     ):
-        writer.write(_heading([1, 2, 3]))
+        writer.write(heading_rows([1, 2, 3]))
         assert len(list(tmp_path.iterdir())) == 1  # written aside, under a hidden name
         raise KeyboardInterrupt
     assert list(tmp_path.iterdir()) == []
@@ -451,9 +282,9 @@ def test_killed_writer_process_never_publishes(tmp_path: Path) -> None:
 def test_streamed_pieces_are_one_sorted_checked_table(tmp_path: Path) -> None:
     path = tmp_path / "heading.parquet"
     with TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG, sort_by="t_ns") as writer:
-        writer.write(_heading([10, 20, 30]))
+        writer.write(heading_rows([10, 20, 30]))
         writer.add_metadata({"enu_origin": "{}"})
-        writer.write(_heading([25, 40]))  # one row behind what is written: re-sorted at the end
+        writer.write(heading_rows([25, 40]))  # one row behind what is written: re-sorted at the end
         writer.add_metadata({"learnt_late": "yes"})
         with pytest.raises(SchemaError, match="column 'yaw'"):
             writer.write(pa.table({"t_ns": [50], "yaw_std": [0.1]}))
@@ -497,106 +328,18 @@ def test_finish_fsyncs_before_publish_renames(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     events: list[str] = []
-    real_fsync, real_replace = tableio.fsync_file, tableio.os.replace
-    monkeypatch.setattr(tableio, "fsync_file", lambda p: (events.append("fsync"), real_fsync(p)))
+    real_fsync, real_replace = tableio_writer.fsync_file, tableio_writer.os.replace
     monkeypatch.setattr(
-        tableio.os, "replace", lambda a, b: (events.append("rename"), real_replace(a, b))
+        tableio_writer, "fsync_file", lambda p: (events.append("fsync"), real_fsync(p))
+    )
+    monkeypatch.setattr(
+        tableio_writer.os, "replace", lambda a, b: (events.append("rename"), real_replace(a, b))
     )
     writer = TableWriter(tmp_path / "h.parquet", "heading", source_sha256=SHA, config_hash=CFG)
-    writer.write(_heading([1]))
+    writer.write(heading_rows([1]))
     assert writer.finish()
     assert events == ["fsync"] and not (tmp_path / "h.parquet").exists()
     writer.publish()
     assert events == ["fsync", "rename"] and (tmp_path / "h.parquet").exists()
     with pytest.raises(WorkspaceError, match="writer is published"):
-        writer.write(_heading([2]))
-
-
-# -- reading ------------------------------------------------------------------------------
-
-
-def test_read_table_checks_schema_name_and_version(tmp_path: Path) -> None:
-    path = tmp_path / "h.parquet"
-    write_table(path, heading_table(), "heading", source_sha256=SHA, config_hash=CFG)
-    with pytest.raises(SchemaError, match="holds table 'heading', expected 'imu'"):
-        read_table(path, "imu")
-    stale = pq.read_table(path)
-    stale = stale.replace_schema_metadata({**read_table_metadata(path), "schema_version": "0"})
-    pq.write_table(stale, path)
-    with pytest.raises(SchemaError, match="schema version 0"):
-        read_table(path, "heading")
-
-
-def test_read_missing_or_garbage(tmp_path: Path) -> None:
-    with pytest.raises(WorkspaceError, match="no such table"):
-        read_table_metadata(tmp_path / "absent.parquet")
-    junk = tmp_path / "junk.parquet"
-    junk.write_bytes(b"not parquet at all")
-    with pytest.raises(SchemaError, match="not a readable Parquet"):
-        read_table_metadata(junk)
-
-
-def test_rewrite_streams_a_finished_table_into_a_new_one(tmp_path: Path) -> None:
-    path = tmp_path / "heading.parquet"
-    writer = TableWriter(path, "heading", source_sha256=SHA, config_hash=CFG)
-    writer.add_metadata({"frame_id": "old", "kept": "yes"})
-    writer.write(_heading([1, 2, 3, 4]))
-    assert writer.finish()
-    moved = writer.rewrite(
-        lambda piece, first: piece.filter(pa.array([first + i != 1 for i in range(len(piece))])),
-        {"frame_id": "new"},
-    )
-    assert not any(p.name == ".heading.parquet" for p in tmp_path.iterdir())
-    moved.publish()
-    assert read_table(path, "heading").column("t_ns").to_pylist() == [1, 3, 4]
-    meta = read_table_metadata(path)
-    assert meta["frame_id"] == "new" and meta["kept"] == "yes"
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["heading.parquet"]
-
-
-def test_strings_read_as_dictionaries_come_in_whole_batches(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """``as_dictionary`` reads a string column as the dictionary the writer stored; the
-    batches (which parquet ends at every row group) are gathered back to ``batch_rows``
-    rows, each with one dictionary, and hold exactly the rows a plain read gives."""
-    from toolkit.tableio import iter_table_batches
-
-    monkeypatch.setattr(tableio, "ROW_GROUP_ROWS", 10)
-    n = 95
-    lasers = [f"laser_{k % 3 if k < 50 else 3 + k % 2}" for k in range(n)]  # dictionaries differ
-    table = pa.table(
-        {
-            "log_id": ["a"] * n,
-            "event_id": list(range(n)),
-            "wheel": ["left", "right"] * (n // 2) + ["left"],
-            **{c: [float(k) for k in range(n)] for c in ("x", "y", "z", "tau")},
-            **{c: [0.0] * n for c in ("roll_rate", "pitch_rate")},
-            "laser": lasers,
-            "t_ns": list(range(n)),
-        }
-    )
-    path = tmp_path / "event_points.parquet"
-    write_table(path, table, "event_points", source_sha256=SHA, config_hash=CFG)
-    assert pq.ParquetFile(path).metadata.num_row_groups == 10
-    batches = list(
-        iter_table_batches(
-            path, "event_points", columns=["t_ns", "laser"], batch_rows=25, as_dictionary=["laser"]
-        )
-    )
-    assert all(b.num_rows >= 25 for b in batches[:-1]) and sum(b.num_rows for b in batches) == n
-    assert all(pa.types.is_dictionary(b.schema.field("laser").type) for b in batches)
-    got = pa.Table.from_batches(batches)
-    assert got.column("laser").cast(pa.string()).to_pylist() == lasers
-    assert got.column("t_ns").to_pylist() == list(range(n))
-    # Where parquet ends a batch at a row group, the pieces become one batch with one
-    # dictionary holding both pieces' values.
-    first, second = (
-        pa.record_batch({"laser": pa.array(names).dictionary_encode()})
-        for names in (["laser_1", "laser_2"], ["laser_3", "laser_1"])
-    )
-    one = tableio._one_batch([first, second])
-    assert one.num_rows == 4 and pa.types.is_dictionary(one.schema.field("laser").type)
-    assert one.column("laser").cast(pa.string()).to_pylist() == [
-        "laser_1", "laser_2", "laser_3", "laser_1"
-    ]  # fmt: skip
+        writer.write(heading_rows([2]))

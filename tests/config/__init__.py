@@ -1,0 +1,1 @@
+"""Tests of toolkit.config, one file per module of the package."""

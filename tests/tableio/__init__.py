@@ -1,0 +1,1 @@
+"""Tests of toolkit.tableio, one file per module of the package."""
