@@ -58,8 +58,6 @@ each field a column (``extract: column``); the points' ``split`` field is their 
 
 from __future__ import annotations
 
-import ctypes
-import errno
 import json
 import logging
 import os
@@ -77,7 +75,13 @@ import pyarrow.compute as pc
 from numpy.typing import NDArray
 
 from toolkit import __version__
-from toolkit.atomic import atomic_write_text, fsync_dir, host_name, temp_path_beside
+from toolkit.atomic import (
+    atomic_write_text,
+    exchange_paths,
+    fsync_dir,
+    host_name,
+    temp_path_beside,
+)
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError, WorkspaceError
 from toolkit.model.patches import POINT_COLUMNS as EVENT_POINT_COLUMNS
@@ -182,9 +186,6 @@ CROISSANT_CONTEXT: dict[str, Any] = {
     "transform": "cr:transform",
 }
 CROISSANT_CONFORMS_TO = "http://mlcommons.org/croissant/1.0"
-#: Linux renameat2(2): relative to the working directory; swap the two names.
-_AT_FDCWD = -100
-_RENAME_EXCHANGE = 2
 #: The hidden directory an export is written in: ``.<OUT name>.<host>-<pid>-<random>.export``.
 _TEMP_DIR = re.compile(r"^\.(?P<name>.+)\.(?P<host>[^.]+)-(?P<pid>\d+)-[0-9a-f]{12}\.export$")
 
@@ -514,29 +515,6 @@ def _remove_dead_temp_dirs(out_dir: Path) -> None:
         shutil.rmtree(entry, ignore_errors=True)
 
 
-def _exchange(a: Path, b: Path) -> bool:
-    """Swap two existing paths in one atomic step (Linux ``renameat2(RENAME_EXCHANGE)``);
-    False where the system or file system cannot."""
-    try:
-        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
-    except (OSError, AttributeError):
-        return False
-    renameat2.argtypes = [
-        ctypes.c_int,
-        ctypes.c_char_p,
-        ctypes.c_int,
-        ctypes.c_char_p,
-        ctypes.c_uint,
-    ]
-    renameat2.restype = ctypes.c_int
-    if renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
-        return True
-    err = ctypes.get_errno()
-    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
-        return False
-    raise OSError(err, os.strerror(err), str(b))
-
-
 def _publish(tmp: Path, out_dir: Path) -> None:
     """Put the finished export ``tmp`` at ``out_dir`` (absent, empty, or an earlier export
     checked by :func:`_check_destination`)."""
@@ -544,7 +522,7 @@ def _publish(tmp: Path, out_dir: Path) -> None:
         if not _nonempty(out_dir):
             # rename(2) replaces an empty directory in one step.
             os.rename(tmp, out_dir)
-        elif _exchange(tmp, out_dir):
+        elif exchange_paths(tmp, out_dir):
             # ``tmp`` is now the earlier export. The new one is published whatever happens
             # here: what cannot be removed now, the next export removes (its process gone).
             shutil.rmtree(tmp, ignore_errors=True)
