@@ -213,17 +213,35 @@ def _per_tyre(events: pa.Table) -> NDArray[np.int64]:
 
 def dataset_card(facts: DatasetFacts) -> str:
     """The dataset card (``README.md``): YAML metadata, then what a reader must know."""
-    cfg = facts.config
     counts = facts.counts()
     total = SplitCounts(
         sum(c.events for c in counts.values()),
         sum(c.rough for c in counts.values()),
         sum(c.points for c in counts.values()),
     )
+    lines = [
+        *_yaml_header(facts),
+        *_introduction(facts, total),
+        *_loading(facts),
+        *_columns(facts),
+        *_label(facts),
+        *_frames_and_units(facts),
+        *_split(facts, counts),
+        *_model_scores(facts),
+        *_provenance(facts),
+        "",
+        "## Known limitations",
+        "",
+        *_limitations(facts, counts, total),
+        *_citation_and_license(),
+    ]
+    return "\n".join(lines)
+
+
+def _introduction(facts: DatasetFacts, total: SplitCounts) -> list[str]:
+    """The title and what the data is, how much, and from how many (simulated) logs."""
     sims = [s for s in facts.sources if s.sim is not None]
-    all_events = pa.concat_tables([facts.events[s] for s in SPLITS])
-    lines = _yaml_header(facts)
-    lines += [
+    return [
         "",
         f"# {PRETTY_NAME}",
         "",
@@ -242,6 +260,12 @@ def dataset_card(facts: DatasetFacts) -> str:
             else (": simulated data" if sims else ": recorded data")
         )
         + f". Made by the `terrain` toolkit version {__version__} (`terrain export`).",
+    ]
+
+
+def _loading(facts: DatasetFacts) -> list[str]:
+    """How to load the data, and every file with its rows, bytes and sha256."""
+    lines = [
         "",
         "## Loading",
         "",
@@ -269,7 +293,12 @@ def dataset_card(facts: DatasetFacts) -> str:
             lines.append(
                 f"| {name} | {split} | `{path}` | {facts.rows(name, split)} | {size} | `{sha}` |"
             )
-    lines += [
+    return lines
+
+
+def _columns(facts: DatasetFacts) -> list[str]:
+    """Each config's columns: type, unit, meaning."""
+    return [
         "",
         "## Columns",
         "",
@@ -280,6 +309,14 @@ def dataset_card(facts: DatasetFacts) -> str:
         "### `event_points`: one row per laser point, event and rear tyre",
         "",
         *_column_table(facts.columns[EVENT_POINTS]),
+    ]
+
+
+def _label(facts: DatasetFacts) -> list[str]:
+    """The label's definition with the configuration's numbers, and the data's ranges."""
+    cfg = facts.config
+    all_events = pa.concat_tables([facts.events[s] for s in SPLITS])
+    return [
         "",
         "## The label",
         "",
@@ -298,6 +335,13 @@ def dataset_card(facts: DatasetFacts) -> str:
         f"to {_num(float(pc.max(all_events.column('shock_g')).as_py()))} G, `speed_mph` from "
         f"{_num(float(pc.min(all_events.column('speed_mph')).as_py()))} to "
         f"{_num(float(pc.max(all_events.column('speed_mph')).as_py()))} mph.",
+    ]
+
+
+def _frames_and_units(facts: DatasetFacts) -> list[str]:
+    """The points' frames and units, which points are listed, each log's ENU origin."""
+    cfg = facts.config
+    lines = [
         "",
         "## Frames and units of the points",
         "",
@@ -325,12 +369,18 @@ def dataset_card(facts: DatasetFacts) -> str:
             f"- ENU origin of `{log_id}`: latitude {o.get('latitude_deg')}, longitude "
             f"{o.get('longitude_deg')} (degrees, WGS84), altitude {o.get('altitude_m')} m."
         )
+    return lines
+
+
+def _split(facts: DatasetFacts, counts: Mapping[str, SplitCounts]) -> list[str]:
+    """How the split is made, the stretches each covers, and per split the counts."""
+    cfg = facts.config
     scope = (
         "the logs in time order taken as one route"
         if cfg.tables.split_scope == "all_logs"
         else "each log on its own"
     )
-    lines += [
+    lines = [
         "",
         "## The split",
         "",
@@ -352,22 +402,34 @@ def dataset_card(facts: DatasetFacts) -> str:
             f"| {split} | {c.events} | {c.rough} | {_pct(c.rough, c.events)} | {c.points} | "
             f"{median} |"
         )
-    if facts.scores is not None:
-        mu = (
-            f" (mu = {facts.scores.mu!r} in the model that was scored)"
-            if facts.scores.mu is not None
-            else ""
-        )
-        lines += [
-            "",
-            "## The model's scores",
-            "",
-            "The `events` files carry the scores of the roughness model `terrain learn` fitted "
-            "on the train split: `r_combined` (eq. 5) and `predicted` = `r_combined` > mu"
-            f"{mu}. On the train split they are in-sample; only the test split measures the "
-            "model. They are not labels: a new model should ignore them.",
-        ]
-    lines += ["", "## Provenance", ""]
+    return lines
+
+
+def _model_scores(facts: DatasetFacts) -> list[str]:
+    """What the model's scores in the events files are (nothing without scores)."""
+    if facts.scores is None:
+        return []
+    mu = (
+        f" (mu = {facts.scores.mu!r} in the model that was scored)"
+        if facts.scores.mu is not None
+        else ""
+    )
+    return [
+        "",
+        "## The model's scores",
+        "",
+        "The `events` files carry the scores of the roughness model `terrain learn` fitted "
+        "on the train split: `r_combined` (eq. 5) and `predicted` = `r_combined` > mu"
+        f"{mu}. On the train split they are in-sample; only the test split measures the "
+        "model. They are not labels: a new model should ignore them.",
+    ]
+
+
+def _provenance(facts: DatasetFacts) -> list[str]:
+    """The toolkit, the tables and configuration hashes, and the source logs."""
+    cfg = facts.config
+    sims = [s for s in facts.sources if s.sim is not None]
+    lines = ["", "## Provenance", ""]
     lines += [
         f"Exported by the `terrain` toolkit version {__version__} from a workspace whose "
         "tables `terrain tables` wrote (sha256: "
@@ -384,9 +446,12 @@ def dataset_card(facts: DatasetFacts) -> str:
             f"`{s.log_id}` is simulated: its terrain, vehicle and sensors were generated by "
             "the toolkit's simulator (`terrain sim`), not recorded on a vehicle."
         )
-    lines += ["", "## Known limitations", ""]
-    lines += _limitations(facts, counts, total)
-    lines += [
+    return lines
+
+
+def _citation_and_license() -> list[str]:
+    """The paper to cite, and the data's license."""
+    return [
         "",
         "## Citation",
         "",
@@ -401,16 +466,33 @@ def dataset_card(facts: DatasetFacts) -> str:
         "Creative Commons Attribution 4.0 International (CC BY 4.0).",
         "",
     ]
-    return "\n".join(lines)
 
 
 def _limitations(
     facts: DatasetFacts, counts: Mapping[str, SplitCounts], total: SplitCounts
 ) -> list[str]:
-    """What a user of the data must keep in mind, with this data's numbers."""
-    out = []
+    """What a user of the data must keep in mind, with this data's numbers: one bullet each,
+    those that do not apply to this data left out."""
+    bullets = [
+        _rare_positives(counts),
+        _simulated_data(facts),
+        _point_density(facts, counts),
+        _rows_not_distinct(facts, total),
+        _not_every_stretch(facts),
+        _small(facts),
+        "- **Labels from the vehicle's own sensors.** Shock depends on the vehicle and its "
+        "suspension, and dividing by speed is a linear approximation (the paper's Fig. 5); "
+        "an event is rough for this vehicle at the speed it drove.",
+        "- **Each log has its own frame.** Compare coordinates only within a log (the same "
+        "`log_id`).",
+    ]
+    return [b for b in bullets if b]
+
+
+def _rare_positives(counts: Mapping[str, SplitCounts]) -> str:
+    """The rough share of each split, against the paper's."""
     paper = " and ".join(f"{k} of {n:,}, {_pct(k, n)}" for k, n in PAPER_ROUGH)
-    out.append(
+    return (
         "- **Rare positives.** "
         + "; ".join(
             f"{split}: {c.rough} rough of {c.events} events ({_pct(c.rough, c.events)})"
@@ -419,32 +501,41 @@ def _limitations(
         + f" (the paper: {paper}). With so few positives, rates and ROC curves on the test "
         "split are uncertain: report confidence intervals."
     )
+
+
+def _simulated_data(facts: DatasetFacts) -> str:
+    """How many logs are simulated and the pose's error against their truth; "" if none."""
     sims = [s for s in facts.sources if s.sim is not None]
-    if sims:
-        accuracy = []
-        for s in sims:
-            acc = s.header.get("pose_accuracy", {})
-            if "horizontal_rmse_m" in acc and "vertical_rmse_m" in acc:
-                accuracy.append(
-                    f"`{s.log_id}`: horizontal {acc['horizontal_rmse_m']} m, vertical "
-                    f"{acc['vertical_rmse_m']} m RMSE"
-                )
-        out.append(
-            f"- **Simulated data.** {len(sims)} of {len(facts.sources)} log(s) are simulated: "
-            "terrain, vehicle dynamics, IMU, GPS and lasers are models, so a method that works "
-            "here has not been shown to work on a real vehicle."
-            + (
-                " The points carry the errors of the estimated pose against the simulator's "
-                "truth (" + "; ".join(accuracy) + ")."
-                if accuracy
-                else ""
+    if not sims:
+        return ""
+    accuracy = []
+    for s in sims:
+        acc = s.header.get("pose_accuracy", {})
+        if "horizontal_rmse_m" in acc and "vertical_rmse_m" in acc:
+            accuracy.append(
+                f"`{s.log_id}`: horizontal {acc['horizontal_rmse_m']} m, vertical "
+                f"{acc['vertical_rmse_m']} m RMSE"
             )
+    return (
+        f"- **Simulated data.** {len(sims)} of {len(facts.sources)} log(s) are simulated: "
+        "terrain, vehicle dynamics, IMU, GPS and lasers are models, so a method that works "
+        "here has not been shown to work on a real vehicle."
+        + (
+            " The points carry the errors of the estimated pose against the simulator's "
+            "truth (" + "; ".join(accuracy) + ")."
+            if accuracy
+            else ""
         )
+    )
+
+
+def _point_density(facts: DatasetFacts, counts: Mapping[str, SplitCounts]) -> str:
+    """Point rows per tyre and event here, against the paper's training set."""
     train = counts["train"]
     paper_tyre = PAPER_TRAIN_POINTS / PAPER_TRAIN_EVENTS / 2
     tyre = _per_tyre(pa.concat_tables([facts.events[s] for s in SPLITS]))
     mean_tyre = float(tyre.mean()) if tyre.size else 0.0
-    out.append(
+    return (
         f"- **Points per tyre far denser than the paper's.** {_num(mean_tyre)} point rows per "
         f"tyre and event on average here, against {_num(paper_tyre)} in the paper's training "
         f"set ({PAPER_TRAIN_POINTS:,} points for {PAPER_TRAIN_EVENTS:,} events): about "
@@ -453,14 +544,23 @@ def _limitations(
         f"per tyre) at the paper's density. Train split: {train.points} point rows for "
         f"{train.events} events."
     )
+
+
+def _rows_not_distinct(facts: DatasetFacts, total: SplitCounts) -> str:
+    """Points listed under two events; "" when the tables stage did not count them."""
     distinct = facts.tables_counts.get("distinct_points")
-    if distinct:
-        out.append(
-            "- **Rows are not distinct points.** A point near the boundary of two events is "
-            f"listed under each: the tables stage counted {distinct} distinct points under the "
-            "tyres (before leaving out the events it could not score) for these "
-            f"{total.points} point rows."
-        )
+    if not distinct:
+        return ""
+    return (
+        "- **Rows are not distinct points.** A point near the boundary of two events is "
+        f"listed under each: the tables stage counted {distinct} distinct points under the "
+        "tyres (before leaving out the events it could not score) for these "
+        f"{total.points} point rows."
+    )
+
+
+def _not_every_stretch(facts: DatasetFacts) -> str:
+    """The events left out and the stretches never labelled; "" if none."""
     dropped = int(facts.tables_rejects.get("too_few_points", 0))
     label_rejects: dict[str, int] = {}
     for s in facts.sources:
@@ -477,29 +577,24 @@ def _limitations(
             "stretches not labelled at all: "
             + ", ".join(f"{n} {reason}" for reason, n in sorted(label_rejects.items()) if n)
         )
-    if parts:
-        out.append(
-            "- **Not every stretch is an event.** " + "; ".join(parts) + ". The events are "
-            "the driven path minus these, which is not a random sample of it."
-        )
+    if not parts:
+        return ""
+    return (
+        "- **Not every stretch is an event.** " + "; ".join(parts) + ". The events are "
+        "the driven path minus these, which is not a random sample of it."
+    )
+
+
+def _small(facts: DatasetFacts) -> str:
+    """The length of path the events cover, against the paper's splits."""
     length = sum(
         float(pc.sum(pc.subtract(e.column("s_end_m"), e.column("s_start_m"))).as_py() or 0.0)
         for e in facts.events.values()
     )
-    out.append(
+    return (
         f"- **Small.** The events cover {length:.0f} m of driving; the paper's splits are 10 "
         "miles (16.1 km) each."
     )
-    out.append(
-        "- **Labels from the vehicle's own sensors.** Shock depends on the vehicle and its "
-        "suspension, and dividing by speed is a linear approximation (the paper's Fig. 5); "
-        "an event is rough for this vehicle at the speed it drove."
-    )
-    out.append(
-        "- **Each log has its own frame.** Compare coordinates only within a log (the same "
-        "`log_id`)."
-    )
-    return out
 
 
 __all__ = ["LICENSE", "PRETTY_NAME", "dataset_card"]

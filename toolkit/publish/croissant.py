@@ -4,6 +4,7 @@ and a record set per config. See ``docs/export.md``."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 from toolkit import __version__
@@ -16,6 +17,7 @@ from toolkit.publish.dataset import (
     DatasetFacts,
     data_file,
 )
+from toolkit.tableio import ColumnSpec
 
 DATASET_NAME = "terrain-roughness-self-supervised"
 #: Croissant 1.0's JSON-LD context, as the specification's examples give it, with the two terms
@@ -65,10 +67,40 @@ CROISSANT_CONFORMS_TO = "http://mlcommons.org/croissant/1.0"
 def croissant_metadata(facts: DatasetFacts) -> dict[str, Any]:
     """The Croissant 1.0 description of the export (JSON-LD): every file with its sha256,
     a file set per config, and a record set per config whose fields are its columns."""
+    sims = [s for s in facts.sources if s.sim is not None]
+    return {
+        "@context": CROISSANT_CONTEXT,
+        "@type": "sc:Dataset",
+        "name": DATASET_NAME,
+        "description": _description(facts),
+        "conformsTo": CROISSANT_CONFORMS_TO,
+        "citeAs": CITATION,
+        "license": "https://creativecommons.org/licenses/by/4.0/",
+        # Where the dataset is published is not known here: its landing page is the card
+        # beside this file (replace with the hosting URL when publishing).
+        "url": "README.md",
+        "version": __version__,
+        # The day the tables were made: the data's date, so exporting the same tables
+        # again gives the same file (mlcroissant warns without a datePublished).
+        **({"datePublished": facts.tables_finished_utc[:10]} if facts.tables_finished_utc else {}),
+        "keywords": [
+            "terrain roughness",
+            "self-supervised learning",
+            "lidar",
+            "off-road driving",
+            *(["simulated"] if sims else []),
+        ],
+        "distribution": _distribution(facts),
+        "recordSet": [_record_set(name, columns) for name, columns in facts.columns.items()],
+    }
+
+
+def _description(facts: DatasetFacts) -> str:
+    """The dataset in a paragraph: the label's rule, the source, each split's counts."""
     counts = facts.counts()
     sims = [s for s in facts.sources if s.sim is not None]
     kind = "simulated" if len(sims) == len(facts.sources) else "recorded" if not sims else "mixed"
-    description = (
+    return (
         "Terrain events labelled rough or not from the shock a vehicle's IMU felt on them "
         "(ruggedness = shock in G / speed in mph >= "
         f"{facts.config.label.rough_threshold_g_per_mph:g} G/mph), and the laser points "
@@ -81,6 +113,10 @@ def croissant_metadata(facts: DatasetFacts) -> dict[str, Any]:
         )
         + ". See README.md."
     )
+
+
+def _distribution(facts: DatasetFacts) -> list[dict[str, Any]]:
+    """A FileObject per Parquet file (its size and sha256), then a FileSet per config."""
     distribution: list[dict[str, Any]] = []
     for name in facts.columns:
         for split in SPLITS:
@@ -109,74 +145,50 @@ def croissant_metadata(facts: DatasetFacts) -> dict[str, Any]:
                 "includes": f"data/{name}/*.parquet",
             }
         )
-    record_sets = []
-    for name, columns in facts.columns.items():
-        fields: list[dict[str, Any]] = [
+    return distribution
+
+
+def _record_set(name: str, columns: Sequence[ColumnSpec]) -> dict[str, Any]:
+    """One config as a RecordSet: a field per column (the points' split: their file)."""
+    fields: list[dict[str, Any]] = [
+        {
+            "@type": "cr:Field",
+            "@id": f"{name}/{col.name}",
+            "name": col.name,
+            "description": col.description + (f" [{col.unit}]" if col.unit else ""),
+            "dataType": TYPES[col.type][1],
+            "source": {"fileSet": {"@id": f"{name}-files"}, "extract": {"column": col.name}},
+        }
+        for col in columns
+    ]
+    if name == EVENT_POINTS:
+        # A point's split is the file it is in (its event's split).
+        fields.append(
             {
                 "@type": "cr:Field",
-                "@id": f"{name}/{col.name}",
-                "name": col.name,
-                "description": col.description + (f" [{col.unit}]" if col.unit else ""),
-                "dataType": TYPES[col.type][1],
-                "source": {"fileSet": {"@id": f"{name}-files"}, "extract": {"column": col.name}},
-            }
-            for col in columns
-        ]
-        if name == EVENT_POINTS:
-            # A point's split is the file it is in (its event's split).
-            fields.append(
-                {
-                    "@type": "cr:Field",
-                    "@id": f"{name}/split",
-                    "name": "split",
-                    "description": "'train' or 'test': the split of the point's event (its file)",
-                    "dataType": "sc:Text",
-                    "source": {
-                        "fileSet": {"@id": f"{name}-files"},
-                        "extract": {"fileProperty": "fullpath"},
-                        "transform": {
-                            "regex": f"^data/{name}/(train|test)-[0-9]+-of-[0-9]+\\.parquet$"
-                        },
+                "@id": f"{name}/split",
+                "name": "split",
+                "description": "'train' or 'test': the split of the point's event (its file)",
+                "dataType": "sc:Text",
+                "source": {
+                    "fileSet": {"@id": f"{name}-files"},
+                    "extract": {"fileProperty": "fullpath"},
+                    "transform": {
+                        "regex": f"^data/{name}/(train|test)-[0-9]+-of-[0-9]+\\.parquet$"
                     },
-                }
-            )
-        record_sets.append(
-            {
-                "@type": "cr:RecordSet",
-                "@id": name,
-                "name": name,
-                "description": (
-                    "one row per event: its shock, speed, ruggedness, rough label and split"
-                    if name == EVENTS
-                    else "one row per laser point, event and rear tyre (the paper's L_i)"
-                ),
-                "field": fields,
+                },
             }
         )
     return {
-        "@context": CROISSANT_CONTEXT,
-        "@type": "sc:Dataset",
-        "name": DATASET_NAME,
-        "description": description,
-        "conformsTo": CROISSANT_CONFORMS_TO,
-        "citeAs": CITATION,
-        "license": "https://creativecommons.org/licenses/by/4.0/",
-        # Where the dataset is published is not known here: its landing page is the card
-        # beside this file (replace with the hosting URL when publishing).
-        "url": "README.md",
-        "version": __version__,
-        # The day the tables were made: the data's date, so exporting the same tables
-        # again gives the same file (mlcroissant warns without a datePublished).
-        **({"datePublished": facts.tables_finished_utc[:10]} if facts.tables_finished_utc else {}),
-        "keywords": [
-            "terrain roughness",
-            "self-supervised learning",
-            "lidar",
-            "off-road driving",
-            *(["simulated"] if sims else []),
-        ],
-        "distribution": distribution,
-        "recordSet": record_sets,
+        "@type": "cr:RecordSet",
+        "@id": name,
+        "name": name,
+        "description": (
+            "one row per event: its shock, speed, ruggedness, rough label and split"
+            if name == EVENTS
+            else "one row per laser point, event and rear tyre (the paper's L_i)"
+        ),
+        "field": fields,
     }
 
 

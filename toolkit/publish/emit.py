@@ -55,10 +55,12 @@ from toolkit.publish.scene import (
     WORLD_FRAME,
     AxlePath,
     Cloud,
+    CloudSettings,
     EventRows,
     FloatArray,
     IntArray,
     PoseRows,
+    Scene,
     column_array,
     event_box_colors,
     iter_clouds,
@@ -155,20 +157,16 @@ class _Timeline:
             self._next += 1
 
 
+#: One small topic's messages: their log times and ``emit(row)``, which logs the row-th.
+_Stream = tuple[IntArray, Callable[[int], None]]
+
+
 def write_mcap(
     path: Path,
-    log_dir: Path,
-    pose: PoseRows,
-    events: EventRows,
-    mu: float | None,
+    scene: Scene,
     config: PipelineConfig,
     metadata: dict[str, str],
-    *,
-    has_points: bool,
-    has_gps: bool,
-    has_truth: bool,
-    cloud_period_ns: int,
-    max_cloud_points: int,
+    clouds: CloudSettings,
 ) -> dict[str, int]:
     """Write the MCAP at ``path``; returns the counts of :class:`VizResult`."""
     # A context of our own: channels of the SDK's global context (anyone else's in this
@@ -190,88 +188,103 @@ def write_mcap(
         "truth_paths": 0,
         "truth_vertices": 0,
     }
-
-    def channel_meta(topic: str) -> dict[str, str]:
-        return {"description": DESCRIPTIONS[topic]}
-
     with foxglove.open_mcap(path, context=ctx, writer_options=options) as writer:
         writer.write_metadata("terrain.viz", metadata)
-        streams: list[tuple[IntArray, Callable[[int], None]]] = []
-
-        # /tf
-        tf_channel = FrameTransformsChannel(TOPIC_TF, context=ctx, metadata=channel_meta(TOPIC_TF))
-        keep = tf_rows(pose.t_ns)
-        qx, qy, qz, qw = quaternion_zyx(pose.roll[keep], pose.pitch[keep], pose.yaw[keep])
-        base = config.vehicle.base_frame
-
-        def emit_tf(i: int) -> None:
-            k = int(keep[i])
-            t = int(pose.t_ns[k])
-            transform = FrameTransform(
-                timestamp=_stamp(t),
-                parent_frame_id=WORLD_FRAME,
-                child_frame_id=base,
-                translation=Vector3(x=float(pose.x[k]), y=float(pose.y[k]), z=float(pose.z[k])),
-                rotation=Quaternion(x=float(qx[i]), y=float(qy[i]), z=float(qz[i]), w=float(qw[i])),
-            )
-            tf_channel.log(FrameTransforms(transforms=[transform]), log_time=t)
-
-        streams.append((pose.t_ns[keep], emit_tf))
-        counts["transforms"] = int(keep.size)
-
-        # /gps
-        if has_gps:
-            gps_stream, n_fix, n_without = _gps_stream(log_dir / "gps.parquet", ctx, config)
-            streams.append(gps_stream)
-            counts["gps_fixes"], counts["gps_without_fix"] = n_fix, n_without
-
-        # /events
-        if len(events):
-            streams.append(_event_stream(events, pose, ctx, config))
-            counts["events"] = len(events)
-            counts["rough_events"] = int(events.rough.sum())
-            counts["scored_events"] = int(events.scored.sum())
-
-        # /truth/path
-        if has_truth:
-            truth = _truth_stream(log_dir / "truth_pose.parquet", ctx)
-            if truth is not None:
-                stream, vertices = truth
-                streams.append(stream)
-                counts["truth_paths"], counts["truth_vertices"] = 1, vertices
-
-        timeline = _Timeline(streams)
-
+        timeline = _Timeline(_small_streams(scene, ctx, config, counts))
         # /points, the stream everything else is merged into
-        if has_points:
-            cloud_channel = PointCloudChannel(
-                TOPIC_POINTS, context=ctx, metadata=channel_meta(TOPIC_POINTS)
-            )
-            axle = AxlePath.of(pose)
-            half = 0.5 * config.vehicle.track_m
-            for cloud in iter_clouds(log_dir / "points.parquet", cloud_period_ns, max_cloud_points):
-                counts["points_read"] += cloud.rows_read
-                timeline.play_until(cloud.t_ns)
-                on = axle.events_under(cloud.x, cloud.y, events, half)
-                colored = on >= 0
-                colored[colored] = events.scored[on[colored]]
-                r = np.full(cloud.x.size, np.nan)
-                r[colored] = events.r_combined[on[colored]]
-                rgba = np.empty((cloud.x.size, 4), dtype=np.uint8)
-                rgba[:] = GREY
-                rgb = point_colors(r[colored], events.predicted[on[colored]], events.r_low, mu)
-                rgba[colored, :3] = np.round(rgb * 255.0).astype(np.uint8)
-                cloud_channel.log(_point_cloud(cloud, rgba, r), log_time=cloud.t_ns)
-                counts["clouds"] += 1
-                counts["cloud_points"] += int(cloud.x.size)
-                counts["coloured_points"] += int(colored.sum())
+        if scene.has("points.parquet"):
+            _log_clouds(scene, ctx, config, clouds, timeline, counts)
         timeline.play_until(None)  # the small topics' messages after the last cloud
     return counts
 
 
+def _small_streams(
+    scene: Scene, ctx: foxglove.Context, config: PipelineConfig, counts: dict[str, int]
+) -> list[_Stream]:
+    """The streams of ``/tf``, ``/gps``, ``/events`` and ``/truth/path`` (their channels
+    made in this order, which numbers them in the file), their messages counted."""
+    streams = [_tf_stream(scene.pose, ctx, config)]
+    counts["transforms"] = int(streams[0][0].size)
+    if scene.has("gps.parquet"):
+        gps_stream, n_fix, n_without = _gps_stream(scene.log_dir / "gps.parquet", ctx, config)
+        streams.append(gps_stream)
+        counts["gps_fixes"], counts["gps_without_fix"] = n_fix, n_without
+    events = scene.events
+    if len(events):
+        streams.append(_event_stream(events, scene.pose, ctx, config))
+        counts["events"] = len(events)
+        counts["rough_events"] = int(events.rough.sum())
+        counts["scored_events"] = int(events.scored.sum())
+    if scene.has("truth_pose.parquet"):
+        truth = _truth_stream(scene.log_dir / "truth_pose.parquet", ctx)
+        if truth is not None:
+            stream, vertices = truth
+            streams.append(stream)
+            counts["truth_paths"], counts["truth_vertices"] = 1, vertices
+    return streams
+
+
+def _log_clouds(
+    scene: Scene,
+    ctx: foxglove.Context,
+    config: PipelineConfig,
+    clouds: CloudSettings,
+    timeline: _Timeline,
+    counts: dict[str, int],
+) -> None:
+    """``/points``: every window's cloud, each logged after the small topics' messages up
+    to its time; a point coloured by the score of the event stretch it lies on."""
+    cloud_channel = PointCloudChannel(
+        TOPIC_POINTS, context=ctx, metadata={"description": DESCRIPTIONS[TOPIC_POINTS]}
+    )
+    axle = AxlePath.of(scene.pose)
+    half = 0.5 * config.vehicle.track_m
+    events = scene.events
+    for cloud in iter_clouds(scene.log_dir / "points.parquet", clouds.period_ns, clouds.max_points):
+        counts["points_read"] += cloud.rows_read
+        timeline.play_until(cloud.t_ns)
+        on = axle.events_under(cloud.x, cloud.y, events, half)
+        colored = on >= 0
+        colored[colored] = events.scored[on[colored]]
+        r = np.full(cloud.x.size, np.nan)
+        r[colored] = events.r_combined[on[colored]]
+        rgba = np.empty((cloud.x.size, 4), dtype=np.uint8)
+        rgba[:] = GREY
+        rgb = point_colors(r[colored], events.predicted[on[colored]], events.r_low, scene.mu)
+        rgba[colored, :3] = np.round(rgb * 255.0).astype(np.uint8)
+        cloud_channel.log(_point_cloud(cloud, rgba, r), log_time=cloud.t_ns)
+        counts["clouds"] += 1
+        counts["cloud_points"] += int(cloud.x.size)
+        counts["coloured_points"] += int(colored.sum())
+
+
+def _tf_stream(pose: PoseRows, ctx: foxglove.Context, config: PipelineConfig) -> _Stream:
+    """``/tf``: the pose as the transform world -> base_link, at :data:`TF_RATE_HZ`."""
+    tf_channel = FrameTransformsChannel(
+        TOPIC_TF, context=ctx, metadata={"description": DESCRIPTIONS[TOPIC_TF]}
+    )
+    keep = tf_rows(pose.t_ns)
+    qx, qy, qz, qw = quaternion_zyx(pose.roll[keep], pose.pitch[keep], pose.yaw[keep])
+    base = config.vehicle.base_frame
+
+    def emit_tf(i: int) -> None:
+        k = int(keep[i])
+        t = int(pose.t_ns[k])
+        transform = FrameTransform(
+            timestamp=_stamp(t),
+            parent_frame_id=WORLD_FRAME,
+            child_frame_id=base,
+            translation=Vector3(x=float(pose.x[k]), y=float(pose.y[k]), z=float(pose.z[k])),
+            rotation=Quaternion(x=float(qx[i]), y=float(qy[i]), z=float(qz[i]), w=float(qw[i])),
+        )
+        tf_channel.log(FrameTransforms(transforms=[transform]), log_time=t)
+
+    return pose.t_ns[keep], emit_tf
+
+
 def _gps_stream(
     path: Path, ctx: foxglove.Context, config: PipelineConfig
-) -> tuple[tuple[IntArray, Callable[[int], None]], int, int]:
+) -> tuple[_Stream, int, int]:
     """``/gps``: every fix (NavSatStatus STATUS_FIX or better with a finite position, as the
     world frame's origin is chosen); rows without one have no position to show."""
     table = read_table(path, "gps", columns=list(GPS_COLUMNS))
@@ -314,7 +327,7 @@ def _gps_stream(
 
 def _event_stream(
     events: EventRows, pose: PoseRows, ctx: foxglove.Context, config: PipelineConfig
-) -> tuple[IntArray, Callable[[int], None]]:
+) -> _Stream:
     """``/events``: one box per event along the chord of its stretch of the rear-axle path,
     tilted to the chord's slope, lying on the ground."""
     t0, t1 = events.i64("t_start_ns"), events.i64("t_end_ns")
@@ -374,9 +387,7 @@ def _event_stream(
     return t1, emit
 
 
-def _truth_stream(
-    path: Path, ctx: foxglove.Context
-) -> tuple[tuple[IntArray, Callable[[int], None]], int] | None:
+def _truth_stream(path: Path, ctx: foxglove.Context) -> tuple[_Stream, int] | None:
     """``/truth/path``: the true path as one line strip, or None when the table is empty."""
     table = read_table(path, "truth_pose", columns=["t_ns", "x", "y", "z"])
     if table.num_rows == 0:

@@ -46,7 +46,7 @@ from toolkit.stages import label as label_stage
 from toolkit.stages import tables as tables_stage
 from toolkit.stages.learn import table_inputs
 from toolkit.tableio import TableWriter, iter_table_batches, load_table_schema, read_table
-from toolkit.workspace import Manifest, Workspace, file_sha256, require_finished
+from toolkit.workspace import Manifest, StageRecord, Workspace, file_sha256, require_finished
 
 _log = logging.getLogger(__name__)
 
@@ -412,16 +412,30 @@ def _fsync_tree(directory: Path) -> None:
         fsync_dir(Path(root))
 
 
-def run_export(
-    workspace: Workspace, out_dir: Path, config: PipelineConfig, *, overwrite: bool = False
-) -> ExportResult:
-    """Write the dataset of the workspace's tables to ``out_dir`` (``docs/export.md``)."""
-    start = time.perf_counter()
-    out_dir = Path(os.path.abspath(out_dir))
-    check_destination(workspace, out_dir, overwrite)
+@dataclass(frozen=True)
+class _Inputs:
+    """What the export is made from, read and checked before anything is written."""
+
+    #: sha256 of the workspace's tables, keyed ``tables/<name>.parquet``.
+    tables: Mapping[str, str]
+    #: The record of the ``terrain tables`` run that wrote them.
+    record: StageRecord
+    events: pa.Table
+    #: The logs of the events, in the order of their first event.
+    log_ids: tuple[str, ...]
+    sources: tuple[LogSource, ...]
+    scores: Scores | None
+    #: Why the model's scores are left out, when they are.
+    warnings: tuple[str, ...]
+
+
+def _read_inputs(workspace: Workspace, config: PipelineConfig) -> _Inputs:
+    """The tables as the last finished ``terrain tables`` wrote them with this
+    configuration, their logs' provenance and the model's scores; a StageError or
+    WorkspaceError when they cannot be exported."""
     tables = table_inputs(workspace, config)
     record = workspace.manifest().stage(tables_stage.STAGE)
-    assert record is not None  # _tables_inputs refuses a missing record
+    assert record is not None  # table_inputs refuses a missing record
     events = read_events(workspace)
     log_ids = tuple(dict.fromkeys(events.column("log_id").to_pylist()))
     # Each log's labelling configuration first: a threshold changed since is the likelier
@@ -429,7 +443,64 @@ def run_export(
     sources = tuple(log_source(workspace, log_id, config) for log_id in log_ids)
     check_labels(events, config, workspace.events_table)
     scores, warnings = model_scores(workspace, tables, events)
-    provenance = _Provenance(tuple(s.sha256 for s in sources), stage_config_hash(config), tables)
+    return _Inputs(tables, record, events, log_ids, sources, scores, tuple(warnings))
+
+
+def _write_dataset(
+    tmp: Path, workspace: Workspace, config: PipelineConfig, inputs: _Inputs
+) -> DatasetFacts:
+    """Write every file of the export into the directory ``tmp``: the Parquet files, then
+    the card and the Croissant metadata stating what they hold."""
+    provenance = _Provenance(
+        tuple(s.sha256 for s in inputs.sources), stage_config_hash(config), inputs.tables
+    )
+    by_split = _write_events(tmp, inputs.events, inputs.scores, provenance)
+    written = _write_points(tmp, workspace, inputs.events, inputs.log_ids, provenance)
+    points = {split: rows for split, (rows, _) in written.items()}
+    _check_point_rows(by_split, points, workspace.event_points_table)
+    in_memory = {
+        **{data_file(EVENTS, split): arrow_bytes(by_split[split]) for split in SPLITS},
+        **{data_file(EVENT_POINTS, split): size for split, (_, size) in written.items()},
+    }
+    files = {
+        data_file(name, split): (
+            (tmp / data_file(name, split)).stat().st_size,
+            file_sha256(tmp / data_file(name, split)),
+        )
+        for name in (EVENTS, EVENT_POINTS)
+        for split in SPLITS
+    }
+    facts = DatasetFacts(
+        config=config,
+        sources=inputs.sources,
+        events=by_split,
+        points=points,
+        files=files,
+        arrow_bytes=in_memory,
+        columns=dataset_columns(inputs.scores),
+        scores=inputs.scores,
+        tables=inputs.tables,
+        tables_counts=dict(inputs.record.row_counts),
+        tables_rejects=dict(inputs.record.rejects),
+        tables_finished_utc=inputs.record.finished_utc,
+    )
+    atomic_write_text(tmp / "README.md", dataset_card(facts))
+    atomic_write_text(
+        tmp / "croissant.json",
+        json.dumps(croissant_metadata(facts), indent=2, ensure_ascii=False, allow_nan=False) + "\n",
+    )
+    return facts
+
+
+def run_export(
+    workspace: Workspace, out_dir: Path, config: PipelineConfig, *, overwrite: bool = False
+) -> ExportResult:
+    """Write the dataset of the workspace's tables to ``out_dir`` (``docs/export.md``): in a
+    hidden directory beside it, put in place only when complete."""
+    start = time.perf_counter()
+    out_dir = Path(os.path.abspath(out_dir))
+    check_destination(workspace, out_dir, overwrite)
+    inputs = _read_inputs(workspace, config)
     try:
         out_dir.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
@@ -441,57 +512,22 @@ def run_export(
             tmp.mkdir()
         except OSError as exc:
             raise WorkspaceError(f"cannot create: {exc.strerror or exc}", tmp) from exc
-        by_split = _write_events(tmp, events, scores, provenance)
-        written = _write_points(tmp, workspace, events, log_ids, provenance)
-        points = {split: rows for split, (rows, _) in written.items()}
-        _check_point_rows(by_split, points, workspace.event_points_table)
-        in_memory = {
-            **{data_file(EVENTS, split): arrow_bytes(by_split[split]) for split in SPLITS},
-            **{data_file(EVENT_POINTS, split): size for split, (_, size) in written.items()},
-        }
-        files = {
-            data_file(name, split): (
-                (tmp / data_file(name, split)).stat().st_size,
-                file_sha256(tmp / data_file(name, split)),
-            )
-            for name in (EVENTS, EVENT_POINTS)
-            for split in SPLITS
-        }
-        facts = DatasetFacts(
-            config=config,
-            sources=sources,
-            events=by_split,
-            points=points,
-            files=files,
-            arrow_bytes=in_memory,
-            columns=dataset_columns(scores),
-            scores=scores,
-            tables=tables,
-            tables_counts=dict(record.row_counts),
-            tables_rejects=dict(record.rejects),
-            tables_finished_utc=record.finished_utc,
-        )
-        atomic_write_text(tmp / "README.md", dataset_card(facts))
-        atomic_write_text(
-            tmp / "croissant.json",
-            json.dumps(croissant_metadata(facts), indent=2, ensure_ascii=False, allow_nan=False)
-            + "\n",
-        )
+        facts = _write_dataset(tmp, workspace, config, inputs)
         _fsync_tree(tmp)
         publish(tmp, out_dir)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    for warning in warnings:
+    for warning in inputs.warnings:
         _log.warning("%s", warning)
     return ExportResult(
         out_dir=out_dir,
         splits=facts.counts(),
-        logs=log_ids,
-        scores=scores is not None,
-        files=tuple(sorted([*files, "README.md", "croissant.json"])),
+        logs=inputs.log_ids,
+        scores=inputs.scores is not None,
+        files=tuple(sorted([*facts.files, "README.md", "croissant.json"])),
         seconds=time.perf_counter() - start,
-        warnings=tuple(warnings),
+        warnings=inputs.warnings,
     )
 
 

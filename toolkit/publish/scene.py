@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 
 from toolkit.errors import StageError
 from toolkit.stages.tables import EVENT_COLUMNS
-from toolkit.tableio import iter_table_batches, read_table
+from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
 from toolkit.workspace import Manifest, Workspace, file_sha256, require_finished
 
 FloatArray = NDArray[np.float64]
@@ -264,6 +264,56 @@ def checked_inputs(workspace: Workspace, log_dir: Path, warnings: list[str]) -> 
     return hashes
 
 
+@dataclass(frozen=True)
+class CloudSettings:
+    """How the points are gathered into clouds: the log time each cloud gathers (by scan
+    stamp, ns) and the most points one cloud holds."""
+
+    period_ns: int = CLOUD_PERIOD_NS
+    max_points: int = MAX_CLOUD_POINTS
+
+
+@dataclass(frozen=True)
+class Scene:
+    """One log as the view shows it, read and checked: its inputs (name -> sha256), the
+    pose, the events with their scores and the model's threshold mu. The points stay in
+    ``log_dir``'s ``points.parquet``, streamed as the file is written."""
+
+    log_dir: Path
+    inputs_sha256: dict[str, str]
+    pose: PoseRows
+    #: The pose table's key-value metadata (its world frame and ENU origin).
+    pose_metadata: dict[str, str]
+    events: EventRows
+    mu: float | None
+
+    def has(self, name: str) -> bool:
+        """Whether the log has the input ``name`` (``points.parquet``, ``gps.parquet``...)."""
+        return name in self.inputs_sha256
+
+
+def read_scene(workspace: Workspace, log_id: str, log_dir: Path, warnings: list[str]) -> Scene:
+    """The scene of the log in ``log_dir`` (a snapshot of ``log_id``'s folder), every input
+    checked; what is missing or stale is appended to ``warnings``."""
+    hashes = checked_inputs(workspace, log_dir, warnings)
+    pose_path = log_dir / "pose.parquet"
+    pose = read_pose(pose_path)
+    pose_meta = read_table_metadata(pose_path)
+    scores_path = workspace.scores_table if "report/scores.parquet" in hashes else None
+    if "events.parquet" in hashes:
+        events = read_scored_events(log_dir / "events.parquet", scores_path, log_id, warnings)
+    else:
+        none = np.zeros(0, dtype=bool)
+        events = EventRows({c: np.zeros(0) for c in EVENT_COLUMNS}, np.zeros(0), none, none, None)
+    mu = read_model_mu(workspace.model_path) if "model.json" in hashes else None
+    if events.scored.any() and (mu is None or events.r_low is None or not events.r_low < mu):
+        warnings.append(
+            "no usable mu in model.json (or no score below it): points on scored events are "
+            "red or green by the prediction alone"
+        )
+    return Scene(log_dir, hashes, pose, pose_meta, events, mu)
+
+
 # --------------------------------------------------------------------------------------
 # Geometry and colour
 # --------------------------------------------------------------------------------------
@@ -470,8 +520,10 @@ __all__ = [
     "WORLD_FRAME",
     "AxlePath",
     "Cloud",
+    "CloudSettings",
     "EventRows",
     "PoseRows",
+    "Scene",
     "checked_inputs",
     "cloud_rows",
     "cloud_windows",
@@ -483,6 +535,7 @@ __all__ = [
     "ramp_rgb",
     "read_model_mu",
     "read_pose",
+    "read_scene",
     "read_scored_events",
     "tf_rows",
 ]

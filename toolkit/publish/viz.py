@@ -13,8 +13,6 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
 from toolkit import __version__
 from toolkit.atomic import fsync_dir, fsync_file, temp_path_beside
 from toolkit.config import PipelineConfig
@@ -30,14 +28,10 @@ from toolkit.publish.scene import (
     TOPIC_POINTS,
     TOPIC_TF,
     TOPIC_TRUTH,
-    EventRows,
-    checked_inputs,
-    read_model_mu,
-    read_pose,
-    read_scored_events,
+    CloudSettings,
+    Scene,
+    read_scene,
 )
-from toolkit.stages.tables import EVENT_COLUMNS
-from toolkit.tableio import read_table_metadata
 from toolkit.workspace import Workspace, refuse_inside_workspace
 
 _log = logging.getLogger(__name__)
@@ -139,8 +133,7 @@ def run_viz(
             out_path,
             config,
             overwrite=overwrite,
-            cloud_period_ns=cloud_period_ns,
-            max_cloud_points=max_cloud_points,
+            clouds=CloudSettings(cloud_period_ns, max_cloud_points),
             start=start,
         )
 
@@ -153,6 +146,28 @@ def _refuse_existing(out_path: Path, overwrite: bool) -> None:
         raise StageError("already exists; pass --overwrite to replace it", path=out_path)
 
 
+def _view_metadata(
+    log_id: str, scene: Scene, config: PipelineConfig, clouds: CloudSettings
+) -> dict[str, str]:
+    """The file's ``terrain.viz`` metadata record: the log, the toolkit, the world frame,
+    every input's sha256, the numbers behind the colours, and what each topic shows."""
+    events = scene.events
+    return {
+        "log_id": log_id,
+        "toolkit_version": __version__,
+        "world_frame": scene.pose_metadata.get("frame_id", ""),
+        "enu_origin": scene.pose_metadata.get("enu_origin", ""),
+        "inputs_sha256": json.dumps(scene.inputs_sha256, sort_keys=True),
+        "mu": "" if scene.mu is None else repr(scene.mu),
+        "r_combined_low": "" if events.r_low is None else repr(events.r_low),
+        "rough_threshold_g_per_mph": repr(config.label.rough_threshold_g_per_mph),
+        "cloud_period_ns": str(clouds.period_ns),
+        "max_cloud_points": str(clouds.max_points),
+        "tf_rate_hz": repr(TF_RATE_HZ),
+        **{f"topic {t}": d for t, d in DESCRIPTIONS.items()},
+    }
+
+
 def _write_view(
     workspace: Workspace,
     log_id: str,
@@ -161,60 +176,16 @@ def _write_view(
     config: PipelineConfig,
     *,
     overwrite: bool,
-    cloud_period_ns: int,
-    max_cloud_points: int,
+    clouds: CloudSettings,
     start: float,
 ) -> VizResult:
     warnings: list[str] = []
-    hashes = checked_inputs(workspace, log_dir, warnings)
-    pose_path = log_dir / "pose.parquet"
-    pose = read_pose(pose_path)
-    pose_meta = read_table_metadata(pose_path)
-    scores_path = workspace.scores_table if "report/scores.parquet" in hashes else None
-    if "events.parquet" in hashes:
-        events = read_scored_events(log_dir / "events.parquet", scores_path, log_id, warnings)
-    else:
-        none = np.zeros(0, dtype=bool)
-        events = EventRows({c: np.zeros(0) for c in EVENT_COLUMNS}, np.zeros(0), none, none, None)
-    mu = read_model_mu(workspace.model_path) if "model.json" in hashes else None
-    if events.scored.any() and (mu is None or events.r_low is None or not events.r_low < mu):
-        warnings.append(
-            "no usable mu in model.json (or no score below it): points on scored events are "
-            "red or green by the prediction alone"
-        )
-
-    metadata = {
-        "log_id": log_id,
-        "toolkit_version": __version__,
-        "world_frame": pose_meta.get("frame_id", ""),
-        "enu_origin": pose_meta.get("enu_origin", ""),
-        "inputs_sha256": json.dumps(hashes, sort_keys=True),
-        "mu": "" if mu is None else repr(mu),
-        "r_combined_low": "" if events.r_low is None else repr(events.r_low),
-        "rough_threshold_g_per_mph": repr(config.label.rough_threshold_g_per_mph),
-        "cloud_period_ns": str(cloud_period_ns),
-        "max_cloud_points": str(max_cloud_points),
-        "tf_rate_hz": repr(TF_RATE_HZ),
-        **{f"topic {t}": d for t, d in DESCRIPTIONS.items()},
-    }
-
+    scene = read_scene(workspace, log_id, log_dir, warnings)
+    metadata = _view_metadata(log_id, scene, config, clouds)
     tmp = temp_path_beside(out_path)
     try:
         out_path.parent.mkdir(parents=True, exist_ok=True)
-        counts = write_mcap(
-            tmp,
-            log_dir,
-            pose,
-            events,
-            mu,
-            config,
-            metadata,
-            has_points="points.parquet" in hashes,
-            has_gps="gps.parquet" in hashes,
-            has_truth="truth_pose.parquet" in hashes,
-            cloud_period_ns=cloud_period_ns,
-            max_cloud_points=max_cloud_points,
-        )
+        counts = write_mcap(tmp, scene, config, metadata, clouds)
         fsync_file(tmp)
         # Checked again just before the rename: the file may have appeared while we wrote.
         _refuse_existing(out_path, overwrite)
