@@ -46,7 +46,7 @@ from toolkit.atomic import host_name
 from toolkit.config import PipelineConfig
 from toolkit.errors import StageError, WorkspaceError
 from toolkit.publish import export as export_stage
-from toolkit.publish.dataset import data_file, stage_config_hash
+from toolkit.publish.dataset import data_file, export_config_hash
 from toolkit.publish.export import ExportResult, run_export
 from toolkit.tableio import load_table_schema, read_table, read_table_metadata, write_table
 from toolkit.workspace import Manifest, file_sha256
@@ -138,7 +138,7 @@ def test_polars_and_pyarrow_read_each_split_file_as_the_tables_hold_it(
             assert meta["schema_name"] == ("tables_events" if config == "events" else config)
             assert meta["toolkit_version"] == __version__
             assert meta["source_sha256"] == log_sha
-            assert meta["config_hash"] == stage_config_hash(pipeline.ws.read_config())
+            assert meta["config_hash"] == export_config_hash(pipeline.ws.read_config())
             assert meta["dataset_config"] == config and meta["dataset_split"] == split
             source = pipeline.ws.tables_dir / f"{config}.parquet"
             assert meta["tables_sha256"] == file_sha256(source)

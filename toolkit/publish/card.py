@@ -23,7 +23,7 @@ from toolkit.publish.dataset import (
     DatasetFacts,
     SplitCounts,
     data_file,
-    stage_config_hash,
+    export_config_hash,
 )
 from toolkit.tableio import ColumnSpec
 
@@ -435,7 +435,7 @@ def _provenance(facts: DatasetFacts) -> list[str]:
         "tables `terrain tables` wrote (sha256: "
         + ", ".join(f"`{k}` {v}" for k, v in sorted(facts.tables.items()))
         + f"), configuration `{cfg.name}` (its label, tables, model and vehicle sections "
-        f"hash to {stage_config_hash(cfg)}, the `config_hash` of every Parquet file's "
+        f"hash to {export_config_hash(cfg)}, the `config_hash` of every Parquet file's "
         "metadata). Source logs (MCAP), by their sha256:",
         "",
         *_log_rows(facts),

@@ -17,7 +17,6 @@ from toolkit.errors import StageError
 from toolkit.model.patches import POINT_COLUMNS as EVENT_POINT_COLUMNS
 from toolkit.tableio import ColumnSpec, load_table_schema
 
-STAGE = "export"
 #: The configuration sections the dataset's contents and card depend on: the label's
 #: definition, the split, the tyre window and the vehicle (the tyre tracks).
 CONFIG_SECTIONS = ("label", "tables", "model", "vehicle")
@@ -49,7 +48,7 @@ def data_file(config_name: str, split: str) -> str:
     return f"data/{config_name}/{split}-00000-of-00001.parquet"
 
 
-def stage_config_hash(config: PipelineConfig) -> str:
+def export_config_hash(config: PipelineConfig) -> str:
     """The hash of the configuration sections the export depends on (in every file's
     metadata)."""
     return config_hash(config, sections=CONFIG_SECTIONS)
@@ -160,7 +159,6 @@ __all__ = [
     "POINT_COLUMNS",
     "SCORE_COLUMNS",
     "SPLITS",
-    "STAGE",
     "TYPES",
     "DatasetFacts",
     "LogSource",
@@ -168,5 +166,5 @@ __all__ = [
     "SplitCounts",
     "data_file",
     "dataset_columns",
-    "stage_config_hash",
+    "export_config_hash",
 ]

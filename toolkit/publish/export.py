@@ -38,7 +38,7 @@ from toolkit.publish.dataset import (
     SplitCounts,
     data_file,
     dataset_columns,
-    stage_config_hash,
+    export_config_hash,
 )
 from toolkit.publish.destination import check_destination, publish, remove_dead_temp_dirs
 from toolkit.sim.record import SIM_RECORD
@@ -401,7 +401,7 @@ def _check_point_rows(events: Mapping[str, pa.Table], rows: Mapping[str, int], p
 
 
 # --------------------------------------------------------------------------------------
-# The stage
+# The command
 # --------------------------------------------------------------------------------------
 
 
@@ -452,7 +452,7 @@ def _write_dataset(
     """Write every file of the export into the directory ``tmp``: the Parquet files, then
     the card and the Croissant metadata stating what they hold."""
     provenance = _Provenance(
-        tuple(s.sha256 for s in inputs.sources), stage_config_hash(config), inputs.tables
+        tuple(s.sha256 for s in inputs.sources), export_config_hash(config), inputs.tables
     )
     by_split = _write_events(tmp, inputs.events, inputs.scores, provenance)
     written = _write_points(tmp, workspace, inputs.events, inputs.log_ids, provenance)
