@@ -14,6 +14,7 @@ from toolkit.atomic import (
     atomic_write_bytes,
     atomic_write_json,
     atomic_write_text,
+    exchange_paths,
     remove_dead_temp_files,
     temp_path_beside,
 )
@@ -89,3 +90,21 @@ def test_temp_files_of_dead_runs_are_removed_not_those_of_live_ones(tmp_path: Pa
     assert remove_dead_temp_files(tmp_path) == [dead.name]
     assert mine.exists() and other_host.exists() and not dead.exists()
     assert (tmp_path / "imu.parquet").read_bytes() == b"real"
+
+
+def test_exchange_paths_swaps_two_directories_or_changes_nothing(tmp_path: Path) -> None:
+    """Two full directories trade names in one step; where the system cannot exchange, it
+    says so (False) and both are as they were. A missing path is an OSError naming it."""
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    (a / "from_a").write_text("a")
+    (b / "from_b").write_text("b")
+    if exchange_paths(a, b):
+        assert [p.name for p in a.iterdir()] == ["from_b"]
+        assert [p.name for p in b.iterdir()] == ["from_a"]
+        with pytest.raises(OSError, match="missing"):
+            exchange_paths(a, tmp_path / "missing")
+    else:
+        assert [p.name for p in a.iterdir()] == ["from_a"]
+        assert [p.name for p in b.iterdir()] == ["from_b"]

@@ -10,6 +10,8 @@ host removes once the process is gone (:func:`remove_dead_temp_files`). Tables g
 from __future__ import annotations
 
 import contextlib
+import ctypes
+import errno
 import json
 import os
 import re
@@ -93,6 +95,40 @@ def fsync_file(path: Path) -> None:
         os.close(fd)
 
 
+#: Linux renameat2(2): paths relative to the working directory; swap the two names.
+_AT_FDCWD = -100
+_RENAME_EXCHANGE = 2
+
+
+def exchange_paths(a: Path, b: Path) -> bool:
+    """Swap two existing paths in one atomic step, so a reader of either name sees the old
+    entry or the new one, never neither (Linux ``renameat2(RENAME_EXCHANGE)``, called
+    through ctypes: Python's os module has no exchange). Used to replace a whole directory,
+    which ``os.replace`` cannot do unless the target is empty.
+
+    Returns False, changing nothing, where the C library, kernel or file system cannot
+    exchange (no ``renameat2``; EINVAL, ENOSYS, EOPNOTSUPP): the caller then falls back to
+    two renames. Any other failure is an OSError naming ``b``."""
+    try:
+        renameat2 = ctypes.CDLL(None, use_errno=True).renameat2
+    except (OSError, AttributeError):
+        return False
+    renameat2.argtypes = [
+        ctypes.c_int,
+        ctypes.c_char_p,
+        ctypes.c_int,
+        ctypes.c_char_p,
+        ctypes.c_uint,
+    ]
+    renameat2.restype = ctypes.c_int
+    if renameat2(_AT_FDCWD, os.fsencode(a), _AT_FDCWD, os.fsencode(b), _RENAME_EXCHANGE) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EOPNOTSUPP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
 @contextlib.contextmanager
 def atomic_output(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it is fsynced and renamed over it.
@@ -141,6 +177,7 @@ __all__ = [
     "atomic_write_bytes",
     "atomic_write_json",
     "atomic_write_text",
+    "exchange_paths",
     "fsync_dir",
     "fsync_file",
     "host_name",

@@ -726,7 +726,7 @@ def run(
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
 def viz(workspace: Path, log_id: str, out_path: Path, overwrite: bool) -> None:
     """A Foxglove view of one log's results: pose, points by predicted roughness, events."""
-    from toolkit.stages.viz import run_viz
+    from toolkit.publish.viz import run_viz
     from toolkit.workspace import Workspace
 
     ws = Workspace(workspace).require()
@@ -749,7 +749,7 @@ def viz(workspace: Path, log_id: str, out_path: Path, overwrite: bool) -> None:
 @click.option("--overwrite", is_flag=True, help="Replace an earlier export in that folder.")
 def export(workspace: Path, out_dir: Path, overwrite: bool) -> None:
     """The labelled training and test tables as a dataset other teams load (datasets, Croissant)."""
-    from toolkit.stages.export import run_export
+    from toolkit.publish.export import run_export
     from toolkit.workspace import Workspace
 
     ws = Workspace(workspace).require()

@@ -4,21 +4,20 @@ with its own tools (Hugging Face ``datasets``, MLCommons ``mlcroissant``, polars
 The workspace is the pipeline run ``test_learn.py`` builds (label, tables, learn, evaluate on
 the projected sample, once per session, see :func:`tests.stages.test_learn.build_pipeline`).
 Every client must give back the tables exactly: per split, the same rows, in the tables'
-order, with the same values (floats bit for bit). What each split must hold is derived here
-from ``tables/events.parquet``, ``tables/event_points.parquet`` and ``report/scores.parquet``
-independently of the export's code.
+order, with the same values (floats bit for bit). What each split must hold is derived
+(``exported.py``, ``conftest.py``) from ``tables/events.parquet``,
+``tables/event_points.parquet`` and ``report/scores.parquet`` independently of the export's
+code. The dataset card and the Croissant metadata have their own files (``test_card.py``,
+``test_croissant.py``).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
-import json
 import os
-import re
 import subprocess
 import sys
-from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -27,11 +26,17 @@ import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
-import yaml
 
+from tests.publish.exported import (
+    ARROW_TYPES,
+    CONFIGS,
+    POLARS_TYPES,
+    SPLITS,
+    assert_same_rows,
+    card_header,
+)
 from tests.stages.test_learn import (
     Pipeline,
-    build_pipeline,
     copy_workspace,
     rewrite_events_table,
     with_rough,
@@ -41,109 +46,10 @@ from toolkit.atomic import host_name
 from toolkit.config import PipelineConfig
 from toolkit.errors import StageError, WorkspaceError
 from toolkit.manifest import Manifest, file_sha256
-from toolkit.stages import export as export_stage
-from toolkit.stages.export import ExportResult, data_file, run_export
+from toolkit.publish import export as export_stage
+from toolkit.publish.dataset import data_file, export_config_hash
+from toolkit.publish.export import ExportResult, run_export
 from toolkit.tableio import load_table_schema, read_table, read_table_metadata, write_table
-
-CONFIGS = ("events", "event_points")
-SPLITS = ("train", "test")
-POINT_COLUMNS = (
-    "log_id",
-    "event_id",
-    "wheel",
-    "x",
-    "y",
-    "z",
-    "tau",
-    "roll_rate",
-    "pitch_rate",
-    "laser",
-    "t_ns",
-)
-ARROW_TYPES = {
-    "string": pa.string(),
-    "int64": pa.int64(),
-    "float64": pa.float64(),
-    "bool": pa.bool_(),
-}
-POLARS_TYPES = {"string": pl.String, "int64": pl.Int64, "float64": pl.Float64, "bool": pl.Boolean}
-
-
-@pytest.fixture(scope="module")
-def pipeline(
-    sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
-) -> Pipeline:
-    return build_pipeline(sample_projected, tmp_path_factory)
-
-
-@pytest.fixture(scope="module")
-def config(pipeline: Pipeline) -> PipelineConfig:
-    return pipeline.ws.read_config()
-
-
-@pytest.fixture(scope="module")
-def exported(
-    pipeline: Pipeline, config: PipelineConfig, tmp_path_factory: pytest.TempPathFactory
-) -> tuple[Path, ExportResult]:
-    """The export of the shared pipeline's workspace (into a folder that does not exist)."""
-    out = tmp_path_factory.mktemp("export") / "dataset"
-    return out, run_export(pipeline.ws, out, config)
-
-
-@pytest.fixture(scope="module")
-def expected(pipeline: Pipeline) -> dict[str, dict[str, pa.Table]]:
-    """config -> split -> the rows the export must hold: the tables' rows of that split in
-    the tables' order, the events with the model's ``r_combined`` and ``predicted`` (joined
-    on log and event), each point in the split of its event."""
-    ws = pipeline.ws
-    schema = load_table_schema("tables_events")
-    events = read_table(ws.events_table, "tables_events", columns=schema.column_names)
-    scores = read_table(ws.scores_table, "scores")
-    score_row = {key: i for i, key in enumerate(event_keys(scores))}
-    take = pa.array([score_row[k] for k in event_keys(events)])
-    events = events.append_column(
-        "r_combined", scores.column("r_combined").take(take)
-    ).append_column("predicted", scores.column("predicted").take(take))
-    split_of = dict(zip(event_keys(events), events.column("split").to_pylist(), strict=True))
-    points = read_table(ws.event_points_table, "event_points", columns=list(POINT_COLUMNS))
-    point_split = np.array([split_of[k] for k in event_keys(points)], dtype=object)
-    event_split = np.asarray(events.column("split").to_pylist(), dtype=object)
-    return {
-        "events": {s: events.filter(pa.array(event_split == s)) for s in SPLITS},
-        "event_points": {s: points.filter(pa.array(point_split == s)) for s in SPLITS},
-    }
-
-
-def event_keys(table: pa.Table) -> list[tuple[str, int]]:
-    """(log_id, event_id) of every row."""
-    return list(
-        zip(table.column("log_id").to_pylist(), table.column("event_id").to_pylist(), strict=True)
-    )
-
-
-def column_values(values: Any) -> np.ndarray:
-    """A column of any client as a numpy array (strings as str objects)."""
-    if isinstance(values, pa.ChunkedArray | pa.Array):
-        values = values.to_pylist()
-    elif isinstance(values, pl.Series):
-        values = values.to_list()
-    out = [v.decode("utf-8") if isinstance(v, bytes) else v for v in values]
-    return np.asarray(out, dtype=object if out and isinstance(out[0], str) else None)
-
-
-def assert_same_rows(columns: Mapping[str, Any], table: pa.Table, what: str) -> None:
-    """``columns`` (name -> values, as a client gave them) are ``table``'s columns, in
-    order, with the same values (floats bit for bit, NaN equal to NaN)."""
-    assert list(columns) == table.column_names, what
-    for name in table.column_names:
-        got = column_values(columns[name])
-        want = column_values(table.column(name))
-        assert got.shape == want.shape, (what, name, got.shape, want.shape)
-        if want.dtype.kind == "f":
-            assert got.dtype.kind == "f", (what, name, got.dtype)
-            assert np.array_equal(got.view(np.int64), want.view(np.int64)), (what, name)
-        else:
-            assert np.array_equal(got, want), (what, name)
 
 
 def tree_digest(root: Path) -> dict[str, str]:
@@ -155,27 +61,9 @@ def tree_digest(root: Path) -> dict[str, str]:
     }
 
 
-def card_header(out: Path) -> dict[str, Any]:
-    """The YAML metadata of the dataset card."""
-    text = (out / "README.md").read_text(encoding="utf-8")
-    assert text.startswith("---\n")
-    header = yaml.safe_load(text.split("---\n", 2)[1])
-    assert isinstance(header, dict)
-    return header
-
-
 def leftovers(out: Path) -> list[str]:
     """Hidden directories an export to ``out`` may leave beside it."""
     return sorted(p.name for p in out.parent.iterdir() if p.name.startswith(f".{out.name}."))
-
-
-@pytest.fixture()
-def hf_offline(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> Iterator[Path]:
-    """``datasets`` kept off the network and out of the home directory; yields its cache."""
-    monkeypatch.setenv("HF_HUB_OFFLINE", "1")
-    monkeypatch.setenv("HF_DATASETS_OFFLINE", "1")
-    monkeypatch.setenv("HF_HOME", str(tmp_path / "hf_home"))
-    yield tmp_path / "hf_cache"
 
 
 # -- the layout ---------------------------------------------------------------------------
@@ -208,82 +96,6 @@ def test_the_export_holds_the_card_the_croissant_and_one_file_per_config_and_spl
 
 
 # -- the clients ----------------------------------------------------------------------------
-
-
-def test_datasets_loads_both_configs_and_splits_as_the_tables_hold_them(
-    exported: tuple[Path, ExportResult],
-    expected: dict[str, dict[str, pa.Table]],
-    hf_offline: Path,
-) -> None:
-    """``datasets.load_dataset(OUT, config)``, as a team that knows nothing of the toolkit
-    loads it: train and test splits, the card's features (dtypes of the Parquet files), and
-    every row of the tables, in order; without a config it loads ``events``."""
-    import datasets
-
-    out, _ = exported
-    for config in CONFIGS:
-        loaded = datasets.load_dataset(str(out), config, cache_dir=str(hf_offline))
-        assert sorted(loaded) == sorted(SPLITS)
-        for split in SPLITS:
-            ds = loaded[split]
-            want = expected[config][split]
-            assert ds.num_rows == want.num_rows
-            assert {n: f.dtype for n, f in ds.features.items()} == {
-                f.name: {"double": "float64"}.get(str(f.type), str(f.type)) for f in want.schema
-            }
-            table = ds.with_format("arrow")[:]
-            assert_same_rows({n: table.column(n) for n in table.column_names}, want, config)
-    default = datasets.load_dataset(str(out), cache_dir=str(hf_offline))
-    assert default["train"].num_rows == expected["events"]["train"].num_rows
-    assert default["train"].column_names == expected["events"]["train"].column_names
-
-
-@pytest.mark.slow  # end to end: run by .ci/run, left out of the README's command
-def test_croissant_validates_and_its_records_are_the_tables_rows(
-    exported: tuple[Path, ExportResult], expected: dict[str, dict[str, pa.Table]]
-) -> None:
-    """``mlcroissant.Dataset(jsonld=OUT/croissant.json)`` validates without an error; every
-    Parquet file is a FileObject with its true sha256 and size; ``records()`` of each record
-    set gives every row of the tables with its split (events: their column; points: their
-    file), in the tables' order within a split, with the same values."""
-    import mlcroissant as mlc
-
-    out, _ = exported
-    doc = json.loads((out / "croissant.json").read_text(encoding="utf-8"))
-    assert doc["@type"] == "sc:Dataset"
-    assert doc["conformsTo"] == "http://mlcommons.org/croissant/1.0"
-    assert doc["license"] == "https://creativecommons.org/licenses/by/4.0/"
-    assert doc["version"] == __version__ and doc["name"] and doc["description"] and doc["url"]
-    objects = {d["contentUrl"]: d for d in doc["distribution"] if d["@type"] == "cr:FileObject"}
-    assert sorted(objects) == sorted(data_file(c, s) for c in CONFIGS for s in SPLITS)
-    for path, obj in objects.items():
-        assert obj["encodingFormat"] == "application/x-parquet"
-        assert obj["sha256"] == file_sha256(out / path)
-        assert obj["contentSize"] == f"{(out / path).stat().st_size} B"
-
-    # The day the tables were made: a date mlcroissant reads without a warning.
-    assert re.fullmatch(r"\d{4}-\d{2}-\d{2}", doc["datePublished"])
-    dataset = mlc.Dataset(jsonld=out / "croissant.json")
-    issues = dataset.metadata.ctx.issues
-    assert not issues.errors, issues.report()
-    assert not issues.warnings, issues.report()
-    assert [rs.name for rs in dataset.metadata.record_sets] == list(CONFIGS)
-    for config in CONFIGS:
-        names = expected[config]["train"].column_names
-        fields = [*names, "split"] if config == "event_points" else names
-        columns: dict[str, list[Any]] = {name: [] for name in fields}
-        for record in dataset.records(record_set=config):
-            assert sorted(record) == sorted(f"{config}/{n}" for n in fields)
-            for name in fields:
-                columns[name].append(record[f"{config}/{name}"])
-        split = column_values(columns["split"])
-        for name in SPLITS:
-            mine = np.flatnonzero(split == name)
-            want = expected[config][name]
-            assert mine.size == want.num_rows, (config, name)
-            assert_same_rows(
-                {n: [columns[n][i] for i in mine] for n in names}, want, f"croissant {config}"
-            )
 
 
 def test_polars_and_pyarrow_read_each_split_file_as_the_tables_hold_it(
@@ -326,67 +138,10 @@ def test_polars_and_pyarrow_read_each_split_file_as_the_tables_hold_it(
             assert meta["schema_name"] == ("tables_events" if config == "events" else config)
             assert meta["toolkit_version"] == __version__
             assert meta["source_sha256"] == log_sha
-            assert meta["config_hash"] == export_stage.stage_config_hash(pipeline.ws.read_config())
+            assert meta["config_hash"] == export_config_hash(pipeline.ws.read_config())
             assert meta["dataset_config"] == config and meta["dataset_split"] == split
             source = pipeline.ws.tables_dir / f"{config}.parquet"
             assert meta["tables_sha256"] == file_sha256(source)
-
-
-# -- the card -------------------------------------------------------------------------------
-
-
-def test_the_card_maps_configs_to_files_and_states_the_data_s_numbers(
-    exported: tuple[Path, ExportResult],
-    expected: dict[str, dict[str, pa.Table]],
-    pipeline: Pipeline,
-    config: PipelineConfig,
-) -> None:
-    """The YAML header: license, pretty name, configs -> split files that exist, features
-    equal to the files' columns and types, split sizes; the prose: the toolkit's version,
-    the source log's id and sha256, that it is simulated, the label's definition with the
-    configured threshold, the split's fraction, and per split the events, rough events and
-    point rows counted from the tables."""
-    out, _ = exported
-    header = card_header(out)
-    assert header["license"] == "cc-by-4.0" and header["pretty_name"]
-    assert "tabular-classification" in header["task_categories"]
-    assert "simulated" in header["tags"]
-    assert [c["config_name"] for c in header["configs"]] == list(CONFIGS)
-    for entry in header["configs"]:
-        files = {f["split"]: f["path"] for f in entry["data_files"]}
-        assert files == {s: data_file(entry["config_name"], s) for s in SPLITS}
-        assert all((out / p).is_file() for p in files.values())
-    info = {i["config_name"]: i for i in header["dataset_info"]}
-    for config_name in CONFIGS:
-        schema = pq.read_schema(out / data_file(config_name, "train"))
-        features = [(f["name"], f["dtype"]) for f in info[config_name]["features"]]
-        assert features == [
-            (f.name, {"double": "float64"}.get(str(f.type), str(f.type))) for f in schema
-        ]
-        splits = {s["name"]: s["num_examples"] for s in info[config_name]["splits"]}
-        assert splits == {s: expected[config_name][s].num_rows for s in SPLITS}
-        assert info[config_name]["download_size"] == sum(
-            (out / data_file(config_name, s)).stat().st_size for s in SPLITS
-        )
-
-    text = (out / "README.md").read_text(encoding="utf-8")
-    manifest = Manifest(pipeline.ws.log_manifest_path(pipeline.log_id)).read()
-    assert f"version {__version__}" in text
-    assert pipeline.log_id in text and manifest["source"]["sha256"] in text
-    assert "simulated" in text.lower()
-    threshold = config.label.rough_threshold_g_per_mph
-    assert f"`rough` = `ruggedness` >= {threshold:g} G/mph" in text
-    assert f"{config.label.fir_taps}-tap" in text and f"0-{config.label.fir_stop_hz:g} Hz" in text
-    assert f"the first {100 * config.tables.train_fraction:g} % of the driven distance" in text
-    for split in SPLITS:
-        events = expected["events"][split]
-        rough = sum(events.column("rough").to_pylist())
-        points = expected["event_points"][split].num_rows
-        assert f"| {split} | {events.num_rows} | {rough} | " in text
-        assert f" | {points} | " in text
-    assert "r_combined" in text and "## The model's scores" in text
-    for path in (data_file(c, s) for c in CONFIGS for s in SPLITS):
-        assert f"`{path}`" in text and file_sha256(out / path) in text
 
 
 # -- behaviour ------------------------------------------------------------------------------

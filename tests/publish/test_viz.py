@@ -29,8 +29,8 @@ from mcap_protobuf.decoder import DecoderFactory
 from tests.stages.test_learn import build_pipeline
 from toolkit.config import default_config
 from toolkit.errors import StageError, WorkspaceError
+from toolkit.publish.viz import VizResult, run_viz
 from toolkit.stages.label import run_label
-from toolkit.stages.viz import VizResult, run_viz
 from toolkit.tableio import read_table
 from toolkit.workspace import Workspace
 
