@@ -59,7 +59,8 @@ class Call:
     generation); ``manifest`` that directory's manifest, for the header fields of the
     stages before it; ``config_hash`` the hash the runner records (and the stage stamps on
     its tables); ``start`` when the stage began (``time.perf_counter()``); ``step`` a
-    progress hook (a word on what it is doing)."""
+    progress hook (a word on what it is doing); ``found`` what the stage's
+    :attr:`Stage.gather` found besides the inputs' hashes (None without one)."""
 
     workspace: Workspace
     log_id: str
@@ -70,6 +71,7 @@ class Call:
     config_hash: str
     start: float
     step: Callable[[str], None]
+    found: Any = None
 
 
 @dataclass(frozen=True)
@@ -90,13 +92,14 @@ class Made:
 @dataclass(frozen=True)
 class Recalled:
     """An up-to-date stage's last run, for its :attr:`Stage.recall`: its record, the
-    manifest's header, the log, the settings, the seconds the check took."""
+    manifest's header, the log, the settings, the seconds the check took, the workspace."""
 
     log_id: str
     record: StageRecord
     header: Mapping[str, Any]
     settings: Any
     seconds: float
+    workspace: Workspace
 
 
 @dataclass(frozen=True)
@@ -110,7 +113,10 @@ class Stage:
     receives, whose fields are named after the configuration's sections; ``compute`` makes
     its outputs; ``recall`` gives its outcome when it is up to date; ``rows`` the row counts
     its summary line shows (None: all, summed); ``check`` refuses, before anything is
-    hashed, a log the stage cannot work on (a role it needs missing). A stage not yet moved
+    hashed, a log the stage cannot work on (a role it needs missing); ``gather`` replaces
+    the hashing of ``needs`` for a stage whose inputs are no fixed list of files (tables
+    reads every log's): it returns the inputs' hashes, checked against their makers, and
+    what it found on the way (handed to compute as ``call.found``). A stage not yet moved
     onto the runner's freshness check gives ``run`` instead of ``compute``/``recall`` (it
     checks and records itself). ``unit`` what its
     progress counts and ``progress_total`` how many; ``describe`` its outcome in words;
@@ -127,6 +133,7 @@ class Stage:
     recall: Callable[[Recalled], Outcome] | None = None
     hashed: Callable[[PipelineConfig], tuple[str, ...]] | None = None
     check: Callable[[LogFiles, Any], None] | None = None
+    gather: Callable[[Workspace, PipelineConfig], tuple[dict[str, str], Any]] | None = None
     run: Callable[..., Outcome] | None = None
     rows: tuple[str, ...] | None = None
     unit: str = "step"

@@ -58,7 +58,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
@@ -72,14 +72,11 @@ from toolkit.analysis.report import ReportInputs, roc_png, write_index_html
 from toolkit.analysis.scan_agreement import PNG_NAME as FIG4_PNG
 from toolkit.analysis.truth_terrain import true_ground, where_beams_hit
 from toolkit.atomic import atomic_write_json
-from toolkit.config import LearnConfig, ModelConfig, PipelineConfig
+from toolkit.config import EvaluateConfig, LearnConfig, ModelConfig, PipelineConfig
 from toolkit.errors import StageError
 from toolkit.generations import open_generation
 from toolkit.layout import workspace_file_name
 from toolkit.manifest import (
-    StageRecord,
-    check_up_to_date,
-    digest_files,
     file_sha256,
     require_finished,
 )
@@ -98,7 +95,7 @@ from toolkit.model.roughness import (
     score_events,
 )
 from toolkit.model.shock import MPS_PER_MPH
-from toolkit.stages.contract import Need, Stage
+from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.label import FIG5_PNG
 from toolkit.stages.learn import (
     ascent_config,
@@ -111,6 +108,7 @@ from toolkit.stages.learn import (
     table_inputs,
 )
 from toolkit.stages.learn import stage_config_hash as learn_config_hash
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import write_table
 from toolkit.workspace import Workspace
 
@@ -249,7 +247,7 @@ def _same_points(a: TyrePatches, b: TyrePatches) -> bool:
     )
 
 
-def _paper_exact(config: PipelineConfig) -> tuple[ModelConfig, LearnConfig]:
+def _paper_exact(config: EvaluateSettings) -> tuple[ModelConfig, LearnConfig]:
     """The paper's method as written, with the configured initial guess: every laser's
     points alike (the uniform sample, sect. 7: "data from all lasers is used"), eq. (4)
     without the look-ahead term, and steps accepted by eq. (6) itself with no early stopping
@@ -268,7 +266,7 @@ def _boosted(
     event_time_s: FloatArray,
     train: BoolArray,
     rough: BoolArray,
-    config: PipelineConfig,
+    config: EvaluateSettings,
 ) -> MethodScores:
     """The gradient-boosted classifier (beyond the paper, :mod:`toolkit.model.boosted`) on
     the model's points, fitted on the training split alone; its score is the log-odds of
@@ -379,7 +377,7 @@ def _routes(events: pa.Table, predicted: BoolArray, test: BoolArray) -> list[sc.
 
 
 def speed_control(
-    events: pa.Table, predicted: BoolArray, test: BoolArray, config: PipelineConfig, out_dir: Path
+    events: pa.Table, predicted: BoolArray, test: BoolArray, config: EvaluateSettings, out_dir: Path
 ) -> tuple[dict[str, Any], list[Path]]:
     """Fig. 7: the curves, the CSV and PNG, and the summary entry."""
     ev = config.evaluate
@@ -423,6 +421,16 @@ def speed_control(
     }, files
 
 
+@dataclass(frozen=True)
+class EvaluateSettings:
+    """What evaluation reads of the configuration: the model's form and the search (the
+    baselines and ablations learn as learn does), and its own section."""
+
+    model: ModelConfig
+    learn: LearnConfig
+    evaluate: EvaluateConfig
+
+
 def run_evaluate(
     workspace: Workspace,
     config: PipelineConfig,
@@ -432,19 +440,13 @@ def run_evaluate(
 ) -> EvaluateResult:
     """Score every event by every method, compare them on the test split, write the report
     (module docstring)."""
-    start = time.perf_counter()
-    # Each step's time, for the manifest (where an evaluation spends its minutes).
-    step_s: dict[str, float] = {}
-    current: list[Any] = [None, start]
+    result = run_stage(SPEC, workspace, config, overwrite=overwrite, step=step)
+    return cast(EvaluateResult, result)
 
-    def tell(what: str | None) -> None:
-        now = time.perf_counter()
-        if current[0] is not None:
-            step_s[current[0]] = step_s.get(current[0], 0.0) + now - current[1]
-        current[:] = [what, now]
-        if what is not None and step is not None:
-            step(what)
 
+def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str], None]:
+    """The tables' and the model's hashes, refused unless the model was learned from these
+    tables with this configuration."""
     inputs = table_inputs(workspace, config)
     model_path = workspace.model_path
     if not model_path.is_file():
@@ -469,20 +471,31 @@ def run_evaluate(
             path=model_path,
         )
     inputs[MODEL_NAME] = model_sha
-    cfg_hash = stage_config_hash(config)
-    report = workspace.report_dir
-    outputs = [report / SCORES_NAME, report / SUMMARY_NAME, report / INDEX_NAME]
-    manifest = workspace.manifest()
-    record = manifest.stage(STAGE)
-    if (
-        record is not None
-        and not overwrite
-        and check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=outputs)
-    ):
-        done = json.loads((report / SUMMARY_NAME).read_text())
-        return EvaluateResult(
-            "up_to_date", done, report / INDEX_NAME, (), time.perf_counter() - start
-        )
+    return inputs, None
+
+
+def _recall(last: Recalled) -> EvaluateResult:
+    """The outcome of an up-to-date report: its summary as written."""
+    report = last.workspace.report_dir
+    done = json.loads((report / SUMMARY_NAME).read_text())
+    return EvaluateResult("up_to_date", done, report / INDEX_NAME, (), last.seconds)
+
+
+def _compute(call: Call) -> Made:
+    """Score, compare and write the report (the module docstring); the runner records it."""
+    config: EvaluateSettings = call.settings
+    workspace, inputs, cfg_hash, start = call.workspace, call.inputs, call.config_hash, call.start
+    # Each step's time, for the manifest (where an evaluation spends its minutes).
+    step_s: dict[str, float] = {}
+    current: list[Any] = [None, start]
+
+    def tell(what: str | None) -> None:
+        now = time.perf_counter()
+        if current[0] is not None:
+            step_s[current[0]] = step_s.get(current[0], 0.0) + now - current[1]
+        current[:] = [what, now]
+        if what is not None:
+            call.step(what)
 
     warnings: list[str] = []
     timings: dict[str, float] = {}
@@ -789,29 +802,22 @@ def run_evaluate(
                 summary, model_doc, [p.name for p in figures], [p.name for p in speed_files], copied
             ),
         )
-        for w in warnings:
-            _log.warning("%s", w)
         names = [SCORES_NAME, SUMMARY_NAME, INDEX_NAME]
         gen.commit()
-        manifest.record_stage(
-            STAGE,
-            StageRecord(
-                inputs=inputs,
-                config_hash=cfg_hash,
-                outputs=tuple(f"report/{n}" for n in names),
-                row_counts={**counts, "scores": events.num_rows},
-                timings_s={
-                    **{k: round(v, 6) for k, v in timings.items()},
-                    **{f"step: {k}": round(v, 6) for k, v in step_s.items()},
-                    "total": round(time.perf_counter() - start, 6),
-                },
-                warnings=tuple(warnings),
-                output_files=digest_files(report, names),
-            ),
-        )
     report = workspace.report_dir
-    return EvaluateResult(
+    outcome = EvaluateResult(
         "written", summary, report / INDEX_NAME, tuple(warnings), time.perf_counter() - start
+    )
+    return Made(
+        outcome,
+        tuple(f"{REPORT_NAME}/{n}" for n in names),
+        row_counts={**counts, "scores": events.num_rows},
+        timings_s={
+            **timings,
+            **{f"step: {k}": v for k, v in step_s.items()},
+            "total": time.perf_counter() - start,
+        },
+        warnings=tuple(warnings),
     )
 
 
@@ -835,19 +841,6 @@ def _copy_log_figures(
     return out
 
 
-def _run(
-    workspace: Workspace,
-    config: PipelineConfig,
-    *,
-    log_id: str,
-    overwrite: bool,
-    step: Callable[[str], None],
-) -> EvaluateResult:
-    """The contract's entry: :func:`run_evaluate`."""
-    del log_id
-    return run_evaluate(workspace, config, overwrite=overwrite, step=step)
-
-
 SPEC = Stage(
     STAGE,
     "workspace",
@@ -858,7 +851,10 @@ SPEC = Stage(
     ),
     makes=("scores", "summary", "index"),
     sections=CONFIG_SECTIONS,
-    run=_run,
+    settings=EvaluateSettings,
+    gather=_gather,
+    compute=_compute,
+    recall=_recall,
     rows=("scores",),
     describe=EvaluateResult.text,
 )

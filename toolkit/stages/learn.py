@@ -17,13 +17,14 @@ the toolkit's version. The same tables and configuration give the same file, byt
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
@@ -35,9 +36,6 @@ from toolkit.config import LearnConfig, ModelConfig, PipelineConfig
 from toolkit.errors import ConfigError, StageError
 from toolkit.layout import workspace_file_name
 from toolkit.manifest import (
-    StageRecord,
-    check_up_to_date,
-    digest_files,
     file_sha256,
     require_finished,
 )
@@ -45,7 +43,8 @@ from toolkit.model.ascent import AscentConfig, AscentResult, b_names, coordinate
 from toolkit.model.patches import POINT_COLUMNS, TyrePatches, build_patches, lead_order
 from toolkit.model.roughness import PairTable, RoughnessParams
 from toolkit.stages import tables as tables_stage
-from toolkit.stages.contract import Need, Stage
+from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import iter_table_batches, read_table
 from toolkit.workspace import Workspace
 
@@ -299,8 +298,6 @@ def model_json(
 def load_model(workspace: Workspace) -> tuple[RoughnessParams, dict[str, Any]]:
     """The learned parameters and the whole ``model.json``; StageError if missing or
     malformed."""
-    import json
-
     path = workspace.model_path
     if not path.is_file():
         raise StageError("no model; run `terrain learn` first", path=path)
@@ -340,6 +337,14 @@ def load_model(workspace: Workspace) -> tuple[RoughnessParams, dict[str, Any]]:
     return params, doc
 
 
+@dataclass(frozen=True)
+class LearnSettings:
+    """What learning reads of the configuration: the model's form and the search."""
+
+    model: ModelConfig
+    learn: LearnConfig
+
+
 def run_learn(
     workspace: Workspace,
     config: PipelineConfig,
@@ -347,23 +352,27 @@ def run_learn(
     overwrite: bool = False,
     progress: Callable[[int], None] | None = None,
 ) -> LearnResult:
-    """Learn the model from the training split and write ``model.json`` (module docstring)."""
-    import json
+    """Learn the model from the training split and write ``model.json`` (module docstring);
+    ``progress`` is told each rotation of the search."""
+    step = (lambda _: progress(1)) if progress is not None else None
+    return cast(LearnResult, run_stage(SPEC, workspace, config, overwrite=overwrite, step=step))
 
-    start = time.perf_counter()
-    inputs = table_inputs(workspace, config)
-    cfg_hash = stage_config_hash(config)
-    manifest = workspace.manifest()
-    record = manifest.stage(STAGE)
-    outputs = [workspace.model_path]
-    if (
-        record is not None
-        and not overwrite
-        and check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=outputs)
-    ):
-        doc = json.loads(workspace.model_path.read_text())
-        return LearnResult("up_to_date", doc, time.perf_counter() - start)
 
+def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str], None]:
+    """The tables' hashes (:func:`table_inputs`)."""
+    return table_inputs(workspace, config), None
+
+
+def _recall(last: Recalled) -> LearnResult:
+    """The outcome of an up-to-date model: the model as written."""
+    doc = json.loads(last.workspace.model_path.read_text())
+    return LearnResult("up_to_date", doc, last.seconds)
+
+
+def _compute(call: Call) -> Made:
+    """Learn and write ``model.json`` (the module docstring); the runner records it."""
+    config: LearnSettings = call.settings
+    workspace, inputs, cfg_hash, start = call.workspace, call.inputs, call.config_hash, call.start
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     train = split_events(workspace, "train")
@@ -376,7 +385,7 @@ def run_learn(
     t0 = time.perf_counter()
     search = ascent_config(config.learn)
     try:
-        result = coordinate_ascent(pairs, rough, search, progress)
+        result = coordinate_ascent(pairs, rough, search, lambda _: call.step(""))
     except ValueError as exc:  # an initial guess whose scores overflow: the configuration's
         raise ConfigError(
             f"learn.initial_alpha / initial_upsilon / initial_omega / initial_zeta: {exc}",
@@ -391,43 +400,22 @@ def run_learn(
         points=int(patches.count.sum()),
         model=config.model,
         laser_order=order,
-        inputs=inputs,
+        inputs=dict(inputs),
         cfg_hash=cfg_hash,
     )
     atomic_write_json(workspace.model_path, doc)
-    manifest.record_stage(
-        STAGE,
-        StageRecord(
-            inputs=inputs,
-            config_hash=cfg_hash,
-            outputs=(workspace_file_name("model"),),
-            row_counts={
-                "train_events": train.num_rows,
-                "train_positives": int(rough.sum()),
-                "points": int(patches.count.sum()),
-                "pairs": pairs.pairs * pairs.groups,
-            },
-            timings_s={
-                **{k: round(v, 6) for k, v in timings.items()},
-                "total": round(time.perf_counter() - start, 6),
-            },
-            output_files=digest_files(workspace.root, [workspace_file_name("model")]),
-        ),
+    outcome = LearnResult("written", doc, time.perf_counter() - start)
+    return Made(
+        outcome,
+        (workspace_file_name("model"),),
+        row_counts={
+            "train_events": train.num_rows,
+            "train_positives": int(rough.sum()),
+            "points": int(patches.count.sum()),
+            "pairs": pairs.pairs * pairs.groups,
+        },
+        timings_s={**timings, "total": time.perf_counter() - start},
     )
-    return LearnResult("written", doc, time.perf_counter() - start)
-
-
-def _run(
-    workspace: Workspace,
-    config: PipelineConfig,
-    *,
-    log_id: str,
-    overwrite: bool,
-    step: Callable[[str], None],
-) -> LearnResult:
-    """The contract's entry: :func:`run_learn`, a step a rotation of the search."""
-    del log_id
-    return run_learn(workspace, config, overwrite=overwrite, progress=lambda _: step(""))
 
 
 SPEC = Stage(
@@ -436,7 +424,10 @@ SPEC = Stage(
     needs=(Need("events_table", "tables"), Need("event_points_table", "tables")),
     makes=("model",),
     sections=CONFIG_SECTIONS,
-    run=_run,
+    settings=LearnSettings,
+    gather=_gather,
+    compute=_compute,
+    recall=_recall,
     rows=("train_events", "points", "pairs"),
     unit="rotation",
     progress_total=lambda config: config.learn.iterations,

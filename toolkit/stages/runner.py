@@ -13,6 +13,9 @@ For a stage on the runner's check (:attr:`Stage.compute`), :func:`run_stage`
    what it read and wrote in the manifest (:class:`~toolkit.manifest.StageRecord`);
 5. says the stage's warnings on the terminal.
 
+A workspace stage does the same over the workspace's root and manifest (no generation: its
+outputs are each published whole by atomic rename, the report as a generation of its own).
+
 The workspace lock is the caller's (one command or one ``run`` holds it over many stages).
 """
 
@@ -21,6 +24,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -28,10 +32,10 @@ from toolkit.config import PipelineConfig
 from toolkit.errors import StageError
 from toolkit.layout import LogFiles, log_file_name
 from toolkit.manifest import (
+    FileDigest,
     Manifest,
     StageRecord,
     check_up_to_date,
-    digest_files,
     file_sha256,
     require_finished,
 )
@@ -62,55 +66,83 @@ def run_stage(
         return spec.run(
             workspace, config, log_id=log_id, overwrite=overwrite, step=step or _quiet, **extra
         )
-    if spec.compute is None or spec.recall is None:
-        raise TypeError(f"stage {spec.name!r} declares neither run nor compute and recall")
-    if spec.scope != "log":
-        raise TypeError(f"stage {spec.name!r}: only per-log stages compute on the runner yet")
     start = time.perf_counter()
-    workspace.require_log(log_id)
-    with workspace.change_log(log_id) as gen:
-        outcome = _fresh_or_computed(
-            spec, workspace, config, LogFiles(gen.path), log_id, overwrite, step, start
-        )
-        if outcome.status != "up_to_date":
-            gen.commit()
-    logger = logging.getLogger(spec.compute.__module__)
+    here = _Here(spec, workspace, config, log_id, overwrite, step or _quiet, start)
+    if spec.scope == "workspace":
+        outcome = here.fresh_or_computed(workspace.manifest(), workspace.root)
+    else:
+        workspace.require_log(log_id)
+        with workspace.change_log(log_id) as gen:
+            outcome = here.fresh_or_computed(Manifest(LogFiles(gen.path).manifest), gen.path)
+            if outcome.status != "up_to_date":
+                gen.commit()
+    logger = logging.getLogger(spec.compute.__module__ if spec.compute else __name__)
     for warning in getattr(outcome, "warnings", ()):
-        logger.warning("%s: %s", log_id, warning)
+        if log_id:
+            logger.warning("%s: %s", log_id, warning)
+        else:
+            logger.warning("%s", warning)
     return outcome
 
 
-def _fresh_or_computed(
-    spec: Stage,
-    workspace: Workspace,
-    config: PipelineConfig,
-    files: LogFiles,
-    log_id: str,
-    overwrite: bool,
-    step: Callable[[str], None] | None,
-    start: float,
-) -> Outcome:
-    """Steps 2-4 of the module docstring, inside the log's directory ``files``."""
-    assert spec.compute is not None and spec.recall is not None  # run_stage checked
-    manifest = Manifest(files.manifest)
-    settings = spec.settings_from(config)
-    if spec.check is not None:
-        spec.check(files, settings)
-    inputs = hash_needs(spec, files, manifest)
-    cfg_hash = spec.config_hash(config)
-    record = manifest.stage(spec.name)
-    if not overwrite and record is not None:
-        written = [files.dir / o for o in record.outputs] or [files.path(m) for m in spec.makes]
-        if check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=written):
-            header = manifest.read()
-            seconds = time.perf_counter() - start
-            return spec.recall(Recalled(log_id, record, header, settings, seconds))
-    call = Call(
-        workspace, log_id, settings, files, manifest, inputs, cfg_hash, start, step or _quiet
-    )
-    made = spec.compute(call)
-    record_made(manifest, spec.name, made, inputs, cfg_hash, files.dir)
-    return made.outcome
+@dataclass(frozen=True)
+class _Here:
+    """One run of one stage: what :meth:`fresh_or_computed` works with."""
+
+    spec: Stage
+    workspace: Workspace
+    config: PipelineConfig
+    log_id: str
+    overwrite: bool
+    step: Callable[[str], None]
+    start: float
+
+    def fresh_or_computed(self, manifest: Manifest, directory: Path) -> Outcome:
+        """Steps 2-4 of the module docstring: ``directory`` holds the stage's outputs (a
+        log's new generation, or the workspace's root) and ``manifest`` its records."""
+        spec = self.spec
+        if spec.compute is None or spec.recall is None:
+            raise TypeError(f"stage {spec.name!r} declares neither run nor compute and recall")
+        files = LogFiles(directory)
+        settings = spec.settings_from(self.config)
+        if spec.check is not None:
+            spec.check(files, settings)
+        found: Any = None
+        if spec.gather is not None:
+            inputs, found = spec.gather(self.workspace, self.config)
+        else:
+            inputs = hash_needs(spec, files, manifest)
+        cfg_hash = spec.config_hash(self.config)
+        record = manifest.stage(spec.name)
+        if not self.overwrite and record is not None:
+            written = [directory / o for o in record.outputs] or [
+                self._made_path(files, m) for m in spec.makes
+            ]
+            if check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=written):
+                seconds = time.perf_counter() - self.start
+                last = Recalled(
+                    self.log_id, record, manifest.read(), settings, seconds, self.workspace
+                )
+                return spec.recall(last)
+        call = Call(
+            self.workspace,
+            self.log_id,
+            settings,
+            files,
+            manifest,
+            inputs,
+            cfg_hash,
+            self.start,
+            self.step,
+            found,
+        )
+        made = spec.compute(call)
+        record_made(manifest, spec.name, made, inputs, cfg_hash, directory)
+        return made.outcome
+
+    def _made_path(self, files: LogFiles, name: str) -> Path:
+        """Where an output of layout name ``name`` is: in the log, or in the workspace."""
+        return files.path(name) if self.spec.scope == "log" else self.workspace.path(name)
 
 
 def hash_needs(spec: Stage, files: LogFiles, manifest: Manifest) -> dict[str, str]:
@@ -155,7 +187,8 @@ def record_made(
             rejects=dict(made.rejects),
             timings_s={k: round(v, 6) for k, v in sorted(made.timings_s.items())},
             warnings=made.warnings,
-            output_files=digest_files(directory, made.outputs),
+            # Keyed by file name, as the up-to-date check looks them up.
+            output_files={Path(o).name: FileDigest.of(directory / o) for o in made.outputs},
         ),
     )
 

@@ -43,11 +43,11 @@ from __future__ import annotations
 import logging
 import time
 from collections import defaultdict, deque
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import Protocol, cast
 
 import numpy as np
 import pyarrow as pa
@@ -55,18 +55,16 @@ import pyarrow.compute as pc
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from toolkit.config import PipelineConfig
+from toolkit.config import ModelConfig, PipelineConfig, TablesConfig, VehicleConfig
 from toolkit.errors import StageError
-from toolkit.layout import LogFiles
+from toolkit.layout import LogFiles, log_file_name
 from toolkit.manifest import (
     Manifest,
-    StageRecord,
-    check_up_to_date,
-    digest_files,
     file_sha256,
     require_finished,
 )
-from toolkit.stages.contract import Need, Stage
+from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import (
     TableWriter,
     iter_table_batches,
@@ -377,7 +375,7 @@ def _require_points_near_enough(points_path: Path, radius_m: float, log_id: str)
         )
 
 
-def _event_points_of_log(inputs: LogInputs, config: PipelineConfig) -> Iterator[MatchedBatch]:
+def _event_points_of_log(inputs: LogInputs, config: TablesSettings) -> Iterator[MatchedBatch]:
     """The event-point rows of one log, batch by batch, in the order of the points."""
     log_dir = inputs.log_dir
     events = read_table(LogFiles(log_dir).events, "events", columns=list(EVENT_COLUMNS))
@@ -498,13 +496,15 @@ def _log_inputs(workspace: Workspace) -> tuple[list[LogInputs], list[str]]:
     for each log left out and why."""
     usable: list[LogInputs] = []
     warnings: list[str] = []
+    made_by = {need.name: need.made_by for need in SPEC.needs}
     for log_id in workspace.log_ids():
-        log_dir = workspace.log_dir(log_id)
-        manifest = Manifest(log_dir / Workspace.MANIFEST_NAME)
+        files = workspace.log(log_id)
+        log_dir = files.dir
+        manifest = Manifest(files.manifest)
         missing = [
             stage
-            for stage, name in (("label", "events"), ("project", "points"), ("pose", "pose"))
-            if manifest.stage(stage) is None or not (log_dir / f"{name}.parquet").is_file()
+            for name, stage in made_by.items()
+            if manifest.stage(stage) is None or not files.path(name).is_file()
         ]
         if missing:
             warnings.append(
@@ -512,10 +512,10 @@ def _log_inputs(workspace: Workspace) -> tuple[list[LogInputs], list[str]]:
                 f"{missing[0]}` on it)"
             )
             continue
-        hashes = {n: file_sha256(log_dir / f"{n}.parquet") for n in ("events", "points", "pose")}
-        for stage, name in (("label", "events"), ("project", "points"), ("pose", "pose")):
+        hashes = {name: file_sha256(files.path(name)) for name in made_by}
+        for name, stage in made_by.items():
             require_finished(
-                manifest.stage(stage), stage, {f"{name}.parquet": hashes[name]}, log_dir
+                manifest.stage(stage), stage, {log_file_name(name): hashes[name]}, log_dir
             )
         # Events and points must both come from the pose there is now: tyre paths from one
         # pose matched against points placed with another would be quietly wrong.
@@ -538,7 +538,7 @@ def _log_inputs(workspace: Workspace) -> tuple[list[LogInputs], list[str]]:
     return usable, warnings
 
 
-def _splits(events_by_log: list[pa.Table], config: PipelineConfig) -> list[NDArray[np.str_]]:
+def _splits(events_by_log: list[pa.Table], config: TablesSettings) -> list[NDArray[np.str_]]:
     """'train' / 'test' per event of each log (see the module docstring)."""
     frac = config.tables.train_fraction
     lengths = [
@@ -559,12 +559,30 @@ def _splits(events_by_log: list[pa.Table], config: PipelineConfig) -> list[NDArr
     return out
 
 
+@dataclass(frozen=True)
+class TablesSettings:
+    """What tables reads of the configuration: its section, the vehicle (track, wheelbase)
+    and the model (the radius of a tyre's patch)."""
+
+    tables: TablesConfig
+    vehicle: VehicleConfig
+    model: ModelConfig
+
+
 def run_tables(
     workspace: Workspace, config: PipelineConfig, *, overwrite: bool = False
 ) -> TablesResult:
     """Build ``tables/events.parquet`` and ``tables/event_points.parquet`` from every log
     (see the module docstring)."""
-    start = time.perf_counter()
+    return cast(TablesResult, run_stage(SPEC, workspace, config, overwrite=overwrite))
+
+
+def _gather(
+    workspace: Workspace, config: PipelineConfig
+) -> tuple[dict[str, str], tuple[list[LogInputs], list[str]]]:
+    """Every usable log's events, points and pose, hashed (``<log id>/<name>``), and the
+    logs with the warnings on those left out."""
+    del config  # which logs are usable does not depend on it
     logs, warnings = _log_inputs(workspace)
     if not logs:
         raise StageError(
@@ -572,33 +590,37 @@ def run_tables(
             "`terrain project` first",
             path=workspace.logs_dir,
         )
-    manifest = workspace.manifest()
     inputs = {f"{li.log_id}/{n}": h for li in logs for n, h in sorted(li.hashes.items())}
-    cfg_hash = stage_config_hash(config)
-    outputs = [workspace.events_table, workspace.event_points_table]
-    record = manifest.stage(STAGE)
-    if (
-        record is not None
-        and not overwrite
-        and check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=outputs)
-    ):
-        splits = {
-            k.removesuffix("_events"): SplitTotals(
-                int(record.row_counts.get(f"{k}", 0)),
-                int(record.row_counts.get(k.replace("_events", "_positives"), 0)),
-                int(record.row_counts.get(k.replace("_events", "_points"), 0)),
-            )
-            for k in ("train_events", "test_events")
-        }
-        return TablesResult(
-            "up_to_date",
-            len(logs),
-            splits,
-            dict(record.rejects),
-            time.perf_counter() - start,
-            distinct_points=int(record.row_counts.get("distinct_points", 0)),
-        )
+    return inputs, (logs, warnings)
 
+
+def _recall(last: Recalled) -> TablesResult:
+    """The outcome of up-to-date tables, from their record."""
+    record = last.record
+    splits = {
+        k.removesuffix("_events"): SplitTotals(
+            int(record.row_counts.get(f"{k}", 0)),
+            int(record.row_counts.get(k.replace("_events", "_positives"), 0)),
+            int(record.row_counts.get(k.replace("_events", "_points"), 0)),
+        )
+        for k in ("train_events", "test_events")
+    }
+    return TablesResult(
+        "up_to_date",
+        len({key.split("/")[0] for key in record.inputs}),
+        splits,
+        dict(record.rejects),
+        last.seconds,
+        distinct_points=int(record.row_counts.get("distinct_points", 0)),
+    )
+
+
+def _compute(call: Call) -> Made:
+    """Write the two tables (the module docstring); the runner records them."""
+    config: TablesSettings = call.settings
+    workspace, cfg_hash, start = call.workspace, call.config_hash, call.start
+    logs, warnings = call.found
+    outputs = [workspace.events_table, workspace.event_points_table]
     events_by_log = [
         read_table(LogFiles(li.log_dir).events, "events", columns=list(EVENT_COLUMNS))
         for li in logs
@@ -704,25 +726,7 @@ def run_tables(
     row_counts["distinct_points"] = distinct_points
     if splits["train"].events + splits["test"].events == 0:
         warnings.append("no event to tabulate: the tables are empty (see `terrain label`)")
-    manifest.record_stage(
-        STAGE,
-        StageRecord(
-            inputs=inputs,
-            config_hash=cfg_hash,
-            outputs=tuple(str(p.relative_to(workspace.root)) for p in outputs),
-            row_counts=row_counts,
-            rejects=rejects,
-            timings_s={
-                **{k: round(v, 6) for k, v in timings.items()},
-                "total": round(time.perf_counter() - start, 6),
-            },
-            warnings=tuple(warnings),
-            output_files=digest_files(workspace.tables_dir, [p.name for p in outputs]),
-        ),
-    )
-    for warning in warnings:
-        _log.warning("%s", warning)
-    return TablesResult(
+    outcome = TablesResult(
         "written",
         len(logs),
         splits,
@@ -731,19 +735,14 @@ def run_tables(
         tuple(warnings),
         distinct_points=distinct_points,
     )
-
-
-def _run(
-    workspace: Workspace,
-    config: PipelineConfig,
-    *,
-    log_id: str,
-    overwrite: bool,
-    step: Callable[[str], None],
-) -> TablesResult:
-    """The contract's entry: :func:`run_tables`."""
-    del log_id, step
-    return run_tables(workspace, config, overwrite=overwrite)
+    return Made(
+        outcome,
+        tuple(str(p.relative_to(workspace.root)) for p in outputs),
+        row_counts=row_counts,
+        rejects=rejects,
+        timings_s={**timings, "total": time.perf_counter() - start},
+        warnings=tuple(warnings),
+    )
 
 
 SPEC = Stage(
@@ -752,7 +751,10 @@ SPEC = Stage(
     needs=(Need("events", "label"), Need("points", "project"), Need("pose", "pose")),
     makes=("events_table", "event_points_table"),
     sections=CONFIG_SECTIONS,
-    run=_run,
+    settings=TablesSettings,
+    gather=_gather,
+    compute=_compute,
+    recall=_recall,
     rows=("train_events", "test_events", "train_points", "test_points"),
 )
 
