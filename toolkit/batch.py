@@ -482,9 +482,9 @@ def stage_task(
     user's config file), the stage's outcome out."""
     path, log_id = item if isinstance(item, tuple) else (item, "")
     spec = registry.stage(stage)
-    extra: dict[str, Any] = {"source": Path(cwd, path)} if spec.source else {}
+    source = Path(cwd, path) if spec.starts_log else None
     ws = Workspace(workspace_root)
-    return run_stage(spec, ws, config, log_id=log_id, overwrite=overwrite, **extra)
+    return run_stage(spec, ws, config, log_id=log_id, overwrite=overwrite, source=source)
 
 
 def this_shard(

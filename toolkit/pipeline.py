@@ -226,7 +226,7 @@ def run_pipeline(
         per_log = [s for s in stages if registry.stage(s).scope == "log"]
         over_ws = [s for s in stages if s not in per_log]
         workspace_stages = over_ws if num_shards == 1 else []
-        starts = registry.stage(per_log[0]).source if per_log else False
+        starts = registry.stage(per_log[0]).starts_log if per_log else False
         notes: list[str] = []
         if num_shards > 1 and over_ws:
             notes.append(
@@ -277,7 +277,7 @@ def run_pipeline(
                     if adopt_config and summary.results:
                         ws.write_config(config)  # a config becomes the workspace's once it worked
                         adopt_config = False
-                    if spec.source:  # the log ids are known once it has read the files
+                    if spec.starts_log:  # the log ids are known once it has read the files
                         results = summary.results
                         items = [
                             (p, str(results[(p, i)].log_id)) for p, i in items if (p, i) in results

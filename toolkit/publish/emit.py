@@ -43,6 +43,7 @@ from numpy.typing import NDArray
 
 from toolkit.config import PipelineConfig
 from toolkit.frames import ORIGIN_MIN_STATUS, valid_fixes
+from toolkit.layout import LogFiles
 from toolkit.publish.scene import (
     DESCRIPTIONS,
     GPS_COLUMNS,
@@ -192,7 +193,7 @@ def write_mcap(
         writer.write_metadata("terrain.viz", metadata)
         timeline = _Timeline(_small_streams(scene, ctx, config, counts))
         # /points, the stream everything else is merged into
-        if scene.has("points.parquet"):
+        if scene.has("points"):
             _log_clouds(scene, ctx, config, clouds, timeline, counts)
         timeline.play_until(None)  # the small topics' messages after the last cloud
     return counts
@@ -205,8 +206,8 @@ def _small_streams(
     made in this order, which numbers them in the file), their messages counted."""
     streams = [_tf_stream(scene.pose, ctx, config)]
     counts["transforms"] = int(streams[0][0].size)
-    if scene.has("gps.parquet"):
-        gps_stream, n_fix, n_without = _gps_stream(scene.log_dir / "gps.parquet", ctx, config)
+    if scene.has("gps"):
+        gps_stream, n_fix, n_without = _gps_stream(LogFiles(scene.log_dir).gps, ctx, config)
         streams.append(gps_stream)
         counts["gps_fixes"], counts["gps_without_fix"] = n_fix, n_without
     events = scene.events
@@ -215,8 +216,8 @@ def _small_streams(
         counts["events"] = len(events)
         counts["rough_events"] = int(events.rough.sum())
         counts["scored_events"] = int(events.scored.sum())
-    if scene.has("truth_pose.parquet"):
-        truth = _truth_stream(scene.log_dir / "truth_pose.parquet", ctx)
+    if scene.has("truth_pose"):
+        truth = _truth_stream(LogFiles(scene.log_dir).truth_pose, ctx)
         if truth is not None:
             stream, vertices = truth
             streams.append(stream)
@@ -240,7 +241,7 @@ def _log_clouds(
     axle = AxlePath.of(scene.pose)
     half = 0.5 * config.vehicle.track_m
     events = scene.events
-    for cloud in iter_clouds(scene.log_dir / "points.parquet", clouds.period_ns, clouds.max_points):
+    for cloud in iter_clouds(LogFiles(scene.log_dir).points, clouds.period_ns, clouds.max_points):
         counts["points_read"] += cloud.rows_read
         timeline.play_until(cloud.t_ns)
         on = axle.events_under(cloud.x, cloud.y, events, half)

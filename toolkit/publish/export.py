@@ -24,6 +24,7 @@ from numpy.typing import NDArray
 from toolkit.atomic import atomic_write_text, fsync_dir, temp_path_beside
 from toolkit.config import PipelineConfig
 from toolkit.errors import StageError, WorkspaceError
+from toolkit.layout import LogFiles, workspace_file_name
 from toolkit.manifest import Manifest, StageRecord, file_sha256, require_finished
 from toolkit.publish.card import dataset_card
 from toolkit.publish.croissant import croissant_metadata
@@ -125,7 +126,7 @@ def log_source(workspace: Workspace, log_id: str, config: PipelineConfig) -> Log
             path=manifest_path,
         )
     sim: Mapping[str, Any] | None = None
-    meta_path = log_dir / "mcap_metadata.json"
+    meta_path = LogFiles(log_dir).mcap_metadata
     if meta_path.is_file():
         meta = read_json(meta_path)
         if isinstance(meta, dict) and isinstance(meta.get(SIM_RECORD), dict):
@@ -220,7 +221,7 @@ def model_scores(
         ]
     take = pa.array(rows, pa.int64())
     mu: float | None = None
-    model_sha = record.inputs.get("model.json")
+    model_sha = record.inputs.get(workspace_file_name("model"))
     # mu is quoted only from the model that was scored (model.json may have been relearned).
     if (
         model_sha

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from toolkit.errors import StageError
+from toolkit.layout import LogFiles, log_file_name
 from toolkit.manifest import Manifest, file_sha256, require_finished
 from toolkit.stages.tables import EVENT_COLUMNS
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
@@ -211,16 +212,20 @@ def read_scored_events(
 def checked_inputs(workspace: Workspace, log_dir: Path, warnings: list[str]) -> dict[str, str]:
     """Which inputs there are (name -> sha256), each checked to be the file the stage that
     wrote it recorded (a WorkspaceError naming the file otherwise)."""
-    manifest = Manifest(log_dir / Workspace.MANIFEST_NAME)
-    pose_path = log_dir / "pose.parquet"
+    files = LogFiles(log_dir)
+    manifest = Manifest(files.manifest)
+    pose_path = files.pose
     if not pose_path.is_file():
         raise StageError("input table missing; run `terrain pose` first", path=pose_path)
     producers = {
-        "pose.parquet": "pose",
-        "points.parquet": "project",
-        "events.parquet": "label",
-        "gps.parquet": "ingest",
-        "truth_pose.parquet": "ingest",
+        log_file_name(layout): stage
+        for layout, stage in (
+            ("pose", "pose"),
+            ("points", "project"),
+            ("events", "label"),
+            ("gps", "ingest"),
+            ("truth_pose", "ingest"),
+        )
     }
     hashes: dict[str, str] = {}
     for name, stage in producers.items():
@@ -228,12 +233,14 @@ def checked_inputs(workspace: Workspace, log_dir: Path, warnings: list[str]) -> 
             hashes[name] = file_sha256(log_dir / name)
             require_finished(manifest.stage(stage), stage, {name: hashes[name]}, log_dir)
     for name, topic, stage in (
-        ("points.parquet", TOPIC_POINTS, "project"),
-        ("events.parquet", TOPIC_EVENTS, "label"),
+        (log_file_name("points"), TOPIC_POINTS, "project"),
+        (log_file_name("events"), TOPIC_EVENTS, "label"),
     ):
         if name not in hashes:
             warnings.append(f"no {name}, so no {topic} (run `terrain {stage}` for it)")
     ws_manifest = Manifest(workspace.manifest_path)
+    scores_key = str(workspace.scores_table.relative_to(workspace.root))
+    model_key = workspace.model_path.name
     if workspace.scores_table.is_file():
         sha = file_sha256(workspace.scores_table)
         require_finished(
@@ -242,22 +249,22 @@ def checked_inputs(workspace: Workspace, log_dir: Path, warnings: list[str]) -> 
             {workspace.scores_table.name: sha},
             workspace.report_dir,
         )
-        hashes["report/scores.parquet"] = sha
+        hashes[scores_key] = sha
     if workspace.model_path.is_file():
         sha = file_sha256(workspace.model_path)
         require_finished(
             ws_manifest.stage("learn"), "learn", {workspace.model_path.name: sha}, workspace.root
         )
-        hashes["model.json"] = sha
+        hashes[model_key] = sha
         # Scores and mu must come from one learning: scores from an earlier model coloured
         # against a later model's mu would show the wrong verdicts.
         evaluated = ws_manifest.stage("evaluate")
         if (
-            "report/scores.parquet" in hashes
+            scores_key in hashes
             and evaluated is not None
-            and evaluated.inputs.get("model.json") != sha
+            and evaluated.inputs.get(model_key) != sha
         ):
-            del hashes["report/scores.parquet"]
+            del hashes[scores_key]
             warnings.append(
                 "report/scores.parquet scored an earlier model than model.json: points and "
                 "events shown unscored (run `terrain evaluate`)"
@@ -289,24 +296,25 @@ class Scene:
     mu: float | None
 
     def has(self, name: str) -> bool:
-        """Whether the log has the input ``name`` (``points.parquet``, ``gps.parquet``...)."""
-        return name in self.inputs_sha256
+        """Whether the log has the input of layout name ``name`` (``points``, ``gps``...)."""
+        return log_file_name(name) in self.inputs_sha256
 
 
 def read_scene(workspace: Workspace, log_id: str, log_dir: Path, warnings: list[str]) -> Scene:
     """The scene of the log in ``log_dir`` (a snapshot of ``log_id``'s folder), every input
     checked; what is missing or stale is appended to ``warnings``."""
     hashes = checked_inputs(workspace, log_dir, warnings)
-    pose_path = log_dir / "pose.parquet"
+    pose_path = LogFiles(log_dir).pose
     pose = read_pose(pose_path)
     pose_meta = read_table_metadata(pose_path)
-    scores_path = workspace.scores_table if "report/scores.parquet" in hashes else None
-    if "events.parquet" in hashes:
-        events = read_scored_events(log_dir / "events.parquet", scores_path, log_id, warnings)
+    scored = str(workspace.scores_table.relative_to(workspace.root))
+    scores_path = workspace.scores_table if scored in hashes else None
+    if log_file_name("events") in hashes:
+        events = read_scored_events(LogFiles(log_dir).events, scores_path, log_id, warnings)
     else:
         none = np.zeros(0, dtype=bool)
         events = EventRows({c: np.zeros(0) for c in EVENT_COLUMNS}, np.zeros(0), none, none, None)
-    mu = read_model_mu(workspace.model_path) if "model.json" in hashes else None
+    mu = read_model_mu(workspace.model_path) if workspace.model_path.name in hashes else None
     if events.scored.any() and (mu is None or events.r_low is None or not events.r_low < mu):
         warnings.append(
             "no usable mu in model.json (or no score below it): points on scored events are "

@@ -14,9 +14,10 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal, Protocol
 
-from toolkit.config import PipelineConfig, config_hash
+from toolkit.config import SECTIONS, PipelineConfig, config_hash
 from toolkit.layout import LogFiles
 from toolkit.manifest import Manifest, StageRecord
 from toolkit.workspace import Workspace
@@ -92,7 +93,8 @@ class Made:
 @dataclass(frozen=True)
 class Recalled:
     """An up-to-date stage's last run, for its :attr:`Stage.recall`: its record, the
-    manifest's header, the log, the settings, the seconds the check took, the workspace."""
+    manifest's header, the log, the settings, the seconds the check took, the workspace,
+    and what the stage's gather or locate found."""
 
     log_id: str
     record: StageRecord
@@ -100,46 +102,55 @@ class Recalled:
     settings: Any
     seconds: float
     workspace: Workspace
+    found: Any = None
 
 
 @dataclass(frozen=True)
 class Stage:
     """One stage's declaration.
 
-    ``needs`` and ``makes`` are layout names; ``sections`` the configuration it reads
-    (sections such as ``"label"`` or single keys such as ``"model.wheel_window_radius_m"``:
-    their hash is its configuration's part of the up-to-date key; ``hashed`` overrides them
-    when what it reads depends on the configuration); ``settings`` the frozen dataclass it
-    receives, whose fields are named after the configuration's sections; ``compute`` makes
-    its outputs; ``recall`` gives its outcome when it is up to date; ``rows`` the row counts
-    its summary line shows (None: all, summed); ``check`` refuses, before anything is
-    hashed, a log the stage cannot work on (a role it needs missing); ``gather`` replaces
-    the hashing of ``needs`` for a stage whose inputs are no fixed list of files (tables
-    reads every log's): it returns the inputs' hashes, checked against their makers, and
-    what it found on the way (handed to compute as ``call.found``). A stage not yet moved
-    onto the runner's freshness check gives ``run`` instead of ``compute``/``recall`` (it
-    checks and records itself). ``unit`` what its
-    progress counts and ``progress_total`` how many; ``describe`` its outcome in words;
-    ``source`` that it reads the log file itself (ingest: handed ``source``, the file's
-    path, and no ``log_id``)."""
+    - ``name``, ``scope``: as listed in the registry.
+    - ``compute`` makes its outputs from a :class:`Call`; ``recall`` gives its outcome from
+      its record when it is up to date.
+    - ``needs``, ``makes``: what it reads and writes, by layout name (:mod:`toolkit.layout`).
+    - ``sections``: the configuration it reads (a section, ``"label"``, or one key,
+      ``"model.wheel_window_radius_m"``), whose hash is its configuration's part of the
+      up-to-date key; ``hashed`` overrides them when what it reads depends on the
+      configuration (project reads the tyres' radius only when it cuts by one).
+    - ``settings``: the frozen dataclass it receives, whose fields are named after the
+      configuration's sections (fields with defaults that are no section stay as they are).
+    - ``check`` refuses, before anything is hashed, a log the stage cannot work on (a role
+      it needs missing).
+    - ``gather`` replaces the hashing of ``needs`` for a stage whose inputs are no fixed
+      list of files (tables reads every log's): the inputs' hashes, checked against their
+      makers, and what it found on the way (``call.found``). ``locate`` is the gather of the
+      stage that starts a log from its file (ingest): from the file's path, the log's id,
+      the inputs' hashes and what it found.
+    - ``rows``: the row counts its summary line shows (None: all, summed); ``unit`` what its
+      progress counts and ``progress_total`` how many; ``describe`` its outcome in words.
+    """
 
     name: str
     scope: Scope
+    compute: Callable[[Call], Made]
+    recall: Callable[[Recalled], Outcome]
     needs: tuple[Need, ...] = ()
     makes: tuple[str, ...] = ()
     sections: tuple[str, ...] = ()
     settings: type | None = None
-    compute: Callable[[Call], Made] | None = None
-    recall: Callable[[Recalled], Outcome] | None = None
     hashed: Callable[[PipelineConfig], tuple[str, ...]] | None = None
     check: Callable[[LogFiles, Any], None] | None = None
     gather: Callable[[Workspace, PipelineConfig], tuple[dict[str, str], Any]] | None = None
-    run: Callable[..., Outcome] | None = None
+    locate: Callable[[Path], tuple[str, dict[str, str], Any]] | None = None
     rows: tuple[str, ...] | None = None
     unit: str = "step"
     progress_total: Callable[[PipelineConfig], int | None] | None = None
     describe: Callable[[Any], str] = _summary
-    source: bool = False
+
+    @property
+    def starts_log(self) -> bool:
+        """Whether it starts a log from its file (ingest): run with ``source``, the file."""
+        return self.locate is not None
 
     @property
     def after(self) -> tuple[str, ...]:
@@ -160,8 +171,9 @@ class Stage:
         configuration's section of that name (the whole configuration when it declares none)."""
         if self.settings is None:
             return config
+        fields = dataclasses.fields(self.settings)
         return self.settings(
-            **{f.name: getattr(config, f.name) for f in dataclasses.fields(self.settings)}
+            **{f.name: getattr(config, f.name) for f in fields if f.name in SECTIONS}
         )
 
 

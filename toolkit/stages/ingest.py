@@ -59,26 +59,27 @@ from collections import Counter, defaultdict
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
 from toolkit.atomic import atomic_write_json
-from toolkit.config import PipelineConfig
+from toolkit.config import PipelineConfig, TimeConfig, TopicsConfig
 from toolkit.errors import CdrError, LogReadError, SchemaError, StageError
 from toolkit.layout import log_file_name
-from toolkit.manifest import Manifest, StageRecord, check_up_to_date, digest_files, file_sha256
+from toolkit.manifest import StageRecord, file_sha256
 from toolkit.mcapio.cdr import decode_batch
 from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_text
 from toolkit.mcapio.reader import Channel, Damage, LogReader, MessageBatch, ReadReport
 from toolkit.progress import progress
 from toolkit.sim.record import sim_origin
-from toolkit.stages.contract import Stage
+from toolkit.stages.contract import Call, Made, Recalled, Stage
 from toolkit.stages.dedup import DuplicateFilter
 from toolkit.stages.reorder import DEFAULT_REORDER_BUFFER_BYTES, ReorderBuffer
 from toolkit.stages.roles import ROLE_SPECS, ConvertContext, Converter, RoleRows
+from toolkit.stages.runner import run_stage
 from toolkit.stages.timecheck import stream_time_outliers
 from toolkit.stages.truth import truth_to_pose_frame
 from toolkit.tableio import TableWriter
@@ -247,7 +248,7 @@ def _role_line(role: str, topics: Sequence[str]) -> str:
 
 
 def resolve_topics(
-    config: PipelineConfig, found: Mapping[str, Channel], log_path: Path
+    config: IngestSettings, found: Mapping[str, Channel], log_path: Path
 ) -> tuple[dict[str, TopicPlan], dict[str, list[str]], list[str]]:
     """Plan every configured topic present in the log.
 
@@ -292,7 +293,7 @@ def resolve_topics(
 
 
 def plan_topic(
-    topic: str, role: str, channel: Channel, config: PipelineConfig, log_path: Path
+    topic: str, role: str, channel: Channel, config: IngestSettings, log_path: Path
 ) -> TopicPlan:
     """The plan of one channel playing ``role``; StageError (naming the log) when the role
     does not accept its type or its messages cannot be decoded."""
@@ -310,7 +311,7 @@ def plan_topic(
         type_name=full_type_name(channel.schema_name),
         decode=decode,
         convert=convert,
-        context=ConvertContext.for_topic(topic, role, channel.schema_name, config),
+        context=ConvertContext.for_topic(topic, role, channel.schema_name, config.time),
     )
 
 
@@ -453,7 +454,7 @@ class _Run:
         self,
         plans: dict[str, TopicPlan],
         buffers: dict[str, ReorderBuffer],
-        config: PipelineConfig,
+        config: IngestSettings,
         log_path: Path,
         *,
         source_sha256: str,
@@ -636,107 +637,110 @@ def ingest_log(
     LogReadError when the file cannot be read at all. ``reorder_buffer_bytes`` bounds the
     rows each table holds back for sorting.
     """
-    start = time.perf_counter()
-    log_path = Path(log_path)
+    settings = IngestSettings(config.topics, config.time, reorder_buffer_bytes)
+    result = run_stage(
+        SPEC, workspace, config, overwrite=overwrite, settings=settings, source=Path(log_path)
+    )
+    return cast(IngestResult, result)
+
+
+@dataclass(frozen=True)
+class IngestSettings:
+    """What ingest reads of the configuration: the topics of each role and the clocks; and
+    how many bytes each table holds back for sorting (not a configuration key)."""
+
+    topics: TopicsConfig
+    time: TimeConfig
+    buffer_bytes: int = DEFAULT_REORDER_BUFFER_BYTES
+
+
+@dataclass(frozen=True)
+class _Source:
+    """The log file being ingested: its path, sha256 and identity when hashed."""
+
+    path: Path
+    sha256: str
+    identity: tuple[int, int, int, int]
+
+
+def _locate(log_path: Path) -> tuple[str, dict[str, str], _Source]:
+    """The log's id and its file's hash (ingest's one input); LogReadError when it is no
+    regular file."""
     if not log_path.exists():
         raise LogReadError("no such log file", path=log_path)
     if not log_path.is_file():  # a directory, a FIFO, a device: never opened, never hashed
         raise LogReadError("not a regular file (a log is an MCAP file)", path=log_path)
     before = _identity(log_path)
     sha256 = file_sha256(log_path)
-    log_id = make_log_id(log_path.stem, sha256)
-    workspace.create()
-    adopt_config = workspace.check_config(config, overwrite=overwrite)
-    cfg_hash = stage_config_hash(config)
-    inputs = {"log": sha256}
-    # Everything below reads and writes a new generation of the log's directory, published
-    # in one atomic switch once complete (toolkit.generations): killed at any moment, the
-    # log is as it was before or as it is after, never in between.
-    with workspace.change_log(log_id) as gen:
-        log_dir = gen.path
-        manifest = Manifest(log_dir / Workspace.MANIFEST_NAME)
-        record = manifest.stage(STAGE)
-        if record is not None and not overwrite:
-            outputs = [log_dir / o for o in record.outputs]
-            if check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=outputs):
-                _log.info("%s: up to date (%s)", log_path, log_id)
-                if adopt_config:
-                    workspace.write_config(config)
-                return _result_from_record(
-                    log_path,
-                    log_id,
-                    record,
-                    manifest.read().get(STAGE, {}),
-                    time.perf_counter() - start,
-                )
-        run: _Run | None = None
-        try:
-            with LogReader(log_path, topics=_configured_topics(config)) as reader:
-                plans, missing, warnings = resolve_topics(config, reader.channels(), log_path)
-                buffers = _make_buffers(
-                    plans,
-                    log_dir,
-                    source_sha256=sha256,
-                    config_hash=cfg_hash,
-                    buffer_bytes=reorder_buffer_bytes,
-                )
-                run = _Run(
-                    plans, buffers, config, log_path, source_sha256=sha256, cfg_hash=cfg_hash
-                )
-                t_read = time.perf_counter()
-                batches = reader.batches()
-                for batch in progress(batches, desc=f"ingest {log_path.name}", unit="batch"):
-                    run.consume(batch)
-                spent = run.timings["decode_convert"] + run.timings["write"]
-                run.timings["read"] = time.perf_counter() - t_read - spent
-                report = reader.report
-            if _identity(log_path) != before:  # the hash must describe the bytes read
-                raise LogReadError(
-                    "the log changed while it was read (size or modification time); ingest "
-                    "it again once it is complete",
-                    path=log_path,
-                )
-            run.mcap_metadata = report.metadata
-            run.finish(report)
-            warnings += run.warnings
-            damage_warning = report.summary_line()  # the same line `terrain info` prints
-            if damage_warning:
-                warnings.append(damage_warning)
-            for w in warnings:
-                _log.warning("%s: %s", log_path, w)
-            out_files = run.commit(log_dir)
-        except BaseException:
-            if run is not None:
-                run.discard()
-            raise
-        _remove_stale_outputs(log_dir, record, out_files)
-        run.timings["total"] = time.perf_counter() - start
-        rejects_total: Counter[str] = Counter()
-        for by_reason in run.rejects_by_topic().values():
-            rejects_total.update(by_reason)
-        source = {
-            "path": str(log_path.resolve()),
-            "sha256": sha256,
-            "log_id": log_id,
-            "size_bytes": log_path.stat().st_size,
-        }
-        manifest.set_header(source=source, ingest=run.detail(report, missing))
-        manifest.record_stage(
-            STAGE,
-            StageRecord(
-                inputs=inputs,
+    return make_log_id(log_path.stem, sha256), {"log": sha256}, _Source(log_path, sha256, before)
+
+
+def _recall(last: Recalled) -> IngestResult:
+    """The outcome of an up-to-date ingest, from its record."""
+    source: _Source = last.found
+    _log.info("%s: up to date (%s)", source.path, last.log_id)
+    return _result_from_record(
+        source.path, last.log_id, last.record, last.header.get(STAGE, {}), last.seconds
+    )
+
+
+def _compute(call: Call) -> Made:
+    """Read the log into its tables (the module docstring); the runner records them."""
+    config: IngestSettings = call.settings
+    source: _Source = call.found
+    log_path, sha256, before = source.path, source.sha256, source.identity
+    log_dir, log_id, cfg_hash, start = call.files.dir, call.log_id, call.config_hash, call.start
+    reorder_buffer_bytes = config.buffer_bytes
+    record = call.manifest.stage(STAGE)
+    run: _Run | None = None
+    try:
+        with LogReader(log_path, topics=_configured_topics(config)) as reader:
+            plans, missing, warnings = resolve_topics(config, reader.channels(), log_path)
+            buffers = _make_buffers(
+                plans,
+                log_dir,
+                source_sha256=sha256,
                 config_hash=cfg_hash,
-                outputs=tuple(out_files),
-                row_counts=run.row_counts(),
-                rejects=dict(sorted(rejects_total.items())),
-                timings_s={k: round(v, 6) for k, v in sorted(run.timings.items())},
-                warnings=tuple(warnings),
-                output_files=digest_files(log_dir, out_files),
-            ),
-        )
-        gen.commit()
-    if adopt_config:  # only now, having succeeded with it, is it the workspace's
-        workspace.write_config(config)
+                buffer_bytes=reorder_buffer_bytes,
+            )
+            run = _Run(plans, buffers, config, log_path, source_sha256=sha256, cfg_hash=cfg_hash)
+            t_read = time.perf_counter()
+            batches = reader.batches()
+            for batch in progress(batches, desc=f"ingest {log_path.name}", unit="batch"):
+                run.consume(batch)
+            spent = run.timings["decode_convert"] + run.timings["write"]
+            run.timings["read"] = time.perf_counter() - t_read - spent
+            report = reader.report
+        if _identity(log_path) != before:  # the hash must describe the bytes read
+            raise LogReadError(
+                "the log changed while it was read (size or modification time); ingest "
+                "it again once it is complete",
+                path=log_path,
+            )
+        run.mcap_metadata = report.metadata
+        run.finish(report)
+        warnings += run.warnings
+        damage_warning = report.summary_line()  # the same line `terrain info` prints
+        if damage_warning:
+            warnings.append(damage_warning)
+        for w in warnings:
+            _log.warning("%s: %s", log_path, w)
+        out_files = run.commit(log_dir)
+    except BaseException:
+        if run is not None:
+            run.discard()
+        raise
+    _remove_stale_outputs(log_dir, record, out_files)
+    run.timings["total"] = time.perf_counter() - start
+    rejects_total: Counter[str] = Counter()
+    for by_reason in run.rejects_by_topic().values():
+        rejects_total.update(by_reason)
+    source_header = {
+        "path": str(log_path.resolve()),
+        "sha256": sha256,
+        "log_id": log_id,
+        "size_bytes": log_path.stat().st_size,
+    }
     result = IngestResult(
         log_path=log_path,
         log_id=log_id,
@@ -748,7 +752,15 @@ def ingest_log(
         seconds=time.perf_counter() - start,
     )
     _log.info("%s", result.summary())
-    return result
+    return Made(
+        result,
+        tuple(out_files),
+        row_counts=run.row_counts(),
+        rejects=dict(sorted(rejects_total.items())),
+        timings_s=run.timings,
+        warnings=tuple(warnings),
+        header={"source": source_header, "ingest": run.detail(report, missing)},
+    )
 
 
 def _identity(path: Path) -> tuple[int, int, int, int]:
@@ -757,7 +769,7 @@ def _identity(path: Path) -> tuple[int, int, int, int]:
     return st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns
 
 
-def _configured_topics(config: PipelineConfig) -> list[str]:
+def _configured_topics(config: IngestSettings) -> list[str]:
     return [t for topics in config.topics.by_role().values() for t in topics]
 
 
@@ -872,29 +884,17 @@ def _remove_stale_outputs(log_dir: Path, old: StageRecord | None, current: Seque
             (log_dir / name).unlink()
 
 
-def _run(
-    workspace: Workspace,
-    config: PipelineConfig,
-    *,
-    log_id: str,
-    overwrite: bool,
-    step: Callable[[str], None],
-    source: Path,
-) -> IngestResult:
-    """The contract's entry: ingest the log file ``source`` (``log_id`` is not known yet)."""
-    del log_id, step  # the id comes from the file's content; ingest shows no steps
-    return ingest_log(source, workspace, config, overwrite=overwrite)
-
-
 SPEC = Stage(
     STAGE,
     "log",
     makes=("imu", "gps", "heading", "wheels", "laser", "tf_static", "mcap_metadata"),
     sections=CONFIG_SECTIONS,
-    run=_run,
+    settings=IngestSettings,
+    locate=_locate,
+    compute=_compute,
+    recall=_recall,
     rows=None,
     unit="log",
-    source=True,
 )
 
 #: The hash of the configuration this stage reads (its up-to-date key).

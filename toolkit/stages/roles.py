@@ -52,7 +52,7 @@ import numpy as np
 import pyarrow as pa
 from numpy.typing import NDArray
 
-from toolkit.config import PipelineConfig
+from toolkit.config import TimeConfig
 from toolkit.errors import StageError
 from toolkit.mcapio.msgdefs import full_type_name
 
@@ -79,15 +79,13 @@ class ConvertContext:
     correction_ns: int
 
     @classmethod
-    def for_topic(
-        cls, topic: str, role: str, type_name: str, config: PipelineConfig
-    ) -> ConvertContext:
-        """The context of one topic under a configuration."""
+    def for_topic(cls, topic: str, role: str, type_name: str, time: TimeConfig) -> ConvertContext:
+        """The context of one topic under the configuration's clocks (``[time]``)."""
         return cls(
             topic=topic,
             role=role,
             type_name=full_type_name(type_name),
-            correction_ns=config.time.correction_ns(role),
+            correction_ns=time.correction_ns(role),
         )
 
 

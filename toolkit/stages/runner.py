@@ -21,6 +21,7 @@ The workspace lock is the caller's (one command or one ``run`` holds it over man
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections.abc import Callable, Mapping
@@ -57,32 +58,56 @@ def run_stage(
     log_id: str = "",
     overwrite: bool = False,
     step: Callable[[str], None] | None = None,
-    **extra: Any,
+    settings: Any = None,
+    source: Path | None = None,
 ) -> Outcome:
     """Run one stage (the module docstring) on one log (``log_id``) or the workspace.
 
-    ``extra`` goes to a stage that still checks and records itself (:attr:`Stage.run`)."""
-    if spec.run is not None:
-        return spec.run(
-            workspace, config, log_id=log_id, overwrite=overwrite, step=step or _quiet, **extra
-        )
+    ``settings`` replaces the stage's own built from ``config`` (a test's smaller buffer);
+    ``source`` is the file of a stage that starts a log (:attr:`Stage.locate`)."""
     start = time.perf_counter()
-    here = _Here(spec, workspace, config, log_id, overwrite, step or _quiet, start)
+    here = _Here(spec, workspace, config, log_id, overwrite, step or _quiet, start, settings)
+    where = log_id
     if spec.scope == "workspace":
         outcome = here.fresh_or_computed(workspace.manifest(), workspace.root)
+    elif spec.locate is not None:  # the stage that starts a log from its file (ingest)
+        if source is None:
+            raise TypeError(f"stage {spec.name!r} starts a log: run it with its source file")
+        outcome, where = _start_log(here, source)
     else:
         workspace.require_log(log_id)
         with workspace.change_log(log_id) as gen:
             outcome = here.fresh_or_computed(Manifest(LogFiles(gen.path).manifest), gen.path)
             if outcome.status != "up_to_date":
                 gen.commit()
-    logger = logging.getLogger(spec.compute.__module__ if spec.compute else __name__)
+    logger = logging.getLogger(spec.compute.__module__)
     for warning in getattr(outcome, "warnings", ()):
-        if log_id:
-            logger.warning("%s: %s", log_id, warning)
+        if where:
+            logger.warning("%s: %s", where, warning)
         else:
             logger.warning("%s", warning)
     return outcome
+
+
+def _start_log(here: _Here, source: Path) -> tuple[Outcome, str]:
+    """Run a stage that starts a log from its file: it names the log and hashes the file
+    (:attr:`Stage.locate`); the workspace is made if need be, and the configuration, checked
+    against the workspace's before anything is read, becomes the workspace's once the stage
+    has worked with it. Returns the outcome and the file's name, for its warnings."""
+    assert here.spec.locate is not None  # run_stage checked
+    log_id, inputs, found = here.spec.locate(source)
+    here = dataclasses.replace(here, log_id=log_id)
+    workspace = here.workspace
+    workspace.create()
+    adopt_config = workspace.check_config(here.config, overwrite=here.overwrite)
+    with workspace.change_log(log_id) as gen:
+        manifest = Manifest(LogFiles(gen.path).manifest)
+        outcome = here.fresh_or_computed(manifest, gen.path, (inputs, found))
+        if outcome.status != "up_to_date":
+            gen.commit()
+    if adopt_config:  # only now, having worked with it, is it the workspace's
+        workspace.write_config(here.config)
+    return outcome, str(source)
 
 
 @dataclass(frozen=True)
@@ -96,19 +121,26 @@ class _Here:
     overwrite: bool
     step: Callable[[str], None]
     start: float
+    settings: Any = None
 
-    def fresh_or_computed(self, manifest: Manifest, directory: Path) -> Outcome:
+    def fresh_or_computed(
+        self,
+        manifest: Manifest,
+        directory: Path,
+        gathered: tuple[dict[str, str], Any] | None = None,
+    ) -> Outcome:
         """Steps 2-4 of the module docstring: ``directory`` holds the stage's outputs (a
-        log's new generation, or the workspace's root) and ``manifest`` its records."""
+        log's new generation, or the workspace's root) and ``manifest`` its records;
+        ``gathered`` the inputs' hashes and what was found with them, when known already."""
         spec = self.spec
-        if spec.compute is None or spec.recall is None:
-            raise TypeError(f"stage {spec.name!r} declares neither run nor compute and recall")
         files = LogFiles(directory)
-        settings = spec.settings_from(self.config)
+        settings = self.settings if self.settings is not None else spec.settings_from(self.config)
         if spec.check is not None:
             spec.check(files, settings)
         found: Any = None
-        if spec.gather is not None:
+        if gathered is not None:
+            inputs, found = gathered
+        elif spec.gather is not None:
             inputs, found = spec.gather(self.workspace, self.config)
         else:
             inputs = hash_needs(spec, files, manifest)
@@ -121,7 +153,7 @@ class _Here:
             if check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=written):
                 seconds = time.perf_counter() - self.start
                 last = Recalled(
-                    self.log_id, record, manifest.read(), settings, seconds, self.workspace
+                    self.log_id, record, manifest.read(), settings, seconds, self.workspace, found
                 )
                 return spec.recall(last)
         call = Call(
