@@ -30,7 +30,7 @@ from toolkit.fusion.estimator import (
     estimate_stream,
     vibration_q,
 )
-from toolkit.fusion.ukf import DIM_X, POS, VEL
+from toolkit.fusion.state import DIM_X, POS, VEL
 from toolkit.stages.pose import _settings
 
 

@@ -34,7 +34,7 @@ constraint in a local frame whose origin and zero yaw are the first pose (headin
   after 2.9 km, where the gyro's own integral (its 0.002 rad/s bias never learned) ends 1494 m
   away.
 - ``odometry``: the updates are conditioned on position, yaw, z gyro bias and wheel scale
-  (:data:`~toolkit.fusion.ukf.DEAD_RECKONING_GIVEN`, :meth:`~toolkit.fusion.ukf.PoseUKF.
+  (:data:`~toolkit.fusion.state.DEAD_RECKONING_GIVEN`, :meth:`~toolkit.fusion.ukf.PoseUKF.
   update_joint`): the heading is the gyro's integral and the position the integral of the
   velocity the wheels and NHC keep on the body axes, the UKF still giving roll, pitch and a
   3-D path; robot_localization's odom frame on a ground robot does the same. For a slow robot
@@ -76,32 +76,33 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.signal import lfilter
 
-from toolkit.fusion.rotations import FloatArray, euler_rates, euler_to_rot, rot_to_euler, wrap_angle
-from toolkit.fusion.ukf import (
-    ATT,
-    BA,
-    BG,
-    DEAD_RECKONING_GIVEN,
-    DIM_X,
-    GRAVITY,
+from toolkit.fusion.measurements import (
     NHC_GATE_CHI2,
     NHC_STD_MPS,
-    POS,
-    SCALE,
-    VEL,
-    YAW,
-    ImuIncrement,
     Measurement,
-    NoiseModel,
-    PoseUKF,
-    angle_mean,
-    angle_residual,
     gps_model,
     nhc_model,
     roll_pitch_model,
     wheel_model,
     yaw_model,
 )
+from toolkit.fusion.process import ImuIncrement, NoiseModel
+from toolkit.fusion.rotations import FloatArray, euler_rates, euler_to_rot, rot_to_euler, wrap_angle
+from toolkit.fusion.state import (
+    ATT,
+    BA,
+    BG,
+    DEAD_RECKONING_GIVEN,
+    DIM_X,
+    GRAVITY,
+    POS,
+    SCALE,
+    VEL,
+    YAW,
+    angle_mean,
+    angle_residual,
+)
+from toolkit.fusion.ukf import PoseUKF
 
 #: Longest filter step, s.
 MAX_STEP_S = 0.1

@@ -47,8 +47,8 @@ from toolkit.fusion.estimator import (
     SensorData,
     estimate_stream,
 )
+from toolkit.fusion.process import NoiseModel
 from toolkit.fusion.rotations import FloatArray, rot_to_euler, wrap_angle
-from toolkit.fusion.ukf import NoiseModel
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.mounts import Mount, sensor_mounts
 from toolkit.sim.record import SIM_RECORD
