@@ -37,15 +37,14 @@ from scipy.spatial.transform import Rotation
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.frames import ENU_FRAME_ID, choose_enu_origin
-from toolkit.fusion.estimator import (
-    MAX_BRIDGE_S,
-    MAX_STEP_S,
+from toolkit.fusion.epochs import MAX_BRIDGE_S, MAX_STEP_S
+from toolkit.fusion.estimator import estimate_stream
+from toolkit.fusion.estimator_io import (
     EstimateResult,
     FilterSettings,
     ImuWindow,
     OutputChunk,
     SensorData,
-    estimate_stream,
 )
 from toolkit.fusion.process import NoiseModel
 from toolkit.fusion.rotations import FloatArray, rot_to_euler, wrap_angle
