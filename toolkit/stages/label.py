@@ -67,14 +67,12 @@ from toolkit.errors import StageError
 from toolkit.model.shock import (
     INTERP_MARGIN,
     MPS_PER_MPH,
-    ImpactEnvelope,
     ShockFir,
     design_shock_fir,
-    event_impact_shock,
     event_shock,
     filter_stream,
-    impact_envelope,
 )
+from toolkit.model.shock_attribution import ImpactEnvelope, event_impact_shock, impact_envelope
 from toolkit.mounts import sensor_mounts
 from toolkit.sim.record import SIM_RECORD
 from toolkit.stages.label_truth import truth_under_events
