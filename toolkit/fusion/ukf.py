@@ -167,7 +167,7 @@ class PoseUKF:
 
         ``q_extra`` (16, 16), symmetric positive semidefinite: process noise added to
         :meth:`NoiseModel.q` for this step (the estimator's measured accelerometer noise in
-        odometry dead reckoning, :func:`toolkit.fusion.estimator.vibration_q`).
+        odometry dead reckoning, :func:`toolkit.fusion.accel_noise.vibration_q`).
         """
         moved = propagate(self._sigma_points(), inc)
         q = self._noise.q(inc.T)
