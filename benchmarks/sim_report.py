@@ -38,7 +38,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy import signal  # noqa: E402
 
-from toolkit.analysis.scan_agreement import ScanAgreement, write_fig4  # noqa: E402
+from toolkit.analysis.fig4 import write_fig4  # noqa: E402
+from toolkit.analysis.scan_agreement import ScanAgreement  # noqa: E402
 from toolkit.config import default_config  # noqa: E402
 from toolkit.mounts import frame_mounts, sensor_mounts  # noqa: E402
 from toolkit.stages.ingest import ingest_log  # noqa: E402

@@ -3,24 +3,18 @@ between them (paper sect. 3, Fig. 4)."""
 
 from __future__ import annotations
 
-import csv
 from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from toolkit.analysis.scan_agreement import (
-    CSV_HEADER,
-    CSV_NAME,
-    PNG_NAME,
-    ScanAgreement,
+from toolkit.analysis.fig4 import (
     ScanAgreementConfig,
     ScanAgreementResult,
-    flat_mask,
-    scan_agreement_of,
     write_fig4,
 )
+from toolkit.analysis.scan_agreement import ScanAgreement, scan_agreement_of
 from toolkit.errors import ConfigError, StageError
 from toolkit.workspace import Workspace
 
@@ -143,32 +137,6 @@ def test_the_result_does_not_depend_on_how_the_stream_is_batched() -> None:
         np.testing.assert_allclose(a.mean_abs_dz_m, b.mean_abs_dz_m, rtol=1e-12)
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_the_two_key_search_equals_a_joint_sort(seed: int, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The window's search (first row of a cell at or after a time, by one searchsorted on
-    a joint int64 key) against the joint sort it replaced, on stamps near 1.7e18 ns, repeated
-    stamps and queries before, at and after the cell's rows; and its fallback to the sort
-    where the joint key would overflow."""
-    from toolkit.analysis import scan_agreement as sa
-
-    rng = np.random.default_rng(seed)
-    n = 5_000
-    key = np.sort(rng.integers(-(2**40), 2**40, 300))[rng.integers(0, 300, n)]
-    t = 1_700_000_000_000_000_000 + rng.integers(0, 10**10, n)
-    t[rng.random(n) < 0.2] = t[0]  # repeated stamps
-    order = np.lexsort((t, key))
-    key, t = key[order], t[order]
-    p = np.sort(rng.choice(n, 800, replace=False))
-    q = t[p] - rng.choice([0, 1, 10**9, 10**10, 10**12], p.size)
-    expected = sa._lower_bound(key, t, key[p], q)
-    np.testing.assert_array_equal(sa._first_at_or_after(key, t, p, q), expected)
-    assert np.all(expected <= p) and np.all(key[expected] == key[p])
-    monkeypatch.setattr(sa, "_lower_bound", lambda *args: np.full(p.size, -7))
-    wide = t.copy()
-    wide[-1] = t[0] + 2**61  # span too wide for rank * span in int64: the sort answers
-    assert sa._first_at_or_after(key, wide, p, q).tolist() == [-7] * p.size
-
-
 def test_cells_older_than_the_window_are_evicted() -> None:
     """A cell seen at 0 s, then ground elsewhere for 20 s, then the cell again: its first
     observation is gone after 10 s, and no pair spans the gap. Memory stays at one window."""
@@ -183,28 +151,6 @@ def test_cells_older_than_the_window_are_evicted() -> None:
     result = acc.result()
     assert result.pairs == 0
     assert result.max_live_observations <= 102 * 40
-
-
-def test_only_flat_ground_is_used() -> None:
-    """A 0.3 m step in one scan line and a 5 cm bump: the points whose window of +-3 beams
-    holds them are left out; a gentle 5 % grade stays."""
-    n = 60
-    x = np.full(n, 5.0)
-    y = np.arange(n) * 0.2
-    z = 0.05 * y  # a 5 % grade along the line: flat enough
-    z[40:] += 0.3  # a kerb
-    z[20] += 0.05  # a bump
-    flat = flat_mask(x, y, z, np.arange(n), np.zeros(n, np.int64), 3, 0.1, 0.03)
-    expected = np.ones(n, bool)
-    expected[:3] = expected[-3:] = False  # scan ends: flatness unknown
-    expected[17:24] = False  # the bump within 3 beams
-    expected[37:43] = False  # the kerb within the chord
-    np.testing.assert_array_equal(flat, expected)
-    # A dropped return: its neighbours' windows are incomplete.
-    beam = np.delete(np.arange(n), 10)
-    keep = np.delete(np.arange(n), 10)
-    flat = flat_mask(x[keep], y[keep], 0 * y[keep], beam, np.zeros(n - 1, np.int64), 3, 0.1, 0.03)
-    assert not flat[7:13].any() and flat[3:7].all() and flat[13:16].all()
 
 
 def test_bad_input_is_refused() -> None:
@@ -222,22 +168,6 @@ def test_bad_input_is_refused() -> None:
     acc.result()
     with pytest.raises(StageError, match="after result"):
         acc.feed(scans([0.0]))
-
-
-def test_the_files_are_written_atomically_and_reproducibly(tmp_path: Path) -> None:
-    times = [0.25 * k for k in range(30)]
-    result = run([scans(times, rate_m_per_s=0.03, lasers=["/a", "/b"] * 15)], min_bin_pairs=1)
-    csv_a, png_a = write_fig4(result, tmp_path / "a", "synthetic")
-    csv_b, png_b = write_fig4(result, tmp_path / "b", "synthetic")
-    assert (csv_a.name, png_a.name) == (CSV_NAME, PNG_NAME)
-    assert csv_a.read_bytes() == csv_b.read_bytes()
-    assert png_a.read_bytes() == png_b.read_bytes()
-    assert png_a.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert sorted(p.name for p in (tmp_path / "a").iterdir()) == sorted([CSV_NAME, PNG_NAME])
-    rows = list(csv.DictReader(csv_a.open()))
-    assert tuple(rows[0]) == CSV_HEADER
-    assert {r["pairs"] for r in rows} == {"all", "same_laser", "different_laser"}
-    assert sum(int(r["count"]) for r in rows if r["pairs"] == "all") == result.pairs
 
 
 # --------------------------------------------------------------------------------------

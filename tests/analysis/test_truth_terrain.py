@@ -22,7 +22,6 @@ from toolkit.analysis.truth_terrain import (
     ZErrorAccumulator,
     ZErrorConfig,
     ZErrorResult,
-    histogram_quantile,
     true_ground,
     write_z_error,
     z_error_of,
@@ -82,12 +81,7 @@ def test_statistics_by_laser_and_range() -> None:
     assert last.count == int((ok & (laser == "/a") & (range_m >= 75)).sum())
 
 
-def test_histogram_quantiles_and_open_ends() -> None:
-    hist = np.array([0, 2, 2, 0], np.int64)  # values in [1, 3) of width-1 bins from 0
-    assert histogram_quantile(hist, 0.5, 0.0, 1.0) == pytest.approx(2.0)
-    assert histogram_quantile(np.array([5, 1, 0]), 0.5, -1.0, 1.0) == 0.0  # open low end
-    assert histogram_quantile(np.array([0, 1, 5]), 0.5, 0.0, 1.0) == 2.0  # open high end
-    assert math.isnan(histogram_quantile(np.zeros(3, np.int64), 0.5, 0.0, 1.0))
+def test_bad_z_error_input_is_refused() -> None:
     with pytest.raises(ConfigError, match="resolution_m"):
         ZErrorConfig(resolution_m=-1.0)
     with pytest.raises(StageError, match="one length"):

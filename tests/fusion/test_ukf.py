@@ -1,14 +1,16 @@
-"""The pose UKF: angle wrapping, gating, the process model, and the predict, update and restart
-pinned against the closed-form linear Kalman filter where the UKF is exact."""
+"""The pose UKF: gating, and the predict, update and restart pinned against the closed-form
+linear Kalman filter where the UKF is exact."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from filterpy.kalman import unscented_transform as filterpy_unscented_transform
 
+from tests.fusion.test_process import stationary_increment
+from toolkit.fusion.measurements import Measurement, gps_model, wheel_model, yaw_model
+from toolkit.fusion.process import ImuIncrement, NoiseModel, propagate
 from toolkit.fusion.rotations import euler_to_rot, rot_to_euler, wrap_angle
-from toolkit.fusion.ukf import (
+from toolkit.fusion.state import (
     ATT,
     BA,
     BG,
@@ -20,20 +22,10 @@ from toolkit.fusion.ukf import (
     SCALE,
     VEL,
     YAW,
-    ImuIncrement,
-    Measurement,
-    NoiseModel,
-    PoseUKF,
     angle_mean,
     angle_residual,
-    gps_model,
-    propagate,
-    state_mean,
-    state_residual,
-    unscented_transform,
-    wheel_model,
-    yaw_model,
 )
+from toolkit.fusion.ukf import PoseUKF
 
 #: Process noise densities of the test filter: accel, gyro, accel bias walk, gyro bias walk.
 NOISE = NoiseModel(accel=0.5, gyro=0.01, accel_bias_walk=0.001, gyro_bias_walk=0.0001)
@@ -64,40 +56,6 @@ def correlated_covariance(seed: int) -> np.ndarray:
     C = A @ A.T + 0.5 * np.eye(DIM_X)
     d = np.sqrt(np.diag(C))
     return np.asarray((C / np.outer(d, d)) * np.outer(std, std), dtype=np.float64)
-
-
-def test_residuals_wrap_angles() -> None:
-    a = np.zeros(DIM_X)
-    b = np.zeros(DIM_X)
-    a[YAW], b[YAW] = np.pi - 0.01, -np.pi + 0.01
-    assert np.isclose(state_residual(a, b)[YAW], -0.02)
-    assert np.isclose(angle_residual(np.array([-np.pi + 0.01]), np.array([np.pi - 0.01]))[0], 0.02)
-
-
-def test_means_wrap_angles() -> None:
-    sig = np.zeros((3, DIM_X))
-    sig[:, YAW] = [np.pi - 0.01, -np.pi + 0.01, np.pi - 0.01]
-    wm = np.array([1 / 3, 1 / 3, 1 / 3])
-    m = state_mean(sig, wm)
-    assert abs(abs(m[YAW]) - (np.pi - 0.01 / 3)) < 1e-9
-    z = angle_mean(np.array([[np.pi - 0.02], [-np.pi + 0.02]]), np.array([0.5, 0.5]))
-    assert np.isclose(abs(z[0]), np.pi)
-
-
-def test_vectorised_unscented_transform_equals_filterpys() -> None:
-    """Ours runs on all sigma points at once; filterpy's loops. Same numbers."""
-    rng = np.random.default_rng(1)
-    sigmas = rng.normal(size=(2 * DIM_X + 1, DIM_X))
-    sigmas[:, YAW] = wrap_angle(np.pi + 0.1 * rng.normal(size=2 * DIM_X + 1))  # across +-pi
-    wm = rng.uniform(0.01, 0.1, 2 * DIM_X + 1)
-    wm /= wm.sum()
-    wc = wm.copy()
-    wc[0] += 0.3
-    Q = np.diag(rng.uniform(0.1, 1.0, DIM_X))
-    ours = unscented_transform(sigmas, wm, wc, Q, state_mean, state_residual)
-    theirs = filterpy_unscented_transform(sigmas, wm, wc, Q, state_mean, state_residual)
-    np.testing.assert_allclose(ours[0], theirs[0], rtol=0, atol=1e-14)
-    np.testing.assert_allclose(ours[1], theirs[1], rtol=0, atol=1e-14)
 
 
 def test_state_views_are_read_only() -> None:
@@ -193,14 +151,6 @@ def test_a_robust_block_beyond_its_gate_is_down_weighted_to_the_gate() -> None:
     assert inside.down_weighted["gps"] == 0
 
 
-def stationary_increment(T: float, steps: int) -> ImuIncrement:
-    """Level and at rest: the accelerometer reads exactly -g (specific force), gyro 0."""
-    inc = ImuIncrement(np.zeros(3), np.zeros(3))
-    for _ in range(steps):
-        inc.add(-GRAVITY, np.zeros(3), T / steps)
-    return inc
-
-
 def test_predict_equals_the_kalman_predict_for_zero_motion() -> None:
     """Level, at rest, zero biases, the IMU reading exactly gravity: the process model moves
     only position by velocity, p' = p + v T, so with F = [[I, T I], [0, I]] on (p, v) the
@@ -283,16 +233,6 @@ def test_restart_of_an_uncertain_filter_changes_nothing() -> None:
     ukf = make_filter(P0=P)
     ukf.restart(initial_covariance())
     np.testing.assert_allclose(ukf.P, P, rtol=0, atol=1e-12 * np.abs(P).max())
-
-
-def test_process_model_level_constant_speed() -> None:
-    """Level, 10 m/s east, IMU reading exactly -g: position advances v T, nothing else."""
-    x = np.zeros((1, DIM_X))
-    x[0, VEL.start] = 10.0
-    inc = stationary_increment(0.1, steps=10)
-    out = propagate(x, inc)[0]
-    np.testing.assert_allclose(out[POS], [1.0, 0.0, 0.0], atol=1e-12)
-    np.testing.assert_allclose(out[VEL], [10.0, 0.0, 0.0], atol=1e-12)
 
 
 def test_process_model_turns_with_gyro_and_predict_follows() -> None:
@@ -422,15 +362,6 @@ def test_joint_update_gates_each_sensor_on_its_own() -> None:
     )
     np.testing.assert_allclose(ukf.x, alone.x, rtol=0, atol=1e-12)
     np.testing.assert_allclose(ukf.P, alone.P, rtol=0, atol=1e-15)
-
-
-def test_wheel_model_reads_the_scale_error() -> None:
-    """Level, 10 m/s forward, no rotation: the odometer reads (1 + ks) 10 m/s."""
-    x = np.zeros((2, DIM_X))
-    x[:, VEL.start] = 10.0
-    x[1, SCALE] = 0.004
-    z = wheel_model(np.zeros(3), np.zeros(3))(x)
-    np.testing.assert_allclose(z[:, 0], [10.0, 10.04], rtol=0, atol=1e-12)
 
 
 def test_wheel_updates_learn_the_scale_error() -> None:

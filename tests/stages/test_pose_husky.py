@@ -196,7 +196,7 @@ def test_husky_without_gps_ends_where_odometry_and_imu_say(
 ) -> None:
     """With ``dead_reckoning = "odometry"`` (pipelines/husky.toml) the end is within 5 % of
     the distance driven from the plain wheel + gyro integral (measured 3.6 m of 359 m; the
-    ``inertial`` mode ends 36 m away, see toolkit/fusion/estimator.py)."""
+    ``inertial`` mode ends 36 m away, see docs/pose.md)."""
     ws, log_id, _ = husky_without_gps
     pose = read_table(ws.log_table(log_id, "pose"), "pose")
     t = pose.column("t_ns").to_numpy()

@@ -41,6 +41,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.spatial import cKDTree
 
 from toolkit.analysis.figures import new_figure, save_png_atomic, write_csv_atomic
+from toolkit.analysis.histograms import bins_covering, histogram_quantile
 from toolkit.errors import ConfigError, StageError, ToolkitError
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.sim.record import SIM_RECORD, sim_origin
@@ -297,12 +298,12 @@ class ZErrorConfig:
 
     @property
     def n_range_bins(self) -> int:
-        return max(1, math.ceil(self.max_range_m / self.range_bin_m - 1e-9))
+        return bins_covering(self.max_range_m, self.range_bin_m)
 
     @property
     def half_bins(self) -> int:
         """Histogram bins on each side of zero, within the limit."""
-        return max(1, math.ceil(self.limit_m / self.resolution_m - 1e-9))
+        return bins_covering(self.limit_m, self.resolution_m)
 
 
 @dataclass(frozen=True)
@@ -448,34 +449,6 @@ class ZErrorAccumulator:
         )
 
 
-def histogram_quantile(
-    hist: NDArray[np.int64],
-    q: float,
-    first_edge: float,
-    width: float,
-    *,
-    open_low: bool = True,
-    open_high: bool = True,
-) -> float:
-    """Quantile ``q`` of values counted in ``hist`` (K,), bin k covering
-    ``[first_edge + k width, first_edge + (k + 1) width)``, linear within a bin. An open end
-    bin (everything below / above) reports its inner edge: the quantile is known only to lie
-    beyond it. NaN for an empty histogram."""
-    total = int(hist.sum())
-    if total == 0:
-        return math.nan
-    target = q * total
-    cum = np.cumsum(hist)
-    k = min(int(np.searchsorted(cum, target, side="left")), hist.size - 1)
-    if open_high and k == hist.size - 1 and hist.size > 1:
-        return float(first_edge + k * width)
-    if open_low and k == 0 and hist.size > 1:
-        return float(first_edge + width)
-    prev = int(cum[k - 1]) if k else 0
-    frac = (target - prev) / hist[k] if hist[k] else 0.0
-    return float(first_edge + (k + frac) * width)
-
-
 # --------------------------------------------------------------------------------------
 # A log, and the outputs
 # --------------------------------------------------------------------------------------
@@ -571,7 +544,6 @@ __all__ = [
     "ZErrorConfig",
     "ZErrorResult",
     "ZErrorRow",
-    "histogram_quantile",
     "true_ground",
     "where_beams_hit",
     "write_z_error",

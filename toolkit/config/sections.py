@@ -209,7 +209,7 @@ class LabelConfig:
     gravity_mps2: Annotated[float, Rule(gt=0.0)]
     #: Who owns a filtered impact (max_abs only): "impact", the one event whose span holds
     #: its crest, or "span_peak", every event the filter's response reaches (the peak over the
-    #: span, as before issue 26). See toolkit.model.shock.
+    #: span, as before issue 26). See toolkit.model.shock_attribution.
     attribution: Annotated[str, Rule(choices=("impact", "span_peak"))] = "impact"
 
 

@@ -1,58 +1,8 @@
 """An IMU-driven unscented Kalman filter for the vehicle pose (paper sect. 3), on filterpy.
 
-State vector ``x`` (16), all in the local ENU world frame unless said otherwise:
-
-====  ===============  =====  ==============================================================
-idx   name             unit   meaning
-====  ===============  =====  ==============================================================
-0-2   px, py, pz       m      position of the IMU (``imu_link`` origin)
-3-5   vx, vy, vz       m/s    velocity of the IMU
-6-8   roll,pitch,yaw   rad    attitude of base_link (Z-Y-X Euler; IMU axes = base_link axes)
-9-11  bax, bay, baz    m/s^2  accelerometer bias (IMU frame)
-12-14 bgx, bgy, bgz    rad/s  gyro bias (IMU frame)
-15    ks               1      wheel-speed scale error: the odometer reads ``(1 + ks)`` times
-                              the true forward speed (tyre radius, wear, load)
-====  ===============  =====  ==============================================================
-
-Process model (one filter step over ``[t_a, t_b]``, ``T = t_b - t_a``). The IMU samples
-(accelerometer specific force ``f``, gyro rate ``w``, each held constant over the interval it
-averages) are pre-integrated once, in the body frame at ``t_a``, with the prior mean's biases
-``ba0, bg0`` (:class:`ImuIncrement`)::
-
-    dR = prod Exp((w_j - bg0) dt_j)            dv = sum dR_j (f_j - ba0) dt_j
-    dp = sum (dv_j dt_j + 1/2 dR_j (f_j - ba0) dt_j^2)
-
-Each sigma point then moves in one vectorised step, with first-order bias corrections
-(``dba = ba - ba0``, ``dbg = bg - bg0``; ``Jv = sum dR_j dt_j``, ``Jp`` likewise for dp)::
-
-    R' = R(rpy) dR Exp(-dbg T)                 rpy' = euler(R')
-    v' = v + g T + R(rpy) (dv - Jv dba)        g = (0, 0, -9.80665)
-    p' = p + v T + 1/2 g T^2 + R(rpy) (dp - Jp dba)
-    ba' = ba,  bg' = bg,  ks' = ks
-
-Process noise (additive, per step, diagonal; :meth:`NoiseModel.q`): velocity
-``accel_noise^2 T``, attitude ``gyro_noise^2 T``, biases and wheel scale ``walk^2 T``,
-position ``accel_noise^2 T^3 / 3``, plus small floors (1e-9 m^2 on position, 1e-14, 1e-16
-and 1e-14 on the accelerometer bias, gyro bias and wheel scale) that keep ``Q`` positive
-definite for a tiny ``T``.
-
-Measurement models (``R(rpy)`` world from body; ``l`` a lever arm from the IMU in base_link;
-``w`` the bias-corrected gyro rate at the measurement time, a known input):
-
-- GPS position (3): ``z = p + R(rpy) l_gps``; noise from the fix's diagonal covariance.
-- GPS-compass yaw (1): ``z = yaw``; residual wrapped to [-pi, pi).
-- Wheel speed (1): ``z = (1 + ks) (e_x . R(rpy)^T v + (w x l_axle)_x)``, the odometer's
-  reading of the forward speed of the rear-axle centre (``l_axle`` = base_link origin, on
-  the ground below the rear axle, from the IMU). Without ``ks`` a scale error of 0.3 % is a
-  steady velocity bias that the GPS can correct only through the position, so the pose runs
-  ahead of (or behind) the truth by that bias times the GPS correction's time constant
-  (several seconds when IMU, wheels and NHC make the filter confident of its velocity).
-- Attitude (2, optional): ``z = (roll, pitch)`` of base_link from an IMU that reports its
-  orientation (:func:`roll_pitch_model`; :func:`attitude_model` adds yaw); residuals
-  wrapped.
-- Non-holonomic constraint (2): the lateral and vertical body velocity of the rear-axle
-  centre are zero, ``z = (e_y, e_z) . (R(rpy)^T v + w x l_axle) = 0``, with
-  :data:`NHC_STD_MPS`.
+The state vector and its angle-aware means are :mod:`toolkit.fusion.state`'s, the process
+model (IMU pre-integration, process noise) :mod:`toolkit.fusion.process`'s and the
+measurement models :mod:`toolkit.fusion.measurements`'.
 
 Every measurement is gated: the squared Mahalanobis distance of its innovation,
 ``y^T S^-1 y``, above the sensor's threshold rejects it; rejections are counted per sensor.
@@ -63,317 +13,48 @@ down-weighted; :meth:`PoseUKF.update_joint` gives the maths and the reason).
 An update may be conditioned on some states (``PoseUKF.update_joint(..., given=c)``): they
 are held at their mean for the update, which then moves neither them nor their marginal
 covariance and keeps the regression of the other states on them. Dead reckoning uses it for
-the directions its body-frame measurements cannot see (:data:`DEAD_RECKONING_GIVEN`; the
-reasons are in ``PoseUKF._conditioned``).
-
-Angles: the state mean of the sigma points averages the attitude angles as wrapped offsets
-from the first sigma point, and state and yaw residuals are wrapped, so a yaw near +-pi
-averages correctly.
+the directions its body-frame measurements cannot see
+(:data:`~toolkit.fusion.state.DEAD_RECKONING_GIVEN`; the reasons are in
+``PoseUKF._conditioned``).
 
 The filter (:class:`PoseUKF`, whose docstring states the sigma points, the predict and the
 update) holds filterpy's :class:`~filterpy.kalman.MerweScaledSigmaPoints` (with
-:func:`state_residual`, so sigma points wrap their angles) and uses only its public
-``sigma_points``, ``Wm`` and ``Wc``; the process model, the unscented transform and the
-gated update run on all sigma points at once, where filterpy would loop over them.
+:func:`~toolkit.fusion.state.state_residual`, so sigma points wrap their angles) and uses
+only its public ``sigma_points``, ``Wm`` and ``Wc``; the process model, the unscented
+transform and the gated update run on all sigma points at once, where filterpy would loop
+over them.
 """
 
 from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
 from types import MappingProxyType
 
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints
 
 from toolkit.errors import StageError
-from toolkit.fusion.rotations import (
-    FloatArray,
-    euler_to_rot,
-    rot_to_euler,
-    so3_exp,
-    so3_exp_one,
-    wrap_angle,
+from toolkit.fusion.measurements import MeasFn, Measurement
+from toolkit.fusion.process import ImuIncrement, NoiseModel, propagate
+from toolkit.fusion.rotations import FloatArray, wrap_angle
+from toolkit.fusion.state import (
+    ATT,
+    DIM_X,
+    MOTION,
+    POS,
+    VEL,
+    plain_mean,
+    plain_residual,
+    state_mean,
+    state_residual,
+    unscented_transform,
 )
-
-#: Dimension of the state vector.
-DIM_X = 16
-#: Slices of the state vector: position, velocity, attitude, accelerometer and gyro bias,
-#: wheel-speed scale error.
-POS, VEL, ATT, BA, BG = slice(0, 3), slice(3, 6), slice(6, 9), slice(9, 12), slice(12, 15)
-#: Index of the wheel-speed scale error (dimensionless) in the state vector.
-SCALE = 15
-#: Index of yaw in the state vector (the last attitude angle).
-YAW = ATT.start + 2
-#: The motion states (position, velocity, attitude), which an unobserved interval makes
-#: uncertain; the biases (BA, BG) and the wheel scale follow them in the state vector.
-MOTION = slice(POS.start, ATT.stop)
-#: Components of a base_link-axis vector: forward (x) and lateral and vertical (y, z).
-FORWARD, LATERAL_VERTICAL = slice(0, 1), slice(1, 3)
-#: Standard gravity, m/s^2; gravity in ENU is (0, 0, -G).
-G = 9.80665
-GRAVITY = np.array([0.0, 0.0, -G])
-#: States a dead-reckoning update (no GPS, compass or GPS track) is conditioned on: the
-#: position and yaw (translating the whole solution, or turning it about gravity, changes no
-#: body-frame measurement), the z gyro bias and the wheel scale (seen only through the
-#: accelerometer, whose errors on a vehicle are larger than their signal). See
-#: ``PoseUKF._conditioned``.
-DEAD_RECKONING_GIVEN: tuple[int, ...] = (
-    POS.start,
-    POS.start + 1,
-    POS.start + 2,
-    YAW,
-    BG.stop - 1,
-    SCALE,
-)
-#: 1 sigma of the non-holonomic constraint (lateral and vertical axle speed), m/s.
-NHC_STD_MPS = 0.3
-#: chi-square (2 dof, p = 0.9999) gate for the non-holonomic constraint.
-NHC_GATE_CHI2 = 18.42
-
-MeasFn = Callable[[FloatArray], FloatArray]
-
-
-# --------------------------------------------------------------------------------------
-# Angles in means and residuals
-# --------------------------------------------------------------------------------------
-
-
-def state_residual(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``a - b`` for states (..., 16), attitude angles wrapped."""
-    d = np.asarray(a, dtype=np.float64) - b
-    d[..., ATT] = wrap_angle(d[..., ATT])
-    return d
-
-
-def state_mean(sigmas: FloatArray, wm: FloatArray) -> FloatArray:
-    """Weighted mean of states (M, 16); angles averaged as wrapped offsets from sigma 0."""
-    ref = sigmas[0, ATT]
-    x = wm @ sigmas
-    x[ATT] = wrap_angle(ref + wm @ wrap_angle(sigmas[:, ATT] - ref))
-    return x
-
-
-def angle_residual(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``a - b`` for angle measurements, wrapped."""
-    return wrap_angle(np.asarray(a, dtype=np.float64) - b)
-
-
-def angle_mean(zs: FloatArray, wm: FloatArray) -> FloatArray:
-    """Weighted mean of angle measurements (M, k), wrapped."""
-    ref = zs[0]
-    return wrap_angle(ref + wm @ wrap_angle(zs - ref))
-
-
-def plain_residual(a: FloatArray, b: FloatArray) -> FloatArray:
-    """``a - b``."""
-    return np.asarray(a, dtype=np.float64) - b
-
-
-def plain_mean(zs: FloatArray, wm: FloatArray) -> FloatArray:
-    """Weighted mean of measurements (M, k)."""
-    return np.asarray(wm @ zs, dtype=np.float64)
-
-
-def unscented_transform(
-    sigmas: FloatArray,
-    wm: FloatArray,
-    wc: FloatArray,
-    noise_cov: FloatArray | None = None,
-    mean_fn: Callable[[FloatArray, FloatArray], FloatArray] | None = None,
-    residual_fn: Callable[[FloatArray, FloatArray], FloatArray] | None = None,
-) -> tuple[FloatArray, FloatArray]:
-    """Mean and covariance of transformed sigma points ``sigmas`` (M, k)::
-
-        mean = mean_fn(sigmas, wm)                       (default: sum_i wm_i sigmas_i)
-        d_i = residual_fn(sigmas_i, mean)                (default: sigmas_i - mean)
-        cov = sum_i wc_i d_i d_i^T + noise_cov           (k, k)
-
-    The same numbers as ``filterpy.kalman.unscented_transform``, on all M sigma points at
-    once (filterpy loops over them when given a residual function).
-    """
-    mean = (mean_fn or plain_mean)(sigmas, wm)
-    d = (residual_fn or plain_residual)(sigmas, mean)
-    cov = (d.T * wc) @ d
-    if noise_cov is not None:
-        cov = cov + noise_cov
-    return mean, cov
-
-
-# --------------------------------------------------------------------------------------
-# IMU pre-integration
-# --------------------------------------------------------------------------------------
-
-
-@dataclass
-class ImuIncrement:
-    """IMU samples pre-integrated over one filter step, in the body frame at its start.
-
-    ``ba0`` (3,) m/s^2 and ``bg0`` (3,) rad/s are the biases the samples are corrected by
-    (the prior mean's); ``T`` s the time integrated so far; ``rot_inc`` (3, 3) ``dR``,
-    ``dv`` (3,) m/s, ``dp`` (3,) m, and the bias Jacobians ``Jv`` (3, 3) s and ``Jp`` (3, 3)
-    s^2, as in the module docstring. An accumulator: :meth:`add` one sample at a time.
-    """
-
-    ba0: FloatArray
-    bg0: FloatArray
-    T: float = 0.0
-    rot_inc: FloatArray = field(default_factory=lambda: np.eye(3))
-    dv: FloatArray = field(default_factory=lambda: np.zeros(3))
-    dp: FloatArray = field(default_factory=lambda: np.zeros(3))
-    Jv: FloatArray = field(default_factory=lambda: np.zeros((3, 3)))
-    Jp: FloatArray = field(default_factory=lambda: np.zeros((3, 3)))
-
-    def add(self, accel: FloatArray, gyro: FloatArray, dt: float) -> None:
-        """Integrate one sample (specific force ``accel`` (3,) m/s^2, rate ``gyro`` (3,)
-        rad/s, both in the IMU frame), held constant over ``dt`` seconds."""
-        f = self.rot_inc @ (accel - self.ba0)
-        half = 0.5 * dt * dt
-        self.dp += self.dv * dt + f * half
-        self.Jp += self.Jv * dt + self.rot_inc * half
-        self.dv += f * dt
-        self.Jv += self.rot_inc * dt
-        self.rot_inc = self.rot_inc @ so3_exp_one((gyro - self.bg0) * dt)
-        self.T += dt
-
-
-def propagate(sigmas: FloatArray, inc: ImuIncrement) -> FloatArray:
-    """The process model: states (M, 16) moved over one increment, (M, 16) out (see the
-    module docstring)."""
-    T = inc.T
-    rot = euler_to_rot(sigmas[:, ATT])
-    dba = sigmas[:, BA] - inc.ba0
-    dbg = sigmas[:, BG] - inc.bg0
-    rot_new = rot @ inc.rot_inc @ so3_exp(-dbg * T)
-    dv = inc.dv - dba @ inc.Jv.T
-    dp = inc.dp - dba @ inc.Jp.T
-    out = sigmas.copy()
-    out[:, POS] = (
-        sigmas[:, POS]
-        + sigmas[:, VEL] * T
-        + 0.5 * GRAVITY * T * T
-        + np.einsum("mij,mj->mi", rot, dp)
-    )
-    out[:, VEL] = sigmas[:, VEL] + GRAVITY * T + np.einsum("mij,mj->mi", rot, dv)
-    out[:, ATT] = rot_to_euler(rot_new)
-    return out
-
-
-# --------------------------------------------------------------------------------------
-# Measurement models (all sigma points at once)
-# --------------------------------------------------------------------------------------
-
-
-def gps_model(lever_gps: FloatArray) -> MeasFn:
-    """z = p + R(rpy) l_gps, the antenna's ENU position."""
-
-    def hx(s: FloatArray) -> FloatArray:
-        return np.asarray(s[:, POS] + euler_to_rot(s[:, ATT]) @ lever_gps, dtype=np.float64)
-
-    return hx
-
-
-def yaw_model(s: FloatArray) -> FloatArray:
-    """z = yaw."""
-    return np.asarray(s[:, YAW : YAW + 1], dtype=np.float64)
-
-
-def axle_velocity_body(s: FloatArray, gyro: FloatArray, lever_axle: FloatArray) -> FloatArray:
-    """Body-frame velocity of the rear-axle centre, (M, 3)."""
-    rot = euler_to_rot(s[:, ATT])
-    v_body = np.einsum("mji,mj->mi", rot, s[:, VEL])
-    # w x l for one (3,) pair, written out: np.cross costs more than the rest of this model.
-    w, lv = gyro, lever_axle
-    w_x_l = np.array(
-        [w[1] * lv[2] - w[2] * lv[1], w[2] * lv[0] - w[0] * lv[2], w[0] * lv[1] - w[1] * lv[0]]
-    )
-    return np.asarray(v_body + w_x_l, dtype=np.float64)
-
-
-def wheel_model(gyro: FloatArray, lever_axle: FloatArray) -> MeasFn:
-    """z = (1 + ks) x forward speed of the rear-axle centre (the odometer's reading)."""
-
-    def hx(s: FloatArray) -> FloatArray:
-        fwd = axle_velocity_body(s, gyro, lever_axle)[:, FORWARD]
-        return np.asarray(fwd * (1.0 + s[:, SCALE : SCALE + 1]), dtype=np.float64)
-
-    return hx
-
-
-def attitude_model(s: FloatArray) -> FloatArray:
-    """z = (roll, pitch, yaw) of base_link."""
-    return np.asarray(s[:, ATT], dtype=np.float64)
-
-
-def roll_pitch_model(s: FloatArray) -> FloatArray:
-    """z = (roll, pitch) of base_link."""
-    return np.asarray(s[:, ATT.start : ATT.start + 2], dtype=np.float64)
-
-
-def nhc_model(gyro: FloatArray, lever_axle: FloatArray) -> MeasFn:
-    """z = (lateral, vertical) body velocity of the rear-axle centre (observed as 0)."""
-
-    def hx(s: FloatArray) -> FloatArray:
-        return axle_velocity_body(s, gyro, lever_axle)[:, LATERAL_VERTICAL]
-
-    return hx
-
-
-# --------------------------------------------------------------------------------------
-# The filter
-# --------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Measurement:
-    """One sensor's measurement for :meth:`PoseUKF.update_joint`: ``z`` (k,), noise
-    covariance ``R`` (k, k), model ``hx`` (sigma points (M, 16) -> (M, k)), gate
-    ``gate_chi2`` on ``y^T S^-1 y``, and how to average and subtract it (the angle
-    versions for angles). ``name`` counts it as accepted or gated. ``robust``: beyond the
-    gate it is down-weighted (noise inflated to bring ``y^T S^-1 y`` to the gate) instead of
-    rejected; see :meth:`PoseUKF.update_joint`."""
-
-    name: str
-    z: FloatArray
-    R: FloatArray
-    hx: MeasFn
-    gate_chi2: float
-    mean_fn: Callable[[FloatArray, FloatArray], FloatArray] = plain_mean
-    residual_fn: Callable[[FloatArray, FloatArray], FloatArray] = plain_residual
-    robust: bool = False
-
-
-@dataclass(frozen=True)
-class NoiseModel:
-    """Process noise densities, each per sqrt(s): ``accel`` m/s^2, ``gyro`` rad/s,
-    ``accel_bias_walk`` m/s^2, ``gyro_bias_walk`` rad/s, ``wheel_scale_walk`` 1/sqrt(s)."""
-
-    accel: float
-    gyro: float
-    accel_bias_walk: float
-    gyro_bias_walk: float
-    wheel_scale_walk: float = 0.0
-
-    def q(self, T: float) -> FloatArray:
-        """Additive process noise covariance (16, 16) for a step of ``T`` seconds::
-
-        Q = diag(accel^2 T^3 / 3 + 1e-9 (POS), accel^2 T (VEL), gyro^2 T (ATT),
-                 accel_bias_walk^2 T + 1e-14 (BA), gyro_bias_walk^2 T + 1e-16 (BG),
-                 wheel_scale_walk^2 T + 1e-14 (SCALE))
-        """
-        d = np.empty(DIM_X)
-        d[POS] = self.accel**2 * T**3 / 3.0 + 1e-9
-        d[VEL] = self.accel**2 * T
-        d[ATT] = self.gyro**2 * T
-        d[BA] = self.accel_bias_walk**2 * T + 1e-14
-        d[BG] = self.gyro_bias_walk**2 * T + 1e-16
-        d[SCALE] = self.wheel_scale_walk**2 * T + 1e-14
-        return np.diag(d)
 
 
 class PoseUKF:
-    """The pose filter: an unscented Kalman filter over the 16-state model above.
+    """The pose filter: an unscented Kalman filter over the 16-state model
+    (:mod:`toolkit.fusion.state`).
 
     It holds filterpy's scaled sigma points and the state privately; every public method is
     ours. ``n = 16`` is the state dimension, ``x`` (n,) the mean, ``P`` (n, n) the covariance.
@@ -486,7 +167,7 @@ class PoseUKF:
 
         ``q_extra`` (16, 16), symmetric positive semidefinite: process noise added to
         :meth:`NoiseModel.q` for this step (the estimator's measured accelerometer noise in
-        odometry dead reckoning, :func:`toolkit.fusion.estimator.vibration_q`).
+        odometry dead reckoning, :func:`toolkit.fusion.accel_noise.vibration_q`).
         """
         moved = propagate(self._sigma_points(), inc)
         q = self._noise.q(inc.T)
@@ -581,22 +262,30 @@ class PoseUKF:
         if given:
             return self._conditioned(blocks, np.asarray(given, dtype=np.intp))
         sigmas = self._sigma_points()
-        zs_parts: list[FloatArray] = []
-        zp_parts: list[FloatArray] = []
-        y_parts: list[FloatArray] = []
-        dz_parts: list[FloatArray] = []
-        for b in blocks:
-            zs = b.hx(sigmas)
-            zp = b.mean_fn(zs, self._wm)
-            zs_parts.append(zs)
-            zp_parts.append(zp)
-            y_parts.append(b.residual_fn(np.asarray(b.z, dtype=np.float64), zp))
-            dz_parts.append(b.residual_fn(zs, zp))
-        dz = np.concatenate(dz_parts, axis=1)
-        y = np.concatenate(y_parts)
+        dz, y, starts = _stacked_innovations(blocks, sigmas, self._wm)
         S = (dz.T * self._wc) @ dz
-        sizes = [p.shape[1] for p in dz_parts]
-        starts = np.concatenate([[0], np.cumsum(sizes)])
+        keep, flags = self._gate_blocks(blocks, S, y, starts)
+        if not keep:
+            return flags
+        idx = np.asarray(keep)
+        S_a = S[np.ix_(idx, idx)]
+        dx = state_residual(sigmas, self._x)
+        Pxz = (dx.T * self._wc) @ dz[:, idx]
+        K = np.linalg.solve(S_a, Pxz.T).T  # Pxz S^-1, S symmetric
+        x = self._x + K @ y[idx]
+        x[ATT] = wrap_angle(x[ATT])
+        P = self._P - K @ S_a @ K.T
+        self._x = x
+        self._P = 0.5 * (P + P.T)
+        return flags
+
+    def _gate_blocks(
+        self, blocks: list[Measurement], S: FloatArray, y: FloatArray, starts: np.ndarray
+    ) -> tuple[list[int], list[bool]]:
+        """Gate each block of :meth:`update_joint` on its marginal innovation, ``d2_b = y_b^T
+        S_bb^-1 y_b``, after adding its ``R_b`` to ``S`` (in place; a robust block beyond its
+        gate also inflates ``S_bb`` in place, see :meth:`update_joint`), and count it. Returns
+        the rows of ``y`` kept and the accepted flag per block."""
         keep: list[int] = []
         flags: list[bool] = []
         for i, b in enumerate(blocks):
@@ -617,19 +306,7 @@ class PoseUKF:
                 self._accepted[b.name] += 1
             else:
                 self._gated[b.name] += 1
-        if not keep:
-            return flags
-        idx = np.asarray(keep)
-        S_a = S[np.ix_(idx, idx)]
-        dx = state_residual(sigmas, self._x)
-        Pxz = (dx.T * self._wc) @ dz[:, idx]
-        K = np.linalg.solve(S_a, Pxz.T).T  # Pxz S^-1, S symmetric
-        x = self._x + K @ y[idx]
-        x[ATT] = wrap_angle(x[ATT])
-        P = self._P - K @ S_a @ K.T
-        self._x = x
-        self._P = 0.5 * (P + P.T)
-        return flags
+        return keep, flags
 
     def _conditioned(self, blocks: list[Measurement], c: np.ndarray) -> list[bool]:
         """:meth:`update_joint` conditioned on the states ``c``; ``r`` are the others.
@@ -763,6 +440,25 @@ class PoseUKF:
             ) from exc
 
 
+def _stacked_innovations(
+    blocks: list[Measurement], sigmas: FloatArray, wm: FloatArray
+) -> tuple[FloatArray, FloatArray, np.ndarray]:
+    """The blocks' predicted measurements stacked, ``Z_i = (h_1(X_i), ..., h_B(X_i))``:
+    their residuals from their means ``dz`` (M, k), the innovation ``y = z - z^`` (k,) and
+    the row where each block starts (B + 1,), each block averaged and subtracted by its own
+    ``mean_fn`` and ``residual_fn`` (wrapped for angles)."""
+    y_parts: list[FloatArray] = []
+    dz_parts: list[FloatArray] = []
+    for b in blocks:
+        zs = b.hx(sigmas)
+        zp = b.mean_fn(zs, wm)
+        y_parts.append(b.residual_fn(np.asarray(b.z, dtype=np.float64), zp))
+        dz_parts.append(b.residual_fn(zs, zp))
+    sizes = [p.shape[1] for p in dz_parts]
+    starts = np.concatenate([[0], np.cumsum(sizes)])
+    return np.concatenate(dz_parts, axis=1), np.concatenate(y_parts), starts
+
+
 def _checked(a: FloatArray, shape: tuple[int, ...], name: str) -> FloatArray:
     """A float64 copy of ``a``; a wrong shape or a non-finite value is a programming error."""
     out = np.array(a, dtype=np.float64)
@@ -777,32 +473,4 @@ def _read_only(a: FloatArray) -> FloatArray:
     return view
 
 
-__all__ = [
-    "ATT",
-    "DEAD_RECKONING_GIVEN",
-    "BA",
-    "BG",
-    "DIM_X",
-    "GRAVITY",
-    "MOTION",
-    "ImuIncrement",
-    "Measurement",
-    "NoiseModel",
-    "POS",
-    "VEL",
-    "YAW",
-    "PoseUKF",
-    "SCALE",
-    "angle_mean",
-    "angle_residual",
-    "attitude_model",
-    "gps_model",
-    "nhc_model",
-    "propagate",
-    "roll_pitch_model",
-    "state_mean",
-    "state_residual",
-    "unscented_transform",
-    "wheel_model",
-    "yaw_model",
-]
+__all__ = ["PoseUKF"]

@@ -67,9 +67,9 @@ from numpy.typing import NDArray
 
 from toolkit import __version__
 from toolkit.analysis import fig7
+from toolkit.analysis.fig4 import PNG_NAME as FIG4_PNG
 from toolkit.analysis.figures import write_bytes_atomic
 from toolkit.analysis.report import ReportInputs, roc_png, write_index_html
-from toolkit.analysis.scan_agreement import PNG_NAME as FIG4_PNG
 from toolkit.analysis.truth_terrain import true_ground, where_beams_hit
 from toolkit.atomic import atomic_write_json
 from toolkit.config import EvaluateConfig, LearnConfig, ModelConfig, PipelineConfig

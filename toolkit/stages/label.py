@@ -68,14 +68,12 @@ from toolkit.layout import LogFiles, log_file_name
 from toolkit.model.shock import (
     INTERP_MARGIN,
     MPS_PER_MPH,
-    ImpactEnvelope,
     ShockFir,
     design_shock_fir,
-    event_impact_shock,
     event_shock,
     filter_stream,
-    impact_envelope,
 )
+from toolkit.model.shock_attribution import ImpactEnvelope, event_impact_shock, impact_envelope
 from toolkit.mounts import sensor_mounts
 from toolkit.sim.record import SIM_RECORD
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage

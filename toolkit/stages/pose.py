@@ -43,18 +43,17 @@ from toolkit.config import (
 )
 from toolkit.errors import StageError
 from toolkit.frames import ENU_FRAME_ID, choose_enu_origin
-from toolkit.fusion.estimator import (
-    MAX_BRIDGE_S,
-    MAX_STEP_S,
+from toolkit.fusion.epochs import MAX_BRIDGE_S, MAX_STEP_S
+from toolkit.fusion.estimator import estimate_stream
+from toolkit.fusion.estimator_io import (
     EstimateResult,
     FilterSettings,
     ImuWindow,
     OutputChunk,
     SensorData,
-    estimate_stream,
 )
+from toolkit.fusion.process import NoiseModel
 from toolkit.fusion.rotations import FloatArray, rot_to_euler, wrap_angle
-from toolkit.fusion.ukf import NoiseModel
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.layout import LogFiles, log_file_name
 from toolkit.mounts import Mount, sensor_mounts

@@ -51,7 +51,8 @@ import pyarrow.parquet as pq
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from toolkit.analysis.scan_agreement import ScanAgreement, write_fig4
+from toolkit.analysis.fig4 import write_fig4
+from toolkit.analysis.scan_agreement import ScanAgreement
 from toolkit.analysis.truth_terrain import (
     TrueGround,
     ZErrorAccumulator,
