@@ -185,22 +185,9 @@ def _warnings_box(warnings: Sequence[Any] | None) -> list[str]:
     ]
 
 
-def index_html(inputs: ReportInputs) -> str:
-    """The page (module docstring)."""
-    s, m = inputs.summary, inputs.model
-    fprs = next(
-        (list(v["tpr_at_fpr"]) for v in (s.get("self_supervised"), s.get("oracle")) if v), []
-    )
-    head = "".join(f"<th>TPR at FPR {html.escape(f)}</th>" for f in fprs)
-    alpha = m.get("alpha", [])
-    params = [("alpha_" + str(i + 1), a) for i, a in enumerate(alpha)]
-    params += [(k, m.get(k)) for k in ("upsilon", "omega", "zeta", "mu")]
-    sp = s.get("speed_control", {})
-    red = sp.get("shock_reduction_at_equal_time")
-    red_text = (
-        "n/a (the curves' completion times do not overlap)" if red is None else f"{100 * red:.0f} %"
-    )
-    parts = [
+def _page_head(s: Mapping[str, Any]) -> list[str]:
+    """The page's head, title, warnings and what is reproduced."""
+    return [
         "<!DOCTYPE html><html><head><meta charset='utf-8'>",
         "<title>terrain: evaluation report</title>",
         "<style>body{font-family:sans-serif;max-width:60em;margin:2em auto;line-height:1.4}"
@@ -216,9 +203,26 @@ def index_html(inputs: ReportInputs) -> str:
         "seen ahead of the rear tyres before the vehicle got there; the learned model's "
         "parameters come from the training split only; everything below is on the test split "
         "unless it says otherwise.</p>",
+    ]
+
+
+def _events_section(s: Mapping[str, Any]) -> list[str]:
+    """The events and rough events of each split."""
+    return [
         "<h2>Events</h2><table><tr><th>split</th><th>events</th><th>rough</th></tr>",
         f"<tr><td>train</td><td>{s.get('train_events')}</td><td>{s.get('train_positives')}</td></tr>",
         f"<tr><td>test</td><td>{s.get('test_events')}</td><td>{s.get('test_positives')}</td></tr></table>",
+    ]
+
+
+def _roc_section(s: Mapping[str, Any], roc_figures: Sequence[str]) -> list[str]:
+    """Fig. 6's analogue: the ROC table (columns: the FPRs of the self-supervised or the
+    oracle entry) and the ROC figures."""
+    fprs = next(
+        (list(v["tpr_at_fpr"]) for v in (s.get("self_supervised"), s.get("oracle")) if v), []
+    )
+    head = "".join(f"<th>TPR at FPR {html.escape(f)}</th>" for f in fprs)
+    return [
         "<h2>Sensitivity against specificity (Fig. 6)</h2>",
         "<p>Area under the ROC curve and true-positive rate at fixed false-positive rates, with "
         "95 % intervals from a stratified bootstrap over test events; the last column is "
@@ -236,7 +240,17 @@ def index_html(inputs: ReportInputs) -> str:
         f"<th>unscored: all / rough</th>{head}<th>Spearman</th><th>points scored</th></tr>",
         *_roc_rows(s, len(fprs)),
         "</table>",
-        *[f"<p><img src='{html.escape(f)}' alt='ROC curves'></p>" for f in inputs.roc_figures],
+        *[f"<p><img src='{html.escape(f)}' alt='ROC curves'></p>" for f in roc_figures],
+    ]
+
+
+def _model_section(s: Mapping[str, Any], m: Mapping[str, Any]) -> list[str]:
+    """The learned model (sect. 4 and 6): how the search of eqs. (6)-(7) ended, the
+    parameters of eqs. (3)-(5) and what each means."""
+    alpha = m.get("alpha", [])
+    params = [("alpha_" + str(i + 1), a) for i, a in enumerate(alpha)]
+    params += [(k, m.get(k)) for k in ("upsilon", "omega", "zeta", "mu")]
+    return [
         "<h2>The learned model (sect. 4 and 6)</h2>",
         f"<p>Coordinate ascent (sect. 6) accepted a step when it raised "
         f"<b>{html.escape(_ACCEPTED.get(str(m.get('accepted_by')), 'eq. (6)'))}</b> on the "
@@ -255,6 +269,17 @@ def index_html(inputs: ReportInputs) -> str:
             for k, v in PARAMETER_MEANINGS
         ],
         "</table>",
+    ]
+
+
+def _speed_section(s: Mapping[str, Any], speed_files: Sequence[str]) -> list[str]:
+    """Fig. 7's analogue: the speed-control result, its figure and its curves."""
+    sp = s.get("speed_control", {})
+    red = sp.get("shock_reduction_at_equal_time")
+    red_text = (
+        "n/a (the curves' completion times do not overlap)" if red is None else f"{100 * red:.0f} %"
+    )
+    return [
         "<h2>Speed control (Fig. 7)</h2>",
         "<p>The test route replayed with the speed lowered reactively (after the IMU measured a "
         "rough event, as in the race) or proactively (before events the model flags). Shock at "
@@ -264,23 +289,42 @@ def index_html(inputs: ReportInputs) -> str:
         f"controller at equal completion time: <b>{red_text}</b>.</p>",
         *[
             f"<p><img src='{html.escape(f)}' alt='speed trade-off'></p>"
-            for f in inputs.speed_files
+            for f in speed_files
             if f.endswith(".png")
         ],
         *[
             f"<p>Curves: <a href='{html.escape(f)}'>{html.escape(f)}</a></p>"
-            for f in inputs.speed_files
+            for f in speed_files
             if f.endswith(".csv")
         ],
     ]
-    if inputs.log_figures:
-        parts.append("<h2>Per-log figures (Figs. 4 and 5)</h2>")
-        for caption, name in inputs.log_figures:
-            parts.append(
-                f"<h3>{html.escape(caption)}</h3><p><img src='{html.escape(name)}' "
-                f"alt='{html.escape(caption)}'></p>"
-            )
-    parts.append(f"<p><small>terrain {_fmt(s.get('toolkit_version'))}</small></p></body></html>\n")
+
+
+def _log_figures_section(log_figures: Sequence[tuple[str, str]]) -> list[str]:
+    """The copied per-log figures (Figs. 4 and 5) under their captions; nothing if none."""
+    if not log_figures:
+        return []
+    parts = ["<h2>Per-log figures (Figs. 4 and 5)</h2>"]
+    for caption, name in log_figures:
+        parts.append(
+            f"<h3>{html.escape(caption)}</h3><p><img src='{html.escape(name)}' "
+            f"alt='{html.escape(caption)}'></p>"
+        )
+    return parts
+
+
+def index_html(inputs: ReportInputs) -> str:
+    """The page (module docstring): its sections, one per line group, in reading order."""
+    s, m = inputs.summary, inputs.model
+    parts = [
+        *_page_head(s),
+        *_events_section(s),
+        *_roc_section(s, inputs.roc_figures),
+        *_model_section(s, m),
+        *_speed_section(s, inputs.speed_files),
+        *_log_figures_section(inputs.log_figures),
+        f"<p><small>terrain {_fmt(s.get('toolkit_version'))}</small></p></body></html>\n",
+    ]
     return "\n".join(parts)
 
 

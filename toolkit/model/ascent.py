@@ -307,13 +307,131 @@ def validation_events(rough: BoolArray, share: float, block: int) -> BoolArray |
     return np.asarray(held, bool)
 
 
+#: An accepted move: (rotation, element name, new value, J after it).
+Step = tuple[int, str, float, float]
+
+
+@dataclass(frozen=True)
+class _Climb:
+    """Where the search stands: B, its judgement on the fitted events (J of eq. (6), the
+    ROC areas, mu), its R_combined (E,) on every training event, and the moves accepted."""
+
+    b: list[float]
+    best: Threshold
+    r_best: FloatArray
+    steps: tuple[Step, ...] = ()
+
+    def moved_in(self, rotation: int) -> bool:
+        """Whether a move was accepted during ``rotation``."""
+        return bool(self.steps) and self.steps[-1][0] == rotation
+
+
+@dataclass(frozen=True)
+class _EarlyStop:
+    """Early stopping's state: the held-out events (E,), and the rotation (0: the start)
+    whose B ranked them best so far by the measure the steps climb, with that measure."""
+
+    held: BoolArray
+    b: list[float]
+    value: float
+    rotation: int = 0
+
+    def after(self, evaluate: _Evaluator, climb: _Climb, rotation: int, accept: str) -> _EarlyStop:
+        """The state after ``rotation``: ``climb``'s B kept if it moved then and ranks the
+        held-out events strictly better."""
+        if not climb.moved_in(rotation):
+            return self
+        val = evaluate.judge(climb.r_best, self.held).key(accept)[0]
+        if val > self.value:
+            return _EarlyStop(self.held, list(climb.b), val, rotation + 1)
+        return self
+
+
+def _step(increment: float, j: int, omega: int) -> float:
+    """The magnitude of element ``j`` of S I in eq. (7): I_j, except omega's, which stays a
+    whole number of pairs, ``max(1, round(I_omega))``."""
+    return max(1.0, float(round(increment))) if j == omega else increment
+
+
+def _improve(
+    evaluate: _Evaluator,
+    climb: _Climb,
+    j: int,
+    step: float,
+    fit: BoolArray | None,
+    accept: str,
+) -> tuple[list[float], RoughnessParams, Threshold, FloatArray] | None:
+    """Eq. (7) along element ``j``: ``T = B + S I`` with S_j = -1, then +1 (all others 0).
+    The first admissible T whose scores are finite and beat B by ``accept`` on the fitted
+    events ``fit`` (all: None), as (T, its parameters, its judgement, its R_combined)."""
+    b = climb.b
+    for sign in (-1.0, 1.0):
+        t = list(b)
+        t[j] = b[j] + sign * step
+        candidate = RoughnessParams.from_vector(t, 0.0)
+        if not candidate.admissible():
+            continue
+        r = evaluate.scores(candidate)
+        got = None if r is None else evaluate.judge(r, fit)
+        if r is not None and got is not None and got.beats(climb.best, accept):
+            return t, candidate, got, r
+    return None
+
+
+def _rotate(
+    evaluate: _Evaluator,
+    climb: _Climb,
+    rotation: int,
+    inc: Sequence[float],
+    config: AscentConfig,
+    fit: BoolArray | None,
+) -> _Climb:
+    """One full rotation of sect. 6: each free element of B in turn tries eq. (7)'s two
+    signs with increments ``inc``, and B takes the first T that improves. The source then
+    keeps the new B's terms (every later candidate differs from it in one element)."""
+    names = b_names(len(climb.b))
+    omega = names.index("omega")
+    for j in range(len(climb.b)):
+        if not config.moves(j):
+            continue
+        better = _improve(evaluate, climb, j, _step(inc[j], j, omega), fit, config.accept)
+        if better is not None:
+            t, candidate, got, r = better
+            evaluate.source.hold(candidate.alpha)
+            climb = _Climb(t, got, r, (*climb.steps, (rotation, names[j], t[j], got.objective)))
+    return climb
+
+
+def _start(evaluate: _Evaluator, b: list[float], fit: BoolArray | None) -> tuple[_Climb, Threshold]:
+    """The search's starting point from the initial B (its judgement on the fitted events),
+    and the initial guess's own result on every training event. The source is set to keep
+    B's terms. ValueError if B is outside the model's domain."""
+    start = RoughnessParams.from_vector(b, 0.0)
+    # Every candidate differs from B in one element: the source may keep B's terms.
+    evaluate.source.hold(start.alpha)
+    r0 = evaluate.scores(start) if start.admissible() else None
+    if r0 is None:
+        raise ValueError(f"the initial parameters {b} are outside the model's domain")
+    return _Climb(b, evaluate.judge(r0, fit), r0), evaluate.judge(r0)
+
+
+def _judge_kept(evaluate: _Evaluator, b: list[float]) -> Threshold:
+    """Early stopping's kept B judged (and mu chosen by eq. (6)) on every training event."""
+    r_kept = evaluate.scores(RoughnessParams.from_vector(b, 0.0))
+    if r_kept is None:  # scored finite when kept; cannot fail
+        raise RuntimeError("kept parameters no longer score")
+    return evaluate.judge(r_kept)
+
+
 def coordinate_ascent(
     source: TopScores,
     rough: BoolArray,
     config: AscentConfig,
     progress: Callable[[int], None] | None = None,
 ) -> AscentResult:
-    """Sect. 6's coordinate ascent on ``source``'s patches (2E groups) and labels (E,).
+    """Sect. 6's coordinate ascent on ``source``'s patches (2E groups) and labels (E,):
+    maximise ``J = Tp - lambda Fp`` (eq. 6) over B by steps ``T = B + S I`` (eq. 7), I
+    halved after each full rotation (module docstring).
 
     ``progress`` is called with the rotation just finished. Deterministic: the same inputs
     give the same result.
@@ -322,68 +440,35 @@ def coordinate_ascent(
     evaluate = _Evaluator(source, rough, config.lambda_fp)
     held = validation_events(rough, config.validation_share, config.validation_block)
     fit = None if held is None else ~held
-    b = list(config.initial)
     inc = list(config.increments)
-    names = b_names(len(b))
-    omega = names.index("omega")
-    start = RoughnessParams.from_vector(b, 0.0)
+    history: list[float] = []
+    measures: list[float] = []
+    val_history: list[float] = []
     try:
-        # Every candidate differs from B in one element: the source may keep B's terms.
-        source.hold(start.alpha)
-        r0 = evaluate.scores(start) if start.admissible() else None
-        if r0 is None:
-            raise ValueError(f"the initial parameters {b} are outside the model's domain")
-        best = evaluate.judge(r0, fit)
-        first = evaluate.judge(r0)
+        climb, first = _start(evaluate, list(config.initial), fit)
         # Early stopping: the rotation (0: the start) whose parameters rank the held-out
         # events best, by the measure the steps climb.
-        kept_b, r_best, kept_rotation = list(b), r0, 0
-        kept_val = -np.inf if held is None else evaluate.judge(r0, held).key(config.accept)[0]
-        val_history: list[float] = []
-        history: list[float] = []
-        measures: list[float] = []
-        steps: list[tuple[int, str, float, float]] = []
+        stop = None
+        if held is not None:
+            value = evaluate.judge(climb.r_best, held).key(config.accept)[0]
+            stop = _EarlyStop(held, list(climb.b), value)
         for rotation in range(config.iterations):
-            for j in range(len(b)):
-                if not config.moves(j):
-                    continue
-                step = max(1.0, float(round(inc[j]))) if j == omega else inc[j]
-                for sign in (-1.0, 1.0):
-                    t = list(b)
-                    t[j] = b[j] + sign * step
-                    candidate = RoughnessParams.from_vector(t, 0.0)
-                    if not candidate.admissible():
-                        continue
-                    r = evaluate.scores(candidate)
-                    got = None if r is None else evaluate.judge(r, fit)
-                    if r is not None and got is not None and got.beats(best, config.accept):
-                        b, best, r_best = t, got, r
-                        source.hold(candidate.alpha)
-                        steps.append((rotation, names[j], t[j], got.objective))
-                        break
+            climb = _rotate(evaluate, climb, rotation, inc, config, fit)
             inc = [v / 2.0 for v in inc]
-            history.append(best.objective)
-            measures.append(best.key(config.accept)[0])
-            if held is not None and steps and steps[-1][0] == rotation:
-                val = evaluate.judge(r_best, held).key(config.accept)[0]
-                if val > kept_val:
-                    kept_b, kept_val, kept_rotation = list(b), val, rotation + 1
-            if held is not None:
-                val_history.append(kept_val)
+            history.append(climb.best.objective)
+            measures.append(climb.best.key(config.accept)[0])
+            if stop is not None:
+                stop = stop.after(evaluate, climb, rotation, config.accept)
+                val_history.append(stop.value)
             if progress is not None:
                 progress(rotation + 1)
-        if held is not None:
-            # The kept parameters, judged (and mu chosen) on every training event.
-            b = kept_b
-            r_kept = evaluate.scores(RoughnessParams.from_vector(b, 0.0))
-            if r_kept is None:  # scored finite when kept; cannot fail
-                raise RuntimeError("kept parameters no longer score")
-            best = evaluate.judge(r_kept)
+        b, best = climb.b, climb.best
+        if stop is not None:
+            b, best = stop.b, _judge_kept(evaluate, stop.b)
     finally:
         source.hold(None)
-    params = RoughnessParams.from_vector(b, best.mu)
     return AscentResult(
-        params=params,
+        params=RoughnessParams.from_vector(b, best.mu),
         objective=best.objective,
         tpr=best.tpr,
         fpr=best.fpr,
@@ -391,14 +476,14 @@ def coordinate_ascent(
         iterations=config.iterations,
         evaluations=evaluate.evaluations,
         history=tuple(history),
-        steps=tuple(steps),
+        steps=climb.steps,
         pauc=best.pauc,
         start=first,
         accepted_by=config.accept,
         measure_history=tuple(measures),
         validation_history=tuple(val_history),
-        held_out_share=0.0 if held is None else float(held.mean()),
-        kept_rotation=None if held is None else kept_rotation,
+        held_out_share=0.0 if stop is None else float(stop.held.mean()),
+        kept_rotation=None if stop is None else stop.rotation,
     )
 
 

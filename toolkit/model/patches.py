@@ -266,30 +266,42 @@ def _point_batches(
         yield table, event, _codes(table.column("laser"))
 
 
-def build_patches(
-    events: pa.Table,
-    points: pa.Table | Iterable[pa.RecordBatch | pa.Table],
-    max_points_per_wheel: int,
-    *,
-    only_laser: str | None = None,
-    sample: str = "hash",
-    laser_order: Sequence[str] = (),
-    source: str | Path = "tables/event_points.parquet",
-) -> TyrePatches:
-    """Patches for ``events`` (a table with ``log_id`` and ``event_id``, in the order the
-    result's groups follow) from the rows of ``tables/event_points.parquet``: a table, or
-    record batches streamed from it (memory then holds only the rows that may be kept: at
-    most ``max_points_per_wheel`` per patch and batch).
+@dataclass(frozen=True)
+class _Sampling:
+    """How ``build_patches`` picks the points of a patch, fixed once for all batches.
 
-    ``only_laser`` keeps that laser's points alone (the baseline's closest laser, sect. 7.1).
-    ``sample`` is how a patch is thinned (module docstring); ``"nearest_laser"`` ranks the
-    lasers as ``laser_order`` lists them (nearest first; lasers not listed come last).
-    Points of events not in ``events`` are ignored. StageError if a point names a wheel other
-    than left or right, or a column the model scores holds a non-finite value.
+    Attributes:
+        k: ``max_points_per_wheel`` (0: every point).
+        sample: one of :data:`SAMPLES`.
+        only_laser: the one laser kept, or None for all.
+        rank_of: laser name -> its rank in ``laser_order`` (nearest first).
+        start_ns: (E,) the events' ``t_start_ns``, or None when the table has none.
+        source: the path named in errors.
     """
-    n_events = events.num_rows
-    n_groups = 2 * n_events
-    k = max_points_per_wheel
+
+    k: int
+    sample: str
+    only_laser: str | None
+    rank_of: dict[str, int]
+    start_ns: IntArray | None
+    source: str | Path
+
+    @property
+    def fresh_from_ns(self) -> IntArray | None:
+        """The start times the freshest sample ranks by (None for the other samples)."""
+        return self.start_ns if self.sample == "freshest" else None
+
+
+def _sampling(
+    events: pa.Table,
+    max_points_per_wheel: int,
+    only_laser: str | None,
+    sample: str,
+    laser_order: Sequence[str],
+    source: str | Path,
+) -> _Sampling:
+    """The checked sampling options of ``build_patches``; ValueError for an unknown
+    ``sample``, or the freshest sample without the events' start times."""
     if sample not in SAMPLES:
         raise ValueError(f"sample must be one of {SAMPLES}, not {sample!r}")
     rank_of = {name: i for i, name in enumerate(laser_order)}
@@ -301,80 +313,127 @@ def build_patches(
         if "t_start_ns" in events.column_names
         else None
     )
-    fresh_from_ns = start_ns if sample == "freshest" else None
-    index = _EventIndex(events, source)
-    kept: list[_Kept] = []
-    laser_ids: dict[str, int] = {}  # laser name -> index, in order of first appearance
-    for table, event, (laser_codes, laser_names) in _point_batches(points, index):
-        keep = event >= 0
-        if only_laser is not None:
-            keep &= laser_codes == (
-                laser_names.index(only_laser) if only_laser in laser_names else -2
-            )
-        rows = np.flatnonzero(keep)
-        if rows.size == 0:
-            continue
-        event, laser_codes = event[rows], laser_codes[rows]
-        wheel_codes, wheel_names = _codes(table.column("wheel"))
-        to_wheel = np.array([WHEELS.index(n) if n in WHEELS else -1 for n in wheel_names] + [-1])
-        wheel = to_wheel[wheel_codes[rows]]  # a null wheel (-1) takes the last entry, -1
-        if (wheel < 0).any():
-            bad = wheel_codes[rows][wheel < 0][0]
+    return _Sampling(max_points_per_wheel, sample, only_laser, rank_of, start_ns, source)
+
+
+def _rows_asked(
+    event: IntArray, laser_codes: IntArray, laser_names: list[str | None], only_laser: str | None
+) -> IntArray:
+    """The rows of a batch that belong to an event asked for (and to ``only_laser``)."""
+    keep = event >= 0
+    if only_laser is not None:
+        keep &= laser_codes == (laser_names.index(only_laser) if only_laser in laser_names else -2)
+    return np.flatnonzero(keep)
+
+
+def _wheels(table: pa.Table, rows: IntArray, source: str | Path) -> IntArray:
+    """(N,) the wheel (0 left, 1 right) of each of ``rows``; StageError for any other."""
+    wheel_codes, wheel_names = _codes(table.column("wheel"))
+    to_wheel = np.array([WHEELS.index(n) if n in WHEELS else -1 for n in wheel_names] + [-1])
+    wheel: IntArray = to_wheel[wheel_codes[rows]]  # a null wheel (-1) takes the last entry, -1
+    if (wheel < 0).any():
+        bad = wheel_codes[rows][wheel < 0][0]
+        raise StageError(
+            f"wheel {wheel_names[bad] if bad >= 0 else None!r} is neither 'left' nor 'right'",
+            path=source,
+        )
+    return wheel
+
+
+def _values(table: pa.Table, rows: IntArray, source: str | Path) -> dict[str, FloatArray]:
+    """The scored columns (``_VALUE_COLUMNS``) of ``rows`` as float64; StageError for a
+    non-finite value."""
+    values: dict[str, FloatArray] = {}
+    for key, col in _VALUE_COLUMNS.items():
+        v = np.asarray(
+            table.column(col).cast(pa.float64()).to_numpy(zero_copy_only=False), np.float64
+        )[rows]
+        if not np.isfinite(v).all():
+            bad_count = int(np.count_nonzero(~np.isfinite(v)))
             raise StageError(
-                f"wheel {wheel_names[bad] if bad >= 0 else None!r} is neither 'left' nor 'right'",
+                f"column {col!r}: {bad_count} non-finite value(s) (e.g. "
+                f"{v[~np.isfinite(v)][0]!r}); the model cannot score them",
                 path=source,
             )
-        group = event * 2 + wheel
-        if (laser_codes < 0).any():
-            raise StageError("a point has no laser name", path=source)
-        names = [str(n) for n in laser_names]
-        codes = np.array([laser_code(n) for n in names], np.uint64)[laser_codes]
-        # Only the lasers of the rows taken (the events asked for, ``only_laser``) are named
-        # in the result, not every name in the batch's dictionary.
-        ids = np.full(len(names), -1, np.int64)
-        for code in np.unique(laser_codes):
-            ids[code] = laser_ids.setdefault(names[code], len(laser_ids))
-        values: dict[str, FloatArray] = {}
-        for key, col in _VALUE_COLUMNS.items():
-            v = np.asarray(
-                table.column(col).cast(pa.float64()).to_numpy(zero_copy_only=False), np.float64
-            )[rows]
-            if not np.isfinite(v).all():
-                bad_count = int(np.count_nonzero(~np.isfinite(v)))
-                raise StageError(
-                    f"column {col!r}: {bad_count} non-finite value(s) (e.g. "
-                    f"{v[~np.isfinite(v)][0]!r}); the model cannot score them",
-                    path=source,
-                )
-            values[key] = v
-        t_ns = np.asarray(table.column("t_ns").to_numpy(zero_copy_only=False), np.int64)[rows]
-        values["lead"] = (
-            np.asarray((start_ns[event] - t_ns) * 1e-9, np.float64)
-            if start_ns is not None
-            else np.zeros(rows.size)
+        values[key] = v
+    return values
+
+
+def _priority(
+    t_ns: IntArray,
+    event: IntArray,
+    laser_codes: IntArray,
+    names: list[str],
+    sampling: _Sampling,
+) -> NDArray[np.uint64]:
+    """(N,) each row's rank-key in its patch, lowest kept first (module docstring): the
+    coordinated hash, under the laser's rank (nearest laser) or the lead time (freshest)."""
+    codes = np.array([laser_code(n) for n in names], np.uint64)[laser_codes]
+    priority = point_priority(t_ns, codes)
+    if sampling.sample == "nearest_laser":
+        # The laser's rank above, the hash's high 48 bits below: a laser's points all
+        # come before the next laser's, each laser's in the coordinated hash order.
+        rank_of = sampling.rank_of
+        rank = np.array([rank_of.get(n, len(rank_of)) for n in names], np.uint64)
+        priority = (rank[laser_codes] << np.uint64(48)) | (priority >> np.uint64(16))
+    fresh_from_ns = sampling.fresh_from_ns
+    if fresh_from_ns is not None:
+        # Lead time in microseconds above, the hash's low 20 bits below: the points seen
+        # last before the event, ties broken reproducibly.
+        lead_us = (fresh_from_ns[event] - t_ns) // 1000
+        priority = (np.maximum(lead_us, 0).astype(np.uint64) << np.uint64(20)) | (
+            priority & np.uint64(0xFFFFF)
         )
-        priority = point_priority(t_ns, codes)
-        if sample == "nearest_laser":
-            # The laser's rank above, the hash's high 48 bits below: a laser's points all
-            # come before the next laser's, each laser's in the coordinated hash order.
-            rank = np.array([rank_of.get(n, len(rank_of)) for n in names], np.uint64)
-            priority = (rank[laser_codes] << np.uint64(48)) | (priority >> np.uint64(16))
-        if fresh_from_ns is not None:
-            # Lead time in microseconds above, the hash's low 20 bits below: the points seen
-            # last before the event, ties broken reproducibly.
-            lead_us = (fresh_from_ns[event] - t_ns) // 1000
-            priority = (np.maximum(lead_us, 0).astype(np.uint64) << np.uint64(20)) | (
-                priority & np.uint64(0xFFFFF)
-            )
-        take = _bottom_k(group, priority, k)
-        kept.append(
-            _Kept(
-                group[take],
-                priority[take],
-                {key: v[take] for key, v in values.items()},
-                ids[laser_codes][take],
-            )
-        )
+    return priority
+
+
+def _kept_of_batch(
+    table: pa.Table,
+    event: IntArray,
+    laser_codes: IntArray,
+    laser_names: list[str | None],
+    sampling: _Sampling,
+    laser_ids: dict[str, int],
+) -> _Kept | None:
+    """The rows of one batch that may be among their patch's k (None if it has none);
+    names the lasers of those rows in ``laser_ids`` (name -> index, by first appearance)."""
+    source = sampling.source
+    rows = _rows_asked(event, laser_codes, laser_names, sampling.only_laser)
+    if rows.size == 0:
+        return None
+    event, laser_codes = event[rows], laser_codes[rows]
+    group = event * 2 + _wheels(table, rows, source)
+    if (laser_codes < 0).any():
+        raise StageError("a point has no laser name", path=source)
+    names = [str(n) for n in laser_names]
+    # Only the lasers of the rows taken (the events asked for, ``only_laser``) are named
+    # in the result, not every name in the batch's dictionary.
+    ids = np.full(len(names), -1, np.int64)
+    for code in np.unique(laser_codes):
+        ids[code] = laser_ids.setdefault(names[code], len(laser_ids))
+    values = _values(table, rows, source)
+    t_ns = np.asarray(table.column("t_ns").to_numpy(zero_copy_only=False), np.int64)[rows]
+    start_ns = sampling.start_ns
+    values["lead"] = (
+        np.asarray((start_ns[event] - t_ns) * 1e-9, np.float64)
+        if start_ns is not None
+        else np.zeros(rows.size)
+    )
+    priority = _priority(t_ns, event, laser_codes, names, sampling)
+    take = _bottom_k(group, priority, sampling.k)
+    return _Kept(
+        group[take],
+        priority[take],
+        {key: v[take] for key, v in values.items()},
+        ids[laser_codes][take],
+    )
+
+
+def _dense_patches(
+    kept: list[_Kept], laser_ids: dict[str, int], n_groups: int, k: int
+) -> TyrePatches:
+    """The padded (G, n_max) layout of the rows among their patch's k over all batches;
+    the lasers renumbered from first appearance to sorted names."""
     group = np.concatenate([c.group for c in kept]) if kept else np.zeros(0, np.int64)
     priority = np.concatenate([c.priority for c in kept]) if kept else np.zeros(0, np.uint64)
     take = _bottom_k(group, priority, k)
@@ -413,6 +472,38 @@ def build_patches(
         lasers=lasers,
         lead=dense("lead"),
     )
+
+
+def build_patches(
+    events: pa.Table,
+    points: pa.Table | Iterable[pa.RecordBatch | pa.Table],
+    max_points_per_wheel: int,
+    *,
+    only_laser: str | None = None,
+    sample: str = "hash",
+    laser_order: Sequence[str] = (),
+    source: str | Path = "tables/event_points.parquet",
+) -> TyrePatches:
+    """Patches for ``events`` (a table with ``log_id`` and ``event_id``, in the order the
+    result's groups follow) from the rows of ``tables/event_points.parquet``: a table, or
+    record batches streamed from it (memory then holds only the rows that may be kept: at
+    most ``max_points_per_wheel`` per patch and batch).
+
+    ``only_laser`` keeps that laser's points alone (the baseline's closest laser, sect. 7.1).
+    ``sample`` is how a patch is thinned (module docstring); ``"nearest_laser"`` ranks the
+    lasers as ``laser_order`` lists them (nearest first; lasers not listed come last).
+    Points of events not in ``events`` are ignored. StageError if a point names a wheel other
+    than left or right, or a column the model scores holds a non-finite value.
+    """
+    sampling = _sampling(events, max_points_per_wheel, only_laser, sample, laser_order, source)
+    index = _EventIndex(events, source)
+    kept: list[_Kept] = []
+    laser_ids: dict[str, int] = {}  # laser name -> index, in order of first appearance
+    for table, event, (laser_codes, laser_names) in _point_batches(points, index):
+        batch = _kept_of_batch(table, event, laser_codes, laser_names, sampling, laser_ids)
+        if batch is not None:
+            kept.append(batch)
+    return _dense_patches(kept, laser_ids, 2 * events.num_rows, max_points_per_wheel)
 
 
 def lead_order(
