@@ -44,13 +44,13 @@ from toolkit.analysis.figures import new_figure, save_png_atomic, write_csv_atom
 from toolkit.analysis.histograms import bins_covering, histogram_quantile
 from toolkit.errors import ConfigError, StageError, ToolkitError
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.layout import LogFiles
 from toolkit.sim.record import SIM_RECORD, sim_origin
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
 
-METADATA_FILE = "mcap_metadata.json"
 #: Spacing of the route samples the first guess of a point's route position comes from, m.
 ROUTE_GUESS_SPACING_M = 0.5
 #: Columns of points.parquet the streaming driver reads.
@@ -174,7 +174,7 @@ def true_ground(log_dir: Path) -> TrueGround | None:
     from toolkit.sim.world import WorldParams, make_world
 
     log_dir = Path(log_dir)
-    meta_path = log_dir / METADATA_FILE
+    meta_path = LogFiles(log_dir).mcap_metadata
     if not meta_path.is_file():
         return None
     try:
@@ -197,7 +197,7 @@ def true_ground(log_dir: Path) -> TrueGround | None:
         ) from exc
     if origin_sim is None:
         raise StageError(f"record {SIM_RECORD!r} has no readable origin", path=meta_path)
-    pose_path = log_dir / "pose.parquet"
+    pose_path = LogFiles(log_dir).pose
     if not pose_path.is_file():
         raise StageError("no pose; run `terrain pose` first", path=pose_path)
     origin_text = read_table_metadata(pose_path).get("enu_origin")
@@ -466,7 +466,7 @@ def z_error_of(
     ground = true_ground(log_dir)
     if ground is None:
         return None
-    path = Path(points_path) if points_path is not None else Path(log_dir) / "points.parquet"
+    path = Path(points_path) if points_path is not None else LogFiles(Path(log_dir)).points
     acc = ZErrorAccumulator(config)
     for batch in iter_table_batches(path, "points", columns=COLUMNS, batch_rows=batch_rows):
         xyz = np.stack([batch.column(c).to_numpy() for c in "xyz"], axis=1)
