@@ -17,7 +17,9 @@ import pytest
 from scipy.signal import lfilter, welch
 
 from toolkit.sim.drive import Driver, TrueBlock, make_driven_path
+from toolkit.sim.features import RoughFeature
 from toolkit.sim.profiles import make_profile
+from toolkit.sim.terrain import Terrain
 from toolkit.sim.vehicle import (
     ALL_DOWN,
     INPUT_ONE,
@@ -30,7 +32,7 @@ from toolkit.sim.vehicle import (
     VehicleParams,
     modal_summary,
 )
-from toolkit.sim.world import RoughFeature, Terrain, World, make_world
+from toolkit.sim.world import World, make_world
 
 from .logdata import GRAVITY_MPS2, SimLog, on_grid_true_times
 from .reference_labeller import shock_filter_taps

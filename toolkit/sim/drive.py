@@ -18,6 +18,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from toolkit.sim.route import Route
+from toolkit.sim.terrain import Terrain, WindowCache
 from toolkit.sim.vehicle import (
     INPUT_ACCEL_X,
     INPUT_ACCEL_Y,
@@ -32,7 +34,6 @@ from toolkit.sim.vehicle import (
     VehicleParams,
     safe_speed_profile,
 )
-from toolkit.sim.world import Route, Terrain, WindowCache
 
 FloatArray = NDArray[np.floating[Any]]
 

@@ -17,7 +17,8 @@ from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
 from toolkit.config import default_config
-from toolkit.sim.world import Route, TerrainWindow
+from toolkit.sim.route import Route
+from toolkit.sim.terrain import TerrainWindow
 
 FloatArray = NDArray[np.floating[Any]]
 

@@ -61,7 +61,8 @@ from toolkit.sim.sensors import (
     gauss_markov,
 )
 from toolkit.sim.shock_meter import ShockMeter
-from toolkit.sim.world import WindowCache, World, WorldParams, make_world
+from toolkit.sim.terrain import WindowCache
+from toolkit.sim.world import World, WorldParams, make_world
 
 FloatArray = NDArray[np.floating[Any]]
 

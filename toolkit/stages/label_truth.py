@@ -36,7 +36,8 @@ from numpy.typing import NDArray
 from toolkit.errors import StageError
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.sim.record import SIM_RECORD, sim_origin
-from toolkit.sim.world import Route, WorldParams, make_world
+from toolkit.sim.route import Route
+from toolkit.sim.world import WorldParams, make_world
 from toolkit.tableio import iter_table_batches, read_table_metadata
 
 FloatArray = NDArray[np.float64]
