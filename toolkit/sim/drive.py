@@ -4,7 +4,7 @@ The vehicle's rear axle follows a *driven path*: the route's centreline shifted 
 a slow lane wander ``w(s)``. Its longitudinal speed comes from the reactive speed controller;
 its vertical motion and attitude from the full-car suspension model driven by the terrain
 under its four tyres (each tyre's footprint made one effective road height,
-:class:`~toolkit.sim.vehicle.TyreFootprint`). Each call of :meth:`Driver.step` advances one
+:class:`~toolkit.sim.tyre.TyreFootprint`). Each call of :meth:`Driver.step` advances one
 block (0.1 s) at the dynamics rate (1 kHz) and returns the true state at every dynamics
 sample.
 """
@@ -19,21 +19,23 @@ from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
 from toolkit.sim.route import Route
-from toolkit.sim.terrain import Terrain, WindowCache
-from toolkit.sim.vehicle import (
+from toolkit.sim.speed_control import (
+    ReactiveSpeedController,
+    ReactiveSpeedParams,
+    safe_speed_profile,
+)
+from toolkit.sim.suspension import (
     INPUT_ACCEL_X,
     INPUT_ACCEL_Y,
     INPUT_ONE,
     INPUT_ROAD,
     INPUT_ROAD_RATE,
     N_INPUTS,
-    ReactiveSpeedController,
-    ReactiveSpeedParams,
     Suspension,
-    TyreFootprint,
-    VehicleParams,
-    safe_speed_profile,
 )
+from toolkit.sim.terrain import Terrain, WindowCache
+from toolkit.sim.tyre import TyreFootprint
+from toolkit.sim.vehicle import VehicleParams
 
 FloatArray = NDArray[np.floating[Any]]
 

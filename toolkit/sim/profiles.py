@@ -16,7 +16,8 @@ from dataclasses import dataclass, field, replace
 from toolkit.errors import SimulationError
 from toolkit.geodesy import GeodeticOrigin
 from toolkit.sim.sensors import GpsParams, SensorParams
-from toolkit.sim.vehicle import ReactiveSpeedParams, VehicleParams
+from toolkit.sim.speed_control import ReactiveSpeedParams
+from toolkit.sim.vehicle import VehicleParams
 from toolkit.sim.world import WorldParams
 
 PROFILE_NAMES = ("sample", "race", "calibration")
