@@ -51,11 +51,11 @@ from toolkit.pools import process_pool
 from toolkit.progress import progress
 from toolkit.sim.drive import GRAVITY_MPS2, Driver, TrueBlock, make_driven_path
 from toolkit.sim.profiles import SimProfile, make_profile
+from toolkit.sim.raycast import RayCaster
 from toolkit.sim.record import SIM_RECORD
 from toolkit.sim.sensors import (
     LaserParams,
     Mount,
-    RayCaster,
     SensorParams,
     draw_laser_truth,
     gauss_markov,
