@@ -183,7 +183,7 @@ class LaserTruth:
 
 def draw_laser_truth(p: LaserParams, seed: int) -> LaserTruth:
     """The true mounts and range biases of a log's lasers, from their own random stream
-    (17: streams 11-16 are the other sensors', :class:`toolkit.sim.simulate.SensorSuite`;
+    (17: streams 11-16 are the other sensors', :class:`toolkit.sim.suite.SensorSuite`;
     sharing one, as 15 did with the IMU's noise, would correlate the two)."""
     rng = np.random.default_rng([seed, 17])
     n = len(p.mounts)
