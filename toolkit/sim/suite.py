@@ -156,8 +156,13 @@ class SensorSuite:
 
     def _ticks(self, block: TrueBlock, rate_hz: float) -> NDArray[np.intp]:
         """Indices of the block's samples that fall on a ``rate_hz`` tick."""
+        return self._ticks_of(block.t_ns, rate_hz)
+
+    def _ticks_of(self, t_ns: NDArray[np.int64], rate_hz: float) -> NDArray[np.intp]:
+        """Indices of the true times ``t_ns`` (ns) that fall on a ``rate_hz`` tick of the
+        log's clock (ticks at ``start_ns + j / rate_hz``)."""
         period_ns = int(round(1e9 / rate_hz))
-        return np.flatnonzero((block.t_ns - self.start_ns) % period_ns == 0)
+        return np.flatnonzero((t_ns - self.start_ns) % period_ns == 0)
 
     # -- sensors ----------------------------------------------------------------------------
 
@@ -212,10 +217,6 @@ class SensorSuite:
             clock.log_times(self.rng, samples.t_true_ns),
             encode_batch("sensor_msgs/msg/Imu", cols),
         )
-
-    def _ticks_of(self, t_ns: NDArray[np.int64], rate_hz: float) -> NDArray[np.intp]:
-        period_ns = int(round(1e9 / rate_hz))
-        return np.flatnonzero((t_ns - self.start_ns) % period_ns == 0)
 
     def wheels(self, block: TrueBlock, out: Outbox) -> None:
         p = self.p.wheels
