@@ -296,7 +296,7 @@ def test_heights_are_the_same_with_one_fft_thread_or_two(projected: Path) -> Non
     bit for bit, as with one (each built from cold caches)."""
     import scipy.fft
 
-    from toolkit.sim import world
+    from toolkit.sim import terrain
 
     first = true_ground(projected)
     assert isinstance(first, TrueGround)
@@ -307,7 +307,7 @@ def test_heights_are_the_same_with_one_fft_thread_or_two(projected: Path) -> Non
     for workers in (1, 2):
         ground = true_ground(projected)
         assert isinstance(ground, TrueGround)
-        world._raw_field.cache_clear()
+        terrain._raw_field.cache_clear()
         with scipy.fft.set_workers(workers):
             heights.append(ground.terrain_height_m(s, d))
     assert np.isfinite(heights[0]).all()

@@ -15,10 +15,14 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from toolkit.sim.laser_workers import LaserRays
 from toolkit.sim.profiles import make_profile
-from toolkit.sim.sensors import LaserParams, RayCaster, draw_laser_truth, ideal_lasers
-from toolkit.sim.simulate import LaserRays, SensorSuite
-from toolkit.sim.world import Grid, Route, TerrainWindow, make_world
+from toolkit.sim.raycast import RayCaster
+from toolkit.sim.route import Route
+from toolkit.sim.sensors import LaserParams, draw_laser_truth, ideal_lasers
+from toolkit.sim.suite import SensorSuite
+from toolkit.sim.terrain import Grid, TerrainWindow
+from toolkit.sim.world import make_world
 
 SENSOR_HEIGHT_M = 2.0
 DIVERGENCE_RAD = LaserParams().beam_divergence_rad

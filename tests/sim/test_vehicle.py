@@ -17,20 +17,22 @@ import pytest
 from scipy.signal import lfilter, welch
 
 from toolkit.sim.drive import Driver, TrueBlock, make_driven_path
+from toolkit.sim.features import RoughFeature
 from toolkit.sim.profiles import make_profile
-from toolkit.sim.vehicle import (
+from toolkit.sim.speed_control import ReactiveSpeedParams
+from toolkit.sim.suspension import (
     ALL_DOWN,
     INPUT_ONE,
     INPUT_ROAD,
     INPUT_ROAD_RATE,
     N_INPUTS,
-    ReactiveSpeedParams,
     Suspension,
-    TyreFootprint,
-    VehicleParams,
     modal_summary,
 )
-from toolkit.sim.world import RoughFeature, Terrain, World, make_world
+from toolkit.sim.terrain import Terrain
+from toolkit.sim.tyre import TyreFootprint
+from toolkit.sim.vehicle import VehicleParams
+from toolkit.sim.world import World, make_world
 
 from .logdata import GRAVITY_MPS2, SimLog, on_grid_true_times
 from .reference_labeller import shock_filter_taps

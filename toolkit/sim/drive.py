@@ -4,7 +4,7 @@ The vehicle's rear axle follows a *driven path*: the route's centreline shifted 
 a slow lane wander ``w(s)``. Its longitudinal speed comes from the reactive speed controller;
 its vertical motion and attitude from the full-car suspension model driven by the terrain
 under its four tyres (each tyre's footprint made one effective road height,
-:class:`~toolkit.sim.vehicle.TyreFootprint`). Each call of :meth:`Driver.step` advances one
+:class:`~toolkit.sim.tyre.TyreFootprint`). Each call of :meth:`Driver.step` advances one
 block (0.1 s) at the dynamics rate (1 kHz) and returns the true state at every dynamics
 sample.
 """
@@ -18,21 +18,25 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from toolkit.sim.vehicle import (
+from toolkit.sim.route import Route
+from toolkit.sim.speed_control import (
+    ReactiveSpeedController,
+    ReactiveSpeedParams,
+    safe_speed_profile,
+)
+from toolkit.sim.suspension import (
     INPUT_ACCEL_X,
     INPUT_ACCEL_Y,
     INPUT_ONE,
     INPUT_ROAD,
     INPUT_ROAD_RATE,
     N_INPUTS,
-    ReactiveSpeedController,
-    ReactiveSpeedParams,
     Suspension,
-    TyreFootprint,
-    VehicleParams,
-    safe_speed_profile,
+    SuspensionBlock,
 )
-from toolkit.sim.world import Route, Terrain, WindowCache
+from toolkit.sim.terrain import Terrain, WindowCache
+from toolkit.sim.tyre import TyreFootprint
+from toolkit.sim.vehicle import VehicleParams
 
 FloatArray = NDArray[np.floating[Any]]
 
@@ -201,20 +205,8 @@ class Driver:
 
     def step(self, n: int) -> TrueBlock:
         """Advance ``n`` dynamics samples; the block's first sample is the current time."""
-        p = self.vehicle
         k = np.arange(n)
-        t_rel = k * self.dt_s
-        s_now = float(np.interp(self.sigma_m, self.path.sigma_m, self.path.s_m))
-        limit = float(np.interp(s_now, self.route.s_m, self.limit_mps))
-        a = self.controller.acceleration(self.speed_mps, limit)
-        v = np.maximum(self.speed_mps + a * t_rel, 0.0)
-        if a < 0 and self.speed_mps + a * t_rel[-1] < 0:
-            a_eff = np.where(v > 0, a, 0.0)
-        else:
-            a_eff = np.full(n, a)
-        sigma = (
-            self.sigma_m + np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]))]) * self.dt_s
-        )
+        a, v, a_eff, sigma = self._speed(n, k * self.dt_s)
         kin = self.path.at_sigma(sigma)
         heading = kin["heading_rad"]
         kappa = kin["curvature_per_m"]
@@ -227,61 +219,23 @@ class Driver:
         self._road_last = road[-1]
 
         a_lat = v**2 * kappa
-        u = np.empty((n, N_INPUTS))
-        u[:, INPUT_ROAD] = road
-        u[:, INPUT_ROAD_RATE] = road_rate
-        u[:, INPUT_ACCEL_X] = a_eff
-        u[:, INPUT_ACCEL_Y] = a_lat
-        u[:, INPUT_ONE] = 1.0
-        if self.state is None:
-            self.state = self.suspension.equilibrium(u[0])
-        sus = self.suspension.step_block(self.state, u)
-        self.state = sus.end
+        sus, acc = self._suspend(road, road_rate, a_eff, a_lat)
         states = sus.states
-        acc = self.suspension.accelerations(sus, u)
-
-        b = p.cg_from_rear_m
+        b = self.vehicle.cg_from_rear_m
         pitch, roll = states[:, 1], states[:, 2]
         pitch_rate, roll_rate = states[:, 8], states[:, 9]
         z_base = states[:, 0] + b * pitch
         z_base_rate = states[:, 7] + b * pitch_rate
         z_base_acc = acc[:, 0] + b * acc[:, 1]
         yaw_rate = v * kappa
-
-        # Body rates from Euler rates (Z-Y-X): exact kinematics.
-        sp, cp = np.sin(pitch), np.cos(pitch)
-        sr, cr = np.sin(roll), np.cos(roll)
-        omega = np.stack(
-            [
-                roll_rate - yaw_rate * sp,
-                pitch_rate * cr + yaw_rate * sr * cp,
-                -pitch_rate * sr + yaw_rate * cr * cp,
-            ],
-            axis=1,
-        )
+        omega = _body_rates(pitch, roll, pitch_rate, roll_rate, yaw_rate)
         alpha = np.stack([acc[:, 2], acc[:, 1], a_eff * kappa], axis=1)
         rot = Rotation.from_euler(
             "ZYX", np.stack([heading, pitch, roll], axis=1)
         )  # world_from_base
-        r = self.imu_position_m
-        lever = np.cross(alpha, r) + np.cross(omega, np.cross(omega, r))
         a_base = np.stack([a_eff * ch - a_lat * sh, a_eff * sh + a_lat * ch, z_base_acc], axis=1)
-        a_imu = a_base + rot.apply(lever)
-        a_imu[:, 2] += GRAVITY_MPS2
-        f_body = rot.apply(a_imu, inverse=True)
-
-        # Wheel speeds: each wheel's ground speed along its own heading.
-        half = p.track_m / 2
-        front = v * np.sqrt(1.0 + (p.wheelbase_m * kappa) ** 2)
-        wheel = np.stack(
-            [
-                front - yaw_rate * half,
-                front + yaw_rate * half,
-                v - yaw_rate * half,
-                v + yaw_rate * half,
-            ],
-            axis=1,
-        )
+        f_body = self._specific_force_at_imu(rot, a_base, alpha, omega)
+        wheel = self._wheel_speeds(v, kappa, yaw_rate)
 
         # The reactive controller's shock comes from the IMU, after the block
         # (toolkit.sim.shock_meter, called by the simulation loop); here it recovers.
@@ -318,6 +272,73 @@ class Driver:
         self.speed_mps = v_end
         return block
 
+    def _speed(self, n: int, t_rel: FloatArray) -> tuple[float, FloatArray, FloatArray, FloatArray]:
+        """The controller's acceleration ``a`` (m/s^2) held over the block, and at its ``n``
+        samples (times ``t_rel`` s from its start) the speed ``v`` (m/s, never negative),
+        the acceleration in effect ``a_eff`` (zero once stopped) and the distance along the
+        driven path ``sigma`` (m, trapezoidal in ``v``)."""
+        s_now = float(np.interp(self.sigma_m, self.path.sigma_m, self.path.s_m))
+        limit = float(np.interp(s_now, self.route.s_m, self.limit_mps))
+        a = self.controller.acceleration(self.speed_mps, limit)
+        v = np.maximum(self.speed_mps + a * t_rel, 0.0)
+        if a < 0 and self.speed_mps + a * t_rel[-1] < 0:
+            a_eff = np.where(v > 0, a, 0.0)
+        else:
+            a_eff = np.full(n, a)
+        sigma = (
+            self.sigma_m + np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]))]) * self.dt_s
+        )
+        return a, v, a_eff, sigma
+
+    def _suspend(
+        self, road: FloatArray, road_rate: FloatArray, a_x: FloatArray, a_y: FloatArray
+    ) -> tuple[SuspensionBlock, FloatArray]:
+        """The suspension's block over effective road heights ``road`` (n, 4) m and their
+        rates (m/s) under the body's accelerations ``a_x``, ``a_y`` (n,) m/s^2, and the
+        coordinates' second derivatives (n, 7); starts from equilibrium on the first call."""
+        u = np.empty((road.shape[0], N_INPUTS))
+        u[:, INPUT_ROAD] = road
+        u[:, INPUT_ROAD_RATE] = road_rate
+        u[:, INPUT_ACCEL_X] = a_x
+        u[:, INPUT_ACCEL_Y] = a_y
+        u[:, INPUT_ONE] = 1.0
+        if self.state is None:
+            self.state = self.suspension.equilibrium(u[0])
+        sus = self.suspension.step_block(self.state, u)
+        self.state = sus.end
+        return sus, self.suspension.accelerations(sus, u)
+
+    def _specific_force_at_imu(
+        self, rot: Rotation, a_base: FloatArray, alpha: FloatArray, omega: FloatArray
+    ) -> FloatArray:
+        """The specific force (n, 3) m/s^2 at the IMU in base_link axes: base_link's origin's
+        acceleration ``a_base`` (world axes) plus the lever arm's ``alpha x r + omega x
+        (omega x r)`` (body axes, rad/s^2 and rad/s), plus gravity's reaction."""
+        r = self.imu_position_m
+        lever = np.cross(alpha, r) + np.cross(omega, np.cross(omega, r))
+        a_imu = a_base + rot.apply(lever)
+        a_imu[:, 2] += GRAVITY_MPS2
+        f_body: FloatArray = rot.apply(a_imu, inverse=True)
+        return f_body
+
+    def _wheel_speeds(self, v: FloatArray, kappa: FloatArray, yaw_rate: FloatArray) -> FloatArray:
+        """Each wheel's ground speed along its own heading (n, 4) m/s, FL, FR, RL, RR: the
+        rear axle's ``v`` -+ ``yaw_rate`` x half the track; the front axle's is faster by
+        ``sqrt(1 + (L kappa)^2)`` (it runs on a wider circle)."""
+        p = self.vehicle
+        half = p.track_m / 2
+        front = v * np.sqrt(1.0 + (p.wheelbase_m * kappa) ** 2)
+        wheel: FloatArray = np.stack(
+            [
+                front - yaw_rate * half,
+                front + yaw_rate * half,
+                v - yaw_rate * half,
+                v + yaw_rate * half,
+            ],
+            axis=1,
+        )
+        return wheel
+
     def _tyre_road(self, kin: dict[str, FloatArray], heading: FloatArray) -> FloatArray:
         """Effective road height under each tyre, (n, 4), from the terrain under its footprint.
 
@@ -347,3 +368,24 @@ class Driver:
         win = self.windows.covering(float(cs.min()), float(cs.max()) + 100.0)
         heights = win.height(cs.ravel(), cd.ravel()).reshape(heading.size, 4, fp.cells)
         return fp.effective_height(heights)
+
+
+def _body_rates(
+    pitch: FloatArray,
+    roll: FloatArray,
+    pitch_rate: FloatArray,
+    roll_rate: FloatArray,
+    yaw_rate: FloatArray,
+) -> FloatArray:
+    """Body rates (n, 3) rad/s about base_link's x, y, z from the Euler angles and rates
+    (Z-Y-X, rad and rad/s): exact kinematics."""
+    sp, cp = np.sin(pitch), np.cos(pitch)
+    sr, cr = np.sin(roll), np.cos(roll)
+    return np.stack(
+        [
+            roll_rate - yaw_rate * sp,
+            pitch_rate * cr + yaw_rate * sr * cp,
+            -pitch_rate * sr + yaw_rate * cr * cp,
+        ],
+        axis=1,
+    )

@@ -16,7 +16,8 @@ from dataclasses import dataclass, field, replace
 from toolkit.errors import SimulationError
 from toolkit.geodesy import GeodeticOrigin
 from toolkit.sim.sensors import GpsParams, SensorParams
-from toolkit.sim.vehicle import ReactiveSpeedParams, VehicleParams
+from toolkit.sim.speed_control import ReactiveSpeedParams
+from toolkit.sim.vehicle import VehicleParams
 from toolkit.sim.world import WorldParams
 
 PROFILE_NAMES = ("sample", "race", "calibration")
@@ -62,7 +63,7 @@ def make_profile(name: str, distance_m: float | None = None) -> SimProfile:
             world=WorldParams(
                 length_m=distance_m or 710.0,
                 # Dense, so a minute holds a dozen rough events although about 40 % of the
-                # features lie beside the wheels (toolkit.sim.world.make_features).
+                # features lie beside the wheels (toolkit.sim.features.make_features).
                 feature_rate_per_km=150.0,
                 feature_height_range_m=(0.06, 0.15),
                 rough_stretch_fraction=0.25,
@@ -82,7 +83,7 @@ def make_profile(name: str, distance_m: float | None = None) -> SimProfile:
             # 3-15 cm; a third of all features beside the wheels): with the class E rough
             # stretches, about 0.3-0.4 % of 1.4 m events reach 0.02 G/mph on race seeds
             # 601-606 (benchmarks/README.md; Sect. 7: 0.36 and 0.44 %). Set with that rate in
-            # view, as the feature shares in world.py were.
+            # view, as the feature shares in features.py were.
             world=WorldParams(length_m=distance_m or 8000.0, feature_rate_per_km=58.0),
             # Random dropouts as well, but one of 10 s for certain, so every race log checks
             # how far the pose drifts while it coasts.

@@ -37,7 +37,8 @@ from toolkit.errors import StageError
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.layout import LogFiles
 from toolkit.sim.record import SIM_RECORD, sim_origin
-from toolkit.sim.world import Route, WorldParams, make_world
+from toolkit.sim.route import Route
+from toolkit.sim.world import WorldParams, make_world
 from toolkit.tableio import iter_table_batches, read_table_metadata
 
 FloatArray = NDArray[np.float64]

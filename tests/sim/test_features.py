@@ -1,6 +1,6 @@
 """Rough features placed and sized like a desert road (issue 11).
 
-Over a long route the stated distributions of :mod:`toolkit.sim.world` hold (kinds, lateral
+Over a long route the stated distributions of :mod:`toolkit.sim.features` hold (kinds, lateral
 mixtures, footprints, heights; each checked against the constants it is drawn from); rocks
 and potholes have different shapes; the published bounding box holds every footprint; and
 on a 6 km ``race`` world some features are met by one wheel of the driven path, some by
@@ -18,8 +18,7 @@ import pytest
 from scipy import stats
 
 from toolkit.sim.drive import make_driven_path
-from toolkit.sim.profiles import make_profile
-from toolkit.sim.world import (
+from toolkit.sim.features import (
     FEATURE_HEIGHT_RANGE_M,
     FEATURE_KIND_WEIGHTS,
     FEATURE_POTHOLE_AXIS_RATIO_RANGE,
@@ -34,13 +33,13 @@ from toolkit.sim.world import (
     FEATURE_SHOULDER_WIDTH_M,
     FEATURE_WHEEL_PATH_SIGMA_M,
     RoughFeature,
-    WorldParams,
     feature_height,
     footprint_lateral_span,
     make_features,
-    make_route,
-    make_world,
 )
+from toolkit.sim.profiles import make_profile
+from toolkit.sim.route import make_route
+from toolkit.sim.world import WorldParams, make_world
 
 SEED = 11  # no other test uses it
 TRACK_M = 1.65
@@ -334,31 +333,3 @@ def test_on_a_race_some_features_are_met_by_one_wheel_some_by_both_many_missed()
     rock_met = 1 - table["rock"][0] / sum(table["rock"].values())
     pothole_met = 1 - table["pothole"][0] / sum(table["pothole"].values())
     assert rock_met < 0.5 < pothole_met
-
-
-def test_a_one_off_height_query_builds_only_the_tiles_it_needs() -> None:
-    """``Terrain.height`` (the truth lookups) takes a window without the simulator's spare
-    tile, and reads the same heights as the simulator's window: everywhere in the queried
-    stretch, up to the last fine row before a tile's end, where interpolation reaches into
-    the next tile."""
-    params = replace(make_profile("race").world, length_m=400.0)
-    terrain = make_world(params, SEED).terrain
-    tile = terrain.tile_length_m
-    rng = np.random.default_rng(5)
-    # s_hi well inside a tile, within a fine step, within a coarse step (beyond a fine
-    # one) and a hair before a tile's end, just past a tile's start.
-    for s_hi in (2 * tile - 0.9, 2 * tile - 0.1, 2 * tile - 0.01, 3 * tile - 1e-9, 2 * tile + 0.01):
-        s = np.r_[rng.uniform(10.0, s_hi, 400), [s_hi] * 4, s_hi - 0.049, s_hi - 0.19]
-        d = rng.uniform(-40.0, 40.0, s.size)
-        d[400:404] = (-30.0, -3.0, 3.0, 30.0)  # the last rows of both grids at s_hi
-        spare = terrain.window(float(s.min()), float(s.max()))
-        tight = terrain.window(float(s.min()), float(s.max()), spare=False)
-        assert tight.fine.heights_m.shape[0] <= spare.fine.heights_m.shape[0]
-        np.testing.assert_array_equal(terrain.height(s, d), spare.height(s, d))
-    # Well inside a tile the tight window is one tile shorter than the spare one.
-    s = np.array([60.0, 90.0])
-    spare, tight = terrain.window(60.0, 90.0), terrain.window(60.0, 90.0, spare=False)
-    assert spare.fine.heights_m.shape[0] - tight.fine.heights_m.shape[0] == round(
-        tile / terrain.fine_spacing_m
-    )
-    np.testing.assert_array_equal(tight.height(s, s * 0), spare.height(s, s * 0))
