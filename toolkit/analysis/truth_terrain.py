@@ -130,7 +130,7 @@ class TrueGround:
         """The index of the checked stretch of road (N,) each route position lies on, -1 for
         none: the terrain's tiles ``k`` with ``k % every == 0``, less their last two coarse
         grid steps (a height there interpolates towards the next tile, which would then be
-        built too; see :meth:`toolkit.sim.world.Terrain.window`). A sample of stretches of
+        built too; see :meth:`toolkit.sim.terrain.Terrain.window`). A sample of stretches of
         road costs one tile each however many points land on it, where a sample of points
         from everywhere costs every tile they touch."""
         terrain = self.world.terrain
