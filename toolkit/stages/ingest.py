@@ -3,7 +3,7 @@
 :func:`ingest_log` streams the log chunk by chunk (:class:`~toolkit.mcapio.reader.LogReader`),
 decodes each chunk's messages of one topic in one vectorised call
 (:func:`~toolkit.mcapio.cdr.decode_batch`), converts them to rows by the topic's role
-(:mod:`toolkit.stages.roles`) and appends them to one streaming Parquet writer per table.
+(:mod:`toolkit.ingestion.roles`) and appends them to one streaming Parquet writer per table.
 Memory stays bounded by a chunk plus a small reorder buffer per table, whatever the log's length.
 
 Faithful accounting, per topic: every message the reader delivers is either written or rejected
@@ -16,7 +16,7 @@ this order:
 - ``bad_payload``: the payload does not decode as the channel's message type;
 - ``time_outlier``: the row sits at one end of its (time-sorted) table, cut off from the rest
   by more than a minute, in a group of at most 0.1 % of the rows: a stray stamp minutes to
-  years away (:mod:`toolkit.stages.timecheck`);
+  years away (:mod:`toolkit.ingestion.timecheck`);
 - ``bad_time``: the message's time (stamp, or log time when the stamp is zero) is negative
   as int64 nanoseconds: a time beyond 2^63 ns or a corrupt one;
 - ``clock_skew``: the corrected header stamp is more than ``time.max_header_skew_ns`` from the
@@ -68,6 +68,11 @@ import pyarrow.parquet as pq
 from toolkit.atomic import atomic_write_json
 from toolkit.config import PipelineConfig, TimeConfig, TopicsConfig
 from toolkit.errors import CdrError, LogReadError, SchemaError, StageError
+from toolkit.ingestion.dedup import DuplicateFilter
+from toolkit.ingestion.reorder import DEFAULT_REORDER_BUFFER_BYTES, ReorderBuffer
+from toolkit.ingestion.roles import ROLE_SPECS
+from toolkit.ingestion.rows import ConvertContext, Converter, RoleRows
+from toolkit.ingestion.timecheck import stream_time_outliers
 from toolkit.layout import log_file_name
 from toolkit.manifest import StageRecord, file_sha256
 from toolkit.mcapio.cdr import decode_batch
@@ -76,11 +81,7 @@ from toolkit.mcapio.reader import Channel, Damage, LogReader, MessageBatch, Read
 from toolkit.progress import progress
 from toolkit.sim.record import sim_origin
 from toolkit.stages.contract import Call, Made, Recalled, Stage
-from toolkit.stages.dedup import DuplicateFilter
-from toolkit.stages.reorder import DEFAULT_REORDER_BUFFER_BYTES, ReorderBuffer
-from toolkit.stages.roles import ROLE_SPECS, ConvertContext, Converter, RoleRows
 from toolkit.stages.runner import run_stage
-from toolkit.stages.timecheck import stream_time_outliers
 from toolkit.stages.truth import truth_to_pose_frame
 from toolkit.tableio import TableWriter
 from toolkit.workspace import Workspace, make_log_id
@@ -531,7 +532,7 @@ class _Run:
         self.timings["finish"] = time.perf_counter() - t0
 
     def _drop_time_outliers(self, name: str) -> None:
-        """Rewrite a finished table without the rows :mod:`toolkit.stages.timecheck` finds
+        """Rewrite a finished table without the rows :mod:`toolkit.ingestion.timecheck` finds
         stamped far outside the log's span, counting them per topic as ``time_outlier``."""
         old = self.writers[name]
         drop = stream_time_outliers(old.finished_path)
