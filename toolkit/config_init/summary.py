@@ -141,7 +141,7 @@ def _read_first_batches(
 ) -> None:
     """Decode the first batch of each wanted topic and every tf_static message, stopping as
     soon as that is done (the start of the log, for a log of any length)."""
-    from toolkit.stages.ingest import channel_decoder
+    from toolkit.ingestion.plans import channel_decoder
 
     seen: set[str] = set()
     tf_seen = 0
