@@ -188,9 +188,7 @@ def _compute(call: Call) -> Made:
                 "it again once it is complete",
                 path=source.path,
             )
-        warnings += _finish(run, report)
-        for w in warnings:
-            _log.warning("%s: %s", source.path, w)
+        warnings += _finish(run, report)  # the runner says them on the terminal, once
         out_files = run.commit(call.files.dir)
     except BaseException:
         run.discard()
