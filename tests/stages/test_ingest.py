@@ -25,6 +25,7 @@ from scipy.spatial.transform import Rotation
 from toolkit.config import PipelineConfig, default_config, load_config, parse_config
 from toolkit.errors import ConfigError, LogReadError, StageError, ToolkitError
 from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.ingestion.roles import ROLE_SPECS
 from toolkit.manifest import file_sha256
 from toolkit.mcapio.cdr_encode import encode_batch
 from toolkit.mcapio.info import scan_log
@@ -32,7 +33,6 @@ from toolkit.mcapio.writer import Batch, LogWriter, Record, merge_by_time
 from toolkit.sim.record import sim_origin
 from toolkit.stages import ingest as ingest_mod
 from toolkit.stages.ingest import IngestResult, ingest_log
-from toolkit.stages.roles import ROLE_SPECS
 from toolkit.tableio import read_table, read_table_metadata
 from toolkit.workspace import Workspace
 

@@ -8,7 +8,7 @@ Three pure steps and one that reads the log:
    over them (where gravity points in the IMU's frame), and the static transforms of
    ``/tf_static`` when the log has them.
 2. :func:`guess_roles` matches topics to the roles of ``[topics]``: by message type first
-   (the types :data:`~toolkit.stages.roles.ROLE_SPECS` accepts), then, when several topics
+   (the types :data:`~toolkit.ingestion.roles.ROLE_SPECS` accepts), then, when several topics
    share a type, by name (``/imu/data`` over ``/imu/data_raw``; a wheel controller's odometry,
    never ``/odometry/filtered``, which is a fusion's output and not a sensor). Each guess
    keeps why it was made and the alternatives; a role nothing matches says so.

@@ -12,7 +12,7 @@ from toolkit.config import (
     ROLES,
 )
 from toolkit.config_init.summary import LogSummary, TopicSummary
-from toolkit.stages.roles import ROLE_SPECS
+from toolkit.ingestion.roles import ROLE_SPECS
 
 # --------------------------------------------------------------------------------------
 # 2. Topics to roles

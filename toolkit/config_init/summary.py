@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from toolkit.errors import ToolkitError
+from toolkit.ingestion.roles import ROLE_SPECS
 from toolkit.mcapio.info import LogInfo, scan_log
 from toolkit.mcapio.msgdefs import full_type_name
 from toolkit.mcapio.reader import LogReader
 from toolkit.mounts import StaticTransform
-from toolkit.stages.roles import ROLE_SPECS
 
 #: Sensor roles whose messages carry the frame their mount is looked up by.
 FRAMED_ROLES: tuple[str, ...] = ("lasers", "imu", "gps")
@@ -141,7 +141,7 @@ def _read_first_batches(
 ) -> None:
     """Decode the first batch of each wanted topic and every tf_static message, stopping as
     soon as that is done (the start of the log, for a log of any length)."""
-    from toolkit.stages.ingest import channel_decoder
+    from toolkit.ingestion.plans import channel_decoder
 
     seen: set[str] = set()
     tf_seen = 0

@@ -1,4 +1,4 @@
-"""Role converters against hand-built messages: values, units, time correction, masks.
+"""Converters against hand-built messages: values, units, time correction, masks.
 
 Messages are encoded with the toolkit's CDR encoder and decoded with ``decode_batch``, so each
 converter sees exactly the columns ingest hands it.
@@ -6,7 +6,6 @@ converter sees exactly the columns ingest hands it.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import Any
 
@@ -15,17 +14,11 @@ import pyarrow as pa
 import pytest
 from scipy.spatial.transform import Rotation
 
-from toolkit.config import default_config
-from toolkit.errors import StageError
+from toolkit.ingestion.attitude import euler_rates_zyx
+from toolkit.ingestion.roles import ROLE_SPECS
+from toolkit.ingestion.rows import ConvertContext, RoleRows
 from toolkit.mcapio.cdr import decode_batch
 from toolkit.mcapio.cdr_encode import encode_batch, encode_message
-from toolkit.stages.roles import (
-    ROLE_SPECS,
-    ConvertContext,
-    RoleRows,
-    euler_rates_zyx,
-    quaternion_to_euler_zyx,
-)
 from toolkit.tableio import conform_table, load_table_schema
 
 SEC = 1_128_783_600
@@ -74,19 +67,6 @@ def test_time_is_stamp_corrected_by_offset_and_latency() -> None:
     rows = convert("imu", "sensor_msgs/msg/Imu", cols, correction_ns=-2_500_000)
     assert col(rows, "t_ns") == (stamps - 2_500_000).tolist()
     assert rows.table.schema.field("t_ns").type == pa.int64()
-
-
-def test_context_takes_the_configured_correction() -> None:
-    cfg = default_config()
-    time = dataclasses.replace(
-        cfg.time,
-        latency_ns=dataclasses.replace(cfg.time.latency_ns, imu=3_000_000),
-        clock_offset_ns=dataclasses.replace(cfg.time.clock_offset_ns, imu=1_000_000),
-    )
-    cfg = dataclasses.replace(cfg, time=time)
-    ctx = ConvertContext.for_topic("/imu", "imu", "sensor_msgs/Imu", cfg)
-    assert ctx.correction_ns == 1_000_000 - 3_000_000
-    assert ctx.type_name == "sensor_msgs/msg/Imu"
 
 
 def test_zero_stamp_takes_log_time() -> None:
@@ -286,32 +266,6 @@ def test_laser_non_finite_angle_rejects_the_scan() -> None:
     assert rows.finite.tolist() == [True, False]
 
 
-def test_euler_rates_match_finite_differences() -> None:
-    rng = np.random.default_rng(3)
-    dt = 1e-6
-    for _ in range(20):
-        angles = rng.uniform([-3, -1.2, -1.0], [3, 1.2, 1.0])  # yaw, pitch, roll
-        omega = rng.normal(0, 1, 3)  # body rates p, q, r
-        r0 = Rotation.from_euler("ZYX", angles)
-        r1 = r0 * Rotation.from_rotvec(omega * dt)  # body-frame rotation increment
-        d = (r1.as_euler("ZYX") - angles + np.pi) % (2 * np.pi) - np.pi
-        roll_rate, pitch_rate, yaw_rate = euler_rates_zyx(
-            np.array([angles[2]]), np.array([angles[1]]), *(np.array([w]) for w in omega)
-        )
-        np.testing.assert_allclose(
-            [roll_rate[0], pitch_rate[0], yaw_rate[0]], d[::-1] / dt, rtol=1e-4, atol=1e-4
-        )
-
-
-def test_quaternion_to_euler_matches_scipy() -> None:
-    rng = np.random.default_rng(5)
-    rot = Rotation.random(50, random_state=7)
-    q = rot.as_quat() * rng.uniform(0.5, 2.0, (50, 1))
-    roll, pitch, yaw = quaternion_to_euler_zyx(q[:, 0], q[:, 1], q[:, 2], q[:, 3])
-    expect = rot.as_euler("ZYX")
-    np.testing.assert_allclose(np.stack([yaw, pitch, roll], axis=1), expect, atol=1e-9)
-
-
 def test_truth_pose_from_odometry() -> None:
     n = 5
     rng = np.random.default_rng(11)
@@ -376,17 +330,3 @@ def test_truth_features_and_tf_explode_into_rows() -> None:
     assert rows.table.column("kind").to_pylist() == ["rock", "pothole"]
     assert rows.table.column("x_m").to_pylist() == [3.0, 0.0]
     assert rows.message_of_row is not None and rows.message_of_row.tolist() == [0, 0]
-
-
-def test_unaccepted_type_names_topic_type_and_accepted() -> None:
-    with pytest.raises(StageError) as err:
-        ROLE_SPECS["imu"].converter_for("/imu/data", "sensor_msgs/msg/LaserScan")
-    text = str(err.value)
-    assert "/imu/data" in text and "sensor_msgs/msg/LaserScan" in text
-    assert "sensor_msgs/msg/Imu" in text
-    with pytest.raises(StageError, match="QuaternionStamped.*GpsHeading"):
-        ROLE_SPECS["heading"].converter_for("/h", "std_msgs/msg/Float64")
-
-
-def test_ros1_style_type_names_are_accepted() -> None:
-    assert ROLE_SPECS["gps"].converter_for("/fix", "sensor_msgs/NavSatFix") is not None

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from toolkit.stages.timecheck import time_outliers
+from toolkit.ingestion.timecheck import time_outliers
 
 NS = 1_000_000_000
 

@@ -1,0 +1,143 @@
+"""Which topics of a log are ingested, and how: a :class:`TopicPlan` per configured topic.
+
+A plan binds a topic to its role, its table, a decoder (:func:`~toolkit.mcapio.cdr.decode_batch`
+bound to the channel's type) and the role's converter for that type
+(:mod:`toolkit.ingestion.roles`). Any role may be missing from a log (its table is written
+empty); a log holding none of the configured topics, or a type a role does not accept, is a
+StageError that says what the log does hold and what the role accepts.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from toolkit.config import TimeConfig, TopicsConfig
+from toolkit.errors import SchemaError, StageError
+from toolkit.ingestion.roles import ROLE_SPECS
+from toolkit.ingestion.rows import ConvertContext, Converter
+from toolkit.mcapio.cdr import decode_batch
+from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_text
+from toolkit.mcapio.reader import Channel
+
+#: A channel's decoder: payloads -> one array per dotted field path.
+Decoder = Callable[[Sequence[bytes]], dict[str, np.ndarray]]
+
+
+@dataclass(frozen=True)
+class TopicPlan:
+    """How one topic of the log is ingested: its role, table, decoder and converter."""
+
+    topic: str
+    role: str
+    table: str
+    schema_name: str
+    type_name: str
+    decode: Decoder
+    convert: Converter
+    context: ConvertContext
+
+
+@functools.cache
+def _known_types() -> frozenset[str]:
+    return frozenset(known_types())
+
+
+def channel_decoder(topic: str, channel: Channel) -> Decoder:
+    """decode_batch bound to the channel's type: by name for a type the toolkit ships,
+    else by the schema text the log carries (parsed once)."""
+    if channel.message_encoding != "cdr":
+        raise StageError(
+            f"topic {topic} has message encoding {channel.message_encoding!r}; only ROS 2 "
+            "'cdr' messages can be ingested"
+        )
+    name = full_type_name(channel.schema_name)
+    if name in _known_types():
+        return functools.partial(decode_batch, name)
+    if channel.schema_encoding == "ros2msg" and channel.schema_data:
+        try:
+            spec = parse_schema_text(name, bytes(channel.schema_data).decode("utf-8"))
+        except (SchemaError, UnicodeDecodeError, ValueError) as exc:
+            raise StageError(f"topic {topic}: unusable schema {name!r}: {exc}") from exc
+        return functools.partial(decode_batch, spec)
+    raise StageError(f"topic {topic}: no message definition for {name!r} in the log or toolkit")
+
+
+def _role_line(role: str, topics: Sequence[str]) -> str:
+    accepts = ", ".join(ROLE_SPECS[role].accepted_types)
+    return f"{role} ({', '.join(topics)}; accepts {accepts})"
+
+
+def resolve_topics(
+    topics: TopicsConfig, time: TimeConfig, found: Mapping[str, Channel], log_path: Path
+) -> tuple[dict[str, TopicPlan], dict[str, list[str]], list[str]]:
+    """Plan every configured topic present in the log.
+
+    Returns (topic -> plan, role -> configured topics missing from the log, warnings). Any
+    role may be missing: all missing roles are reported in one warning line, each with its
+    configured topics and the message types it accepts (their tables are written empty). A
+    log holding none of the configured topics is a StageError naming the topics it does
+    hold; a message type a role does not accept is a StageError naming topic, type and the
+    accepted types.
+    """
+    plans: dict[str, TopicPlan] = {}
+    missing: dict[str, list[str]] = {}
+    warnings: list[str] = []
+    wholly_missing: list[str] = []
+    by_role = topics.by_role()
+    for role, role_topics in by_role.items():
+        absent = [t for t in role_topics if t not in found]
+        if absent:
+            missing[role] = absent
+        if len(absent) == len(role_topics):
+            wholly_missing.append(role)
+        elif absent:
+            warnings.append(f"role {role}: topic(s) {', '.join(absent)} not in the log")
+        for topic in role_topics:
+            if topic in found:
+                plans[topic] = plan_topic(topic, role, found[topic], time, log_path)
+    if not plans:
+        configured = "; ".join(_role_line(r, t) for r, t in by_role.items()) or "none"
+        raise StageError(
+            f"none of the configured topics is in the log (configured: {configured}; topics "
+            f"found: {', '.join(sorted(found)) or 'none'}); give a configuration for this "
+            "vehicle with -c",
+            path=log_path,
+        )
+    if wholly_missing:
+        warnings.insert(
+            0,
+            "roles missing from the log, their tables empty: "
+            + "; ".join(_role_line(r, by_role[r]) for r in wholly_missing),
+        )
+    return plans, missing, warnings
+
+
+def plan_topic(
+    topic: str, role: str, channel: Channel, time: TimeConfig, log_path: Path
+) -> TopicPlan:
+    """The plan of one channel playing ``role``; StageError (naming the log) when the role
+    does not accept its type or its messages cannot be decoded."""
+    spec = ROLE_SPECS[role]
+    try:
+        convert = spec.converter_for(topic, channel.schema_name)
+        decode = channel_decoder(topic, channel)
+    except StageError as exc:
+        raise StageError(str(exc), path=log_path) from None
+    return TopicPlan(
+        topic=topic,
+        role=role,
+        table=spec.table,
+        schema_name=channel.schema_name,
+        type_name=full_type_name(channel.schema_name),
+        decode=decode,
+        convert=convert,
+        context=ConvertContext.for_topic(topic, role, channel.schema_name, time),
+    )
+
+
+__all__ = ["Decoder", "TopicPlan", "channel_decoder", "plan_topic", "resolve_topics"]
