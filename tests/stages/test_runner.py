@@ -1,0 +1,159 @@
+"""The runner: freshness, refusals and records, once for every stage.
+
+Two toy stages stand in for real ones: ``seed`` starts a log from a text file (as ingest
+does from an MCAP) and writes ``seed.parquet``; ``double`` needs it and the ``[label]``
+section, and writes ``double.parquet``. Nothing here reads a real log, so every rule of the
+runner is checked in milliseconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+import pytest
+
+from toolkit.config import LabelConfig, PipelineConfig, default_config
+from toolkit.errors import StageError, WorkspaceError
+from toolkit.manifest import Manifest, file_sha256
+from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
+from toolkit.stages.runner import run_stage
+from toolkit.workspace import Workspace, make_log_id
+
+
+@dataclasses.dataclass(frozen=True)
+class Outcome:
+    status: str
+    value: int
+    warnings: tuple[str, ...] = ()
+
+    def summary(self) -> str:
+        return f"{self.status} {self.value}"
+
+
+def _locate(source: Path) -> tuple[str, dict[str, str], Path]:
+    sha = file_sha256(source)
+    return make_log_id(source.stem, sha), {"log": sha}, source
+
+
+def _seed(call: Call) -> Made:
+    value = int(Path(call.found).read_text())
+    pq.write_table(pa.table({"v": [value]}), call.files.path("seed"))
+    return Made(Outcome("seeded", value), ("seed.parquet",), row_counts={"seed": 1})
+
+
+def _double(call: Call) -> Made:
+    assert isinstance(call.settings, DoubleSettings)  # its own section, not the config
+    value = pq.read_table(call.files.path("seed")).column("v")[0].as_py() * 2
+    pq.write_table(pa.table({"v": [value]}), call.files.path("double"))
+    warnings = ("an odd seed",) if value % 4 else ()
+    return Made(Outcome("doubled", value, warnings), ("double.parquet",), warnings=warnings)
+
+
+def _recall(last: Recalled) -> Outcome:
+    return Outcome("up_to_date", -1)
+
+
+@dataclasses.dataclass(frozen=True)
+class DoubleSettings:
+    label: LabelConfig
+
+
+SEED = Stage("seed", "log", _seed, _recall, makes=("seed",), locate=_locate)
+DOUBLE = Stage(
+    "double",
+    "log",
+    _double,
+    _recall,
+    needs=(Need("seed", "seed"),),
+    makes=("double",),
+    sections=("label",),
+    settings=DoubleSettings,
+)
+
+
+@pytest.fixture
+def seeded(tmp_path: Path) -> tuple[Workspace, str, Path]:
+    source = tmp_path / "three.txt"
+    source.write_text("3")
+    ws = Workspace(tmp_path / "ws")
+    outcome = run_stage(SEED, ws, default_config(), source=source)
+    assert outcome.status == "seeded"
+    (log_id,) = ws.log_ids()
+    return ws, log_id, source
+
+
+def test_a_stage_runs_once_then_is_up_to_date_until_its_input_changes(
+    seeded: tuple[Workspace, str, Path],
+) -> None:
+    ws, log_id, source = seeded
+    config = default_config()
+    assert run_stage(SEED, ws, config, source=source).status == "up_to_date"
+    assert run_stage(DOUBLE, ws, config, log_id=log_id).status == "doubled"
+    assert run_stage(DOUBLE, ws, config, log_id=log_id).status == "up_to_date"
+    assert run_stage(DOUBLE, ws, config, log_id=log_id, overwrite=True).status == "doubled"
+    record = Manifest(ws.log(log_id).manifest).stage("double")
+    assert record is not None
+    assert dict(record.inputs) == {"seed": file_sha256(ws.log(log_id).path("seed"))}
+    assert record.config_hash == DOUBLE.config_hash(config)
+    assert set(record.output_files) == {"double.parquet"}
+
+
+def test_only_the_sections_a_stage_reads_rerun_it(seeded: tuple[Workspace, str, Path]) -> None:
+    ws, log_id, _ = seeded
+    config = default_config()
+    run_stage(DOUBLE, ws, config, log_id=log_id)
+    other_pose = dataclasses.replace(
+        config, pose=dataclasses.replace(config.pose, gps_noise_m=config.pose.gps_noise_m * 2)
+    )
+    assert run_stage(DOUBLE, ws, other_pose, log_id=log_id).status == "up_to_date"
+    other_label = _with_threshold(config, config.label.rough_threshold_g_per_mph * 2)
+    assert run_stage(DOUBLE, ws, other_label, log_id=log_id).status == "doubled"
+
+
+def test_a_missing_need_names_the_stage_that_makes_it(tmp_path: Path) -> None:
+    source = tmp_path / "three.txt"
+    source.write_text("3")
+    ws = Workspace(tmp_path / "ws")
+    run_stage(SEED, ws, default_config(), source=source)
+    (log_id,) = ws.log_ids()
+    with ws.change_log(log_id) as gen:  # a log whose seed output is gone
+        (gen.path / "seed.parquet").unlink()
+        gen.commit()
+    with pytest.raises(StageError, match=r"run `terrain seed` first"):
+        run_stage(DOUBLE, ws, default_config(), log_id=log_id)
+
+
+def test_an_input_its_maker_did_not_write_is_refused(
+    seeded: tuple[Workspace, str, Path],
+) -> None:
+    ws, log_id, _ = seeded
+    with ws.change_log(log_id) as gen:  # edited by hand after seed finished
+        pq.write_table(pa.table({"v": [5]}), gen.path / "seed.parquet")
+        gen.commit()
+    with pytest.raises(WorkspaceError, match="not the file the last finished seed wrote"):
+        run_stage(DOUBLE, ws, default_config(), log_id=log_id)
+    assert "double" not in Manifest(ws.log(log_id).manifest).stages()
+
+
+def test_a_stage_s_warnings_are_said_on_the_terminal(
+    seeded: tuple[Workspace, str, Path], caplog: pytest.LogCaptureFixture
+) -> None:
+    ws, log_id, _ = seeded
+    with caplog.at_level(logging.WARNING):
+        outcome = run_stage(DOUBLE, ws, default_config(), log_id=log_id)
+    assert outcome.warnings == ("an odd seed",)
+    assert [r.getMessage() for r in caplog.records] == [f"{log_id}: an odd seed"]
+
+
+def test_a_stage_that_starts_a_log_needs_its_file(tmp_path: Path) -> None:
+    with pytest.raises(TypeError, match="run it with its source file"):
+        run_stage(SEED, Workspace(tmp_path / "ws"), default_config())
+
+
+def _with_threshold(config: PipelineConfig, threshold: float) -> PipelineConfig:
+    label = dataclasses.replace(config.label, rough_threshold_g_per_mph=threshold)
+    return dataclasses.replace(config, label=label)
