@@ -94,11 +94,13 @@ from toolkit.model.roughness import (
     model_pairs,
     score_events,
 )
+from toolkit.model.search import ascent_config
 from toolkit.model.shock import MPS_PER_MPH
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.label import FIG5_PNG
-from toolkit.stages.learn import (
-    ascent_config,
+from toolkit.stages.learn import stage_config_hash as learn_config_hash
+from toolkit.stages.runner import run_stage
+from toolkit.stages.training_data import (
     laser_order,
     lasers_nearest_first,
     load_model,
@@ -107,8 +109,6 @@ from toolkit.stages.learn import (
     split_events,
     table_inputs,
 )
-from toolkit.stages.learn import stage_config_hash as learn_config_hash
-from toolkit.stages.runner import run_stage
 from toolkit.tableio import write_table
 from toolkit.workspace import Workspace
 
@@ -286,7 +286,7 @@ def closest_laser(
     workspace: Workspace, order: tuple[str, ...], configured: str | None
 ) -> str | None:
     """The configured closest laser, or the nearest of the training split's lasers
-    (:func:`~toolkit.stages.learn.lasers_nearest_first`; ``order`` when the model already
+    (:func:`~toolkit.stages.training_data.lasers_nearest_first`; ``order`` when the model already
     ranked them), None without points. Ranked on every point of the training events: the
     model's patches are a sample that keeps the nearest laser first, so the few other points
     in them come from unusual patches and would rank the lasers wrongly (on five 20-mile
