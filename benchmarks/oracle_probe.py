@@ -7,7 +7,7 @@ On a workspace of simulated logs with tables (the tuning seeds 801/802 in the RE
 test AUC and the share of test events at R = 0 of the default model's search, unlearned (the
 initial guess) and learned, on three sets of heights for the same points: as the lasers
 measured them; the true terrain under each point's *estimated* position (the oracle before
-the fix); the true terrain where each beam truly hit (``evaluate.oracle_patches`` now).
+the fix); the true terrain where each beam truly hit (``oracle_patches`` now).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 from sklearn.metrics import roc_auc_score
 
+from toolkit.analysis.oracle import oracle_patches
 from toolkit.analysis.truth_terrain import true_ground
 from toolkit.config import load_config
 from toolkit.model.ascent import coordinate_ascent
@@ -26,7 +27,6 @@ from toolkit.model.patches import TyrePatches
 from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
 from toolkit.model.search import ascent_config
 from toolkit.stages import training_data
-from toolkit.stages.evaluate import oracle_patches
 from toolkit.workspace import Workspace
 
 

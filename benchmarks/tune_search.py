@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import itertools
 import time
 from pathlib import Path
@@ -20,12 +21,13 @@ from pathlib import Path
 import numpy as np
 from sklearn.metrics import roc_auc_score, roc_curve
 
+from toolkit.analysis.methods import Trainer, baseline
 from toolkit.config import load_config
 from toolkit.model.ascent import coordinate_ascent
 from toolkit.model.baseline import BaselineParams
 from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
 from toolkit.model.search import ascent_config
-from toolkit.stages import evaluate, training_data
+from toolkit.stages import training_data
 from toolkit.workspace import Workspace
 
 #: Initial guesses tried (alpha_1..alpha_10, upsilon, omega, zeta).
@@ -73,7 +75,8 @@ def main() -> None:
             ev = config.evaluate
             bp = BaselineParams(ev.baseline_cell_m, ev.baseline_delta_m, ev.baseline_sigma0_m,
                                 ev.baseline_growth_m2_per_s, ev.baseline_confidence)  # fmt: skip
-            got = evaluate._baseline(near, bp, train, y, config.learn)
+            pairs_of = functools.partial(training_data.pair_table, model=config.model, path=root)
+            got = baseline(Trainer(train, y, config.learn, pairs_of), near, bp)
             r = np.nan_to_num(got.scores.r_combined, nan=-np.inf)
             auc_te, tpr = rates(y[test], r[test])
             print(f"  race test, closest laser {order[0]}: test AUC {auc_te:.3f} TPR "

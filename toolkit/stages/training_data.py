@@ -104,6 +104,21 @@ def lasers_nearest_first(workspace: Workspace) -> tuple[str, ...]:
     return lead_order(train, _point_batches(workspace, columns), workspace.event_points_table)
 
 
+def closest_laser(
+    workspace: Workspace, order: tuple[str, ...], configured: str | None
+) -> str | None:
+    """The configured closest laser, or the nearest of the training split's lasers
+    (:func:`lasers_nearest_first`; ``order`` when the model already ranked them), None
+    without points. Ranked on every point of the training events: the model's patches are a
+    sample that keeps the nearest laser first, so the few other points in them come from
+    unusual patches and would rank the lasers wrongly (on five 20-mile races their median
+    look-ahead put the second laser first)."""
+    if configured:
+        return configured
+    ranked = order or lasers_nearest_first(workspace)
+    return ranked[0] if ranked else None
+
+
 def laser_order(workspace: Workspace, model: ModelConfig) -> tuple[str, ...]:
     """The lasers nearest first when ``[model] point_sample = "nearest_laser"``
     (:func:`lasers_nearest_first`); () for any other sample."""
@@ -195,6 +210,7 @@ def load_model(workspace: Workspace) -> tuple[RoughnessParams, dict[str, Any]]:
 
 __all__ = [
     "MAX_PAIR_BYTES",
+    "closest_laser",
     "laser_order",
     "lasers_nearest_first",
     "load_model",
