@@ -36,7 +36,7 @@ import numpy as np
 import pyarrow.parquet as pq
 from sklearn.metrics import roc_auc_score, roc_curve
 
-from toolkit.stages.evaluate import METHOD_NAMES
+from toolkit.analysis.methods import METHOD_NAMES
 
 REPO = Path(__file__).resolve().parent.parent
 #: Every method of the report, in its order (``scores.parquet`` names each one's column).

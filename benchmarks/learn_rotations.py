@@ -26,7 +26,8 @@ from sklearn.metrics import roc_auc_score, roc_curve
 from toolkit.config import load_config
 from toolkit.model.ascent import B_NAMES, coordinate_ascent
 from toolkit.model.roughness import PairTable, RoughnessParams, score_events
-from toolkit.stages import learn
+from toolkit.model.search import ascent_config
+from toolkit.stages import training_data
 from toolkit.workspace import Workspace
 
 FPRS = (0.01, 0.05, 0.10, 0.20)
@@ -55,12 +56,14 @@ def main() -> None:
     t0 = time.perf_counter()
     splits: dict[str, tuple[PairTable, NDArray[np.bool_]]] = {}
     for split in ("train", "test"):
-        events = learn.split_events(ws, split)
-        pairs = learn.pair_table(learn.patches_of(ws, events, config.model), config.model, ws.root)
+        events = training_data.split_events(ws, split)
+        pairs = training_data.pair_table(
+            training_data.patches_of(ws, events, config.model), config.model, ws.root
+        )
         rough = np.asarray(events.column("rough").to_numpy(zero_copy_only=False), bool)
         splits[split] = (pairs, rough)
         print(f"{split}: {int(rough.sum())} rough of {rough.size} events")
-    search = learn.ascent_config(config.learn)
+    search = ascent_config(config.learn)
     result = coordinate_ascent(*splits["train"], search)
     print(f"pairs and search: {time.perf_counter() - t0:.1f} s")
 

@@ -7,7 +7,7 @@ On a workspace of simulated logs with tables (the tuning seeds 801/802 in the RE
 test AUC and the share of test events at R = 0 of the default model's search, unlearned (the
 initial guess) and learned, on three sets of heights for the same points: as the lasers
 measured them; the true terrain under each point's *estimated* position (the oracle before
-the fix); the true terrain where each beam truly hit (``evaluate.oracle_patches`` now).
+the fix); the true terrain where each beam truly hit (``oracle_patches`` now).
 """
 
 from __future__ import annotations
@@ -19,13 +19,14 @@ from pathlib import Path
 import numpy as np
 from sklearn.metrics import roc_auc_score
 
+from toolkit.analysis.oracle import oracle_patches
 from toolkit.analysis.truth_terrain import true_ground
 from toolkit.config import load_config
 from toolkit.model.ascent import coordinate_ascent
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
-from toolkit.stages import learn
-from toolkit.stages.evaluate import oracle_patches
+from toolkit.model.search import ascent_config
+from toolkit.stages import training_data
 from toolkit.workspace import Workspace
 
 
@@ -48,13 +49,15 @@ def under_estimated_positions(ws: Workspace, log_ids: np.ndarray, p: TyrePatches
 def main() -> None:
     ws = Workspace(Path(sys.argv[1]))
     cfg = load_config(Path(sys.argv[2]) if len(sys.argv) > 2 else ws.config_path)
-    events = learn.split_events(ws, None)
+    events = training_data.split_events(ws, None)
     split = np.asarray(events.column("split").to_pylist(), dtype=object)
     train, test = split == "train", split == "test"
     rough = events.column("rough").to_numpy(zero_copy_only=False).astype(bool)
-    patches = learn.patches_of(ws, events, cfg.model, order=learn.laser_order(ws, cfg.model))
+    patches = training_data.patches_of(
+        ws, events, cfg.model, order=training_data.laser_order(ws, cfg.model)
+    )
     log_ids = np.repeat(np.asarray(events.column("log_id").to_pylist(), dtype=object), 2)
-    start = RoughnessParams.from_vector(learn.ascent_config(cfg.learn).initial, 0.0)
+    start = RoughnessParams.from_vector(ascent_config(cfg.learn).initial, 0.0)
     beam_hits = oracle_patches(ws, events, patches)
     assert beam_hits is not None, "every log simulated"
     for name, p in (
@@ -64,8 +67,8 @@ def main() -> None:
     ):
         everything = model_pairs(p)
         r0 = score_events(everything, start).r_combined
-        pairs = learn.pair_table(p.take(np.repeat(train, 2)), cfg.model, ws.root)
-        fitted = coordinate_ascent(pairs, rough[train], learn.ascent_config(cfg.learn))
+        pairs = training_data.pair_table(p.take(np.repeat(train, 2)), cfg.model, ws.root)
+        fitted = coordinate_ascent(pairs, rough[train], ascent_config(cfg.learn))
         r = score_events(everything, fitted.params).r_combined
         print(
             f"{name}: unlearned {roc_auc_score(rough[test], r0[test]):.3f} "

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import itertools
 import time
 from pathlib import Path
@@ -20,11 +21,13 @@ from pathlib import Path
 import numpy as np
 from sklearn.metrics import roc_auc_score, roc_curve
 
+from toolkit.analysis.methods import Trainer, baseline
 from toolkit.config import load_config
 from toolkit.model.ascent import coordinate_ascent
 from toolkit.model.baseline import BaselineParams
 from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
-from toolkit.stages import evaluate, learn
+from toolkit.model.search import ascent_config
+from toolkit.stages import training_data
 from toolkit.workspace import Workspace
 
 #: Initial guesses tried (alpha_1..alpha_10, upsilon, omega, zeta).
@@ -56,7 +59,7 @@ def main() -> None:
     for root in args.workspaces:
         ws = Workspace(root)
         config = load_config(ws.config_path)
-        events = learn.split_events(ws, None)
+        events = training_data.split_events(ws, None)
         split = np.asarray(events.column("split").to_pylist(), dtype=object)
         train, test = split == "train", split == "test"
         y = events.column("rough").to_numpy(zero_copy_only=False).astype(bool)
@@ -65,21 +68,24 @@ def main() -> None:
         if args.baseline:
             # The race test on the closest laser (sect. 7.1), as evaluate trains it.
             model = dataclasses.replace(config.model, point_sample="nearest_laser")
-            order = learn.laser_order(ws, model)
-            near = learn.patches_of(ws, events, config.model, only_laser=order[0], order=order)
+            order = training_data.laser_order(ws, model)
+            near = training_data.patches_of(
+                ws, events, config.model, only_laser=order[0], order=order
+            )
             ev = config.evaluate
             bp = BaselineParams(ev.baseline_cell_m, ev.baseline_delta_m, ev.baseline_sigma0_m,
                                 ev.baseline_growth_m2_per_s, ev.baseline_confidence)  # fmt: skip
-            got = evaluate._baseline(near, bp, train, y, config.learn)
+            pairs_of = functools.partial(training_data.pair_table, model=config.model, path=root)
+            got = baseline(Trainer(train, y, config.learn, pairs_of), near, bp)
             r = np.nan_to_num(got.scores.r_combined, nan=-np.inf)
             auc_te, tpr = rates(y[test], r[test])
             print(f"  race test, closest laser {order[0]}: test AUC {auc_te:.3f} TPR "
                   f"{tpr[0]:.2f}/{tpr[1]:.2f}/{tpr[2]:.2f}", flush=True)  # fmt: skip
         for sample in args.samples:
             model = dataclasses.replace(config.model, point_sample=sample)
-            order = learn.laser_order(ws, model)
-            patches = learn.patches_of(ws, events, model, order=order)
-            pairs = learn.pair_table(patches.take(np.repeat(train, 2)), model, root)
+            order = training_data.laser_order(ws, model)
+            patches = training_data.patches_of(ws, events, model, order=order)
+            pairs = training_data.pair_table(patches.take(np.repeat(train, 2)), model, root)
             everything = model_pairs(patches)
             for init, accept, val, lead in itertools.product(
                 args.initial, args.accept, args.validation, args.lead
@@ -90,10 +96,10 @@ def main() -> None:
                     initial_zeta=zeta, accept=accept, validation_share=val, lead_term=bool(lead),
                 )  # fmt: skip
                 t0 = time.perf_counter()
-                res = coordinate_ascent(pairs, y[train], learn.ascent_config(lc))
+                res = coordinate_ascent(pairs, y[train], ascent_config(lc))
                 r = score_events(everything, res.params).r_combined
                 r0 = score_events(everything, RoughnessParams.from_vector(
-                    learn.ascent_config(lc).initial, 0.0)).r_combined  # fmt: skip
+                    ascent_config(lc).initial, 0.0)).r_combined  # fmt: skip
                 auc0, _ = rates(y[test], r0[test])
                 auc_tr, _ = rates(y[train], r[train])
                 auc_te, tpr = rates(y[test], r[test])

@@ -9,7 +9,6 @@ recomputed from them with scikit-learn, the field's reference for ROC curves.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import re
 from pathlib import Path
@@ -350,28 +349,6 @@ def test_without_a_model_evaluate_refuses_in_one_line(pipeline: Pipeline, tmp_pa
     line = one_error_line(result.stderr)
     assert str(ws.model_path) in line and "terrain learn" in line
     assert {n: file_sha256(ws.report_dir / n) for n in REPORT_FILES} == report
-
-
-def test_the_paper_exact_row_and_the_race_test_ignore_the_extensions() -> None:
-    """The paper's method as written has no look-ahead term and no early stopping whatever
-    the configuration; the race test trains its 13-vector with the look-ahead term on."""
-    from tests.model.helpers import make_patches, random_patches
-    from toolkit.model.baseline import BaselineParams
-    from toolkit.stages.evaluate import _baseline, _paper_exact
-
-    cfg = default_config()
-    extended = dataclasses.replace(
-        cfg, learn=dataclasses.replace(cfg.learn, lead_term=True, validation_share=0.3)
-    )
-    model, learn = _paper_exact(extended)
-    assert model.point_sample == "hash" and learn.accept == "objective"
-    assert not learn.lead_term and learn.validation_share == 0.0
-    rng = np.random.default_rng(0)
-    patches = make_patches(random_patches(rng, 40, 8))
-    rough = np.arange(40) % 4 == 0
-    train = np.arange(40) < 20
-    got = _baseline(patches, BaselineParams(), train, rough, extended.learn)
-    assert got.trained is not None and len(got.params.alpha) == 10
 
 
 def test_the_model_on_the_closest_laser_alone_is_trained_only_when_asked(

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -428,42 +427,12 @@ def test_learn_has_help() -> None:
     assert "--workspace" in result.output and "--overwrite" in result.output
 
 
-@pytest.mark.parametrize(
-    ("key", "value", "says"),
-    [
-        ("omega", 5.9, "'omega' must be an integer, not 5.9"),
-        ("omega", "7", "'omega' must be an integer, not '7'"),
-        ("upsilon", "1.05", "'upsilon' must be a finite number"),
-        ("mu", float("inf"), "'mu' must be a finite number, not inf"),
-        ("zeta", True, "'zeta' must be a finite number, not True"),
-        ("alpha", 3, "'alpha' must be a list"),
-        ("mu", None, "'mu' must be a finite number, not None"),
-    ],
-)
-def test_a_model_json_is_read_strictly(tmp_path: Path, key: str, value: Any, says: str) -> None:
-    """A value learn would never write is refused naming the file and the key, not
-    truncated (omega 5.9 as 5), converted ("7") or left to fail inside the model."""
-    from toolkit.stages.learn import load_model
-    from toolkit.workspace import Workspace
-
-    ws = Workspace(tmp_path)
-    doc = {"alpha": [1.0, 1.0, 0.01, 1.0, 0.1, 1.0, 0.0, 1.0, 0.0, 1.0], "upsilon": 1.05,
-           "omega": 3, "zeta": 1.0, "mu": 0.5}  # fmt: skip
-    ws.model_path.write_text(json.dumps(doc))
-    params, _ = load_model(ws)
-    assert params.omega == 3 and params.mu == 0.5
-    ws.model_path.write_text(json.dumps({**doc, key: value}))
-    with pytest.raises(StageError, match=re.escape(says)) as err:
-        load_model(ws)
-    assert str(ws.model_path) in str(err.value)
-
-
 def test_an_event_listed_twice_is_blamed_on_the_events_table(
     pipeline: Pipeline, tmp_path: Path
 ) -> None:
     """A duplicated row of ``tables/events.parquet`` is said of that file (learn and
     evaluate read it through ``split_events``), not of the points matched to it."""
-    from toolkit.stages.learn import split_events
+    from toolkit.stages.training_data import split_events
 
     ws = copy_workspace(pipeline.ws, tmp_path / "ws")
     events = read_table(ws.events_table, "tables_events")

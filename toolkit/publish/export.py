@@ -46,7 +46,7 @@ from toolkit.publish.destination import check_destination, publish, remove_dead_
 from toolkit.sim.record import SIM_RECORD
 from toolkit.stages import label as label_stage
 from toolkit.stages import tables as tables_stage
-from toolkit.stages.learn import table_inputs
+from toolkit.stages.training_data import table_inputs
 from toolkit.tableio import TableWriter, iter_table_batches, load_table_schema, read_table
 from toolkit.workspace import Workspace
 

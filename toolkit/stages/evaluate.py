@@ -11,42 +11,14 @@ Inputs: the training tables (as ``terrain tables`` wrote them) and ``model.json`
 - ``index.html`` with ``roc.png``, ``speed_tradeoff.png`` (and ``speed_tradeoff.csv``), and
   copies of each log's Fig. 4 and, for calibration logs, Fig. 5.
 
-Methods (sect. 7.1 and beyond); each summary entry says which points it scored:
-
-- ``self_supervised``: the learned model (``model.json``), on the configured points.
-- ``paper_exact``: the paper's method as written, trained here: a uniform sample of every
-  laser's points (``point_sample = "hash"``) and steps accepted by eq. (6) itself
-  (``accept = "objective"``), from the configured initial guess. The same row as
-  ``self_supervised`` when the configuration already is the paper's.
-- ``baseline_all_lasers`` / ``baseline_closest_laser``: the race's obstacle test
-  (:mod:`toolkit.model.baseline`) generating W, with upsilon, omega, zeta and mu trained
-  separately on the training split, as sect. 7.1 did; once on a uniform sample of all lasers'
-  points and once on the closest laser's alone. The closest laser is ``[evaluate]
-  baseline_closest_laser``, or by default the one whose points under the tyres were seen the
-  shortest time before the rear axle got there (the nearest beams: at any speed they land
-  closest to the vehicle).
-- ``baseline_model_points``: the race test on the model's own points, and
-  ``model_closest_laser``: the model learned on the closest laser's points, so that the model
-  and the race test are compared on the same points as well as each on its own. When the
-  model's points are the closest laser's (the nearest-laser sample usually keeps nothing
-  else), each is the same computation as its twin and is reported with ``same_as``.
-- ``boosted`` (beyond the paper): gradient-boosted trees over per-patch features of the
-  model's points (:mod:`toolkit.model.boosted`), fitted on the training split alone.
-- ``oracle`` (simulated logs only): the model's own search, trained and tested on the true
-  terrain height under each point instead of the measured z (pose, laser and range errors
-  removed; the points' places and times kept). It bounds what better z alone could buy.
-- ``ablations``: the model learned again with the time term (alpha_3 = 0) or the roll- and
-  pitch-rate terms (alpha_7 = alpha_9 = 0) removed, what each part of eq. (4) buys; and
-  ``no_learning``, the search's initial guess as it stands (mu from the training split),
-  what the learning itself buys.
-
-Every entry also gives the share of test events a method scored exactly 0 (eq. 3's W >= 0
-ties them) and the warnings say when a split has fewer than 30 rough events.
-
-Speed control (sect. 7.2, :mod:`toolkit.model.speed_control`): each log's test events in
-driving order, the reactive controller swept over ``slow_fractions`` x
-``recovery_rates_mps2`` and the proactive one over ``slow_fractions``, triggered by the
-model's verdicts.
+The methods (sect. 7.1 and beyond: the learned model, the paper's method as written, the
+race's obstacle test on all lasers', the closest laser's and the model's points, the model
+on the closest laser's points, gradient-boosted trees, the oracle on simulated logs, the
+ablations of eq. (4) and the unlearned initial guess) are trained and scored in
+:mod:`toolkit.analysis.methods`; which points each scores, and when two rows are one
+computation, is ``docs/evaluate.md``. ROC, speed control (sect. 7.2), the summary and the
+scores table are :mod:`toolkit.analysis.summary`'s. This module reads the tables and the
+model, picks each method's points, and writes the report as a whole (a new generation).
 """
 
 from __future__ import annotations
@@ -56,59 +28,62 @@ import json
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
-import scipy.fft
 from numpy.typing import NDArray
 
-from toolkit import __version__
-from toolkit.analysis import fig7
 from toolkit.analysis.fig4 import PNG_NAME as FIG4_PNG
 from toolkit.analysis.figures import write_bytes_atomic
+from toolkit.analysis.methods import (
+    ABLATIONS,
+    MAIN_METHODS,
+    MethodScores,
+    Rows,
+    Trainer,
+    ablation,
+    baseline,
+    boosted_row,
+    no_learning,
+    paper_exact,
+    same_points,
+)
+from toolkit.analysis.oracle import oracle_patches
 from toolkit.analysis.report import ReportInputs, roc_png, write_index_html
-from toolkit.analysis.truth_terrain import true_ground, where_beams_hit
+from toolkit.analysis.summary import (
+    method_rocs,
+    model_entry,
+    scores_table,
+    speed_control,
+    split_counts,
+    summary_json,
+)
 from toolkit.atomic import atomic_write_json
 from toolkit.config import EvaluateConfig, LearnConfig, ModelConfig, PipelineConfig
 from toolkit.errors import StageError
 from toolkit.generations import open_generation
 from toolkit.layout import workspace_file_name
-from toolkit.manifest import (
-    file_sha256,
-    require_finished,
-)
-from toolkit.model import boosted
-from toolkit.model import speed_control as sc
-from toolkit.model.ascent import AscentResult, best_threshold, coordinate_ascent
-from toolkit.model.baseline import BaselineParams, FixedScores, baseline_pairs, pair_scores
+from toolkit.manifest import file_sha256, require_finished
+from toolkit.model.baseline import BaselineParams
 from toolkit.model.patches import TyrePatches
-from toolkit.model.roc import RocSummary, caveats, small_sample_warnings, summarise
-from toolkit.model.roughness import (
-    THREADS,
-    EventScores,
-    RoughnessParams,
-    TopScores,
-    model_pairs,
-    score_events,
-)
-from toolkit.model.shock import MPS_PER_MPH
+from toolkit.model.roc import caveats, small_sample_warnings
+from toolkit.model.roughness import Blockwise, RoughnessParams, model_pairs, score_events
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.label import FIG5_PNG
-from toolkit.stages.learn import (
-    ascent_config,
+from toolkit.stages.learn import stage_config_hash as learn_config_hash
+from toolkit.stages.runner import run_stage
+from toolkit.stages.training_data import (
+    closest_laser,
     laser_order,
-    lasers_nearest_first,
     load_model,
     pair_table,
     patches_of,
     split_events,
     table_inputs,
 )
-from toolkit.stages.learn import stage_config_hash as learn_config_hash
-from toolkit.stages.runner import run_stage
 from toolkit.tableio import write_table
 from toolkit.workspace import Workspace
 
@@ -121,46 +96,11 @@ SUMMARY_NAME = workspace_file_name("summary")
 INDEX_NAME = workspace_file_name("index")
 MODEL_NAME = workspace_file_name("model")
 ROC_PNG = "roc.png"
+#: The report's folder under the workspace (a link to its current generation).
+REPORT_NAME = "report"
 
 BoolArray = NDArray[np.bool_]
 FloatArray = NDArray[np.float64]
-
-#: Elements of B an ablation fixes at zero (0-based: alpha_3; alpha_7 and alpha_9), and the
-#: exponents that then have nothing to weigh (kept at their initial value).
-ABLATIONS: dict[str, tuple[dict[int, float], tuple[int, ...]]] = {
-    "no_time_term": ({2: 0.0}, (2, 3)),
-    "no_rate_terms": ({6: 0.0, 8: 0.0}, (6, 7, 8, 9)),
-}
-#: The ablations' names in the summary and in scores.parquet: the two above, and the
-#: initial guess itself, unlearned (mu chosen on the training split), what learning buys.
-ABLATION_NAMES = (*ABLATIONS, "no_learning")
-#: The baseline learns only upsilon, omega and zeta (and mu): sect. 7.1.
-BASELINE_FREE = (False,) * 10 + (True, True, True)
-#: Every method, in the report's order (its table and the ROC figure's curves); a method a
-#: run cannot train (no oracle off the simulator, no closest laser) is left out.
-METHOD_NAMES = (
-    "self_supervised",
-    "paper_exact",
-    "baseline_all_lasers",
-    "baseline_closest_laser",
-    "baseline_model_points",
-    "model_closest_laser",
-    "boosted",
-    "oracle",
-    *ABLATION_NAMES,
-)
-#: The methods beside the ablations that the summary lists at its top level.
-MAIN_METHODS = METHOD_NAMES[: -len(ABLATION_NAMES)]
-
-
-@dataclass(frozen=True)
-class MethodScores:
-    """One method's verdicts on every event (E,), and how it was trained (None for the
-    learned model, trained by ``terrain learn``)."""
-
-    scores: EventScores
-    trained: AscentResult | None
-    params: RoughnessParams
 
 
 @dataclass(frozen=True)
@@ -189,236 +129,6 @@ class EvaluateResult:
                 f"  speed control: proactive shock {100 * red:.0f} % below reactive at equal time"
             )
         return "\n".join(lines)
-
-
-def _train_groups(train: BoolArray) -> BoolArray:
-    """Event mask (E,) -> patch mask (2E,): both tyres of each event."""
-    return np.repeat(train, 2)
-
-
-def _train_and_score(
-    training: TopScores,
-    everything: TopScores,
-    train: BoolArray,
-    rough: BoolArray,
-    learn: LearnConfig,
-    free: tuple[bool, ...] | None = None,
-    fixed: dict[int, float] | None = None,
-) -> MethodScores:
-    """Coordinate ascent on ``training`` (the training events' patches, held whole: the
-    search scores them hundreds of times), then every event scored by ``everything`` (block
-    by block: once)."""
-    result = coordinate_ascent(training, rough[train], ascent_config(learn, free, fixed))
-    return MethodScores(score_events(everything, result.params), result, result.params)
-
-
-def _baseline(
-    p: TyrePatches, bp: BaselineParams, train: BoolArray, rough: BoolArray, learn: LearnConfig
-) -> MethodScores:
-    """The race test on the points ``p``: its W from :func:`pair_scores`, upsilon, omega,
-    zeta and mu trained on the training split (sect. 7.1); an event without two points of
-    ``p`` under either tyre has nothing to score (NaN, never predicted rough)."""
-    got = _train_and_score(
-        FixedScores(pair_scores(p.take(_train_groups(train)), bp)),
-        baseline_pairs(p, bp),
-        train,
-        rough,
-        # The race test's W has no alphas, so no look-ahead term either: B is the 13-vector
-        # of which BASELINE_FREE moves upsilon, omega and zeta.
-        dataclasses.replace(learn, lead_term=False),
-        BASELINE_FREE,
-    )
-    none = (p.count.reshape(-1, 2) < 2).all(axis=1)
-    s = got.scores
-    r_comb = np.where(none, np.nan, s.r_combined)
-    return MethodScores(
-        EventScores(s.r_left, s.r_right, r_comb, s.predicted & ~none), got.trained, got.params
-    )
-
-
-def _same_points(a: TyrePatches, b: TyrePatches) -> bool:
-    """Whether two patch sets hold the same points in the same places (every feature)."""
-    if a.valid.shape != b.valid.shape or not np.array_equal(a.valid, b.valid):
-        return False
-    v = a.valid
-    return all(
-        np.array_equal(getattr(a, k)[v], getattr(b, k)[v])
-        for k in ("x", "y", "z", "tau", "gamma", "psi")
-    )
-
-
-def _paper_exact(config: EvaluateSettings) -> tuple[ModelConfig, LearnConfig]:
-    """The paper's method as written, with the configured initial guess: every laser's
-    points alike (the uniform sample, sect. 7: "data from all lasers is used"), eq. (4)
-    without the look-ahead term, and steps accepted by eq. (6) itself with no early stopping
-    (sect. 6)."""
-    return (
-        dataclasses.replace(config.model, point_sample="hash"),
-        dataclasses.replace(
-            config.learn, accept="objective", lead_term=False, validation_share=0.0
-        ),
-    )
-
-
-def _boosted(
-    patches: TyrePatches,
-    order: tuple[str, ...],
-    event_time_s: FloatArray,
-    train: BoolArray,
-    rough: BoolArray,
-    config: EvaluateSettings,
-) -> MethodScores:
-    """The gradient-boosted classifier (beyond the paper, :mod:`toolkit.model.boosted`) on
-    the model's points, fitted on the training split alone; its score is the log-odds of
-    rough, and mu eq. (6)'s best threshold on the training split."""
-    lasers = tuple(order) or patches.lasers
-    features, _ = boosted.patch_features(
-        patches, lasers, config.evaluate.baseline_cell_m, event_time_s=event_time_s
-    )
-    scores, _ = boosted.train_and_score(features, rough, train, boosted.BoostedConfig())
-    mu = best_threshold(scores[train], rough[train], config.learn.lambda_fp).mu
-    nan = np.full(scores.size, np.nan)
-    params = RoughnessParams((0.0,) * 10, 1.0, 1, 1.0, mu)
-    return MethodScores(EventScores(nan, nan, scores, scores > mu), None, params)
-
-
-def closest_laser(
-    workspace: Workspace, order: tuple[str, ...], configured: str | None
-) -> str | None:
-    """The configured closest laser, or the nearest of the training split's lasers
-    (:func:`~toolkit.stages.learn.lasers_nearest_first`; ``order`` when the model already
-    ranked them), None without points. Ranked on every point of the training events: the
-    model's patches are a sample that keeps the nearest laser first, so the few other points
-    in them come from unusual patches and would rank the lasers wrongly (on five 20-mile
-    races their median look-ahead put the second laser first)."""
-    if configured:
-        return configured
-    ranked = order or lasers_nearest_first(workspace)
-    return ranked[0] if ranked else None
-
-
-def oracle_patches(
-    workspace: Workspace, events: pa.Table, patches: TyrePatches
-) -> TyrePatches | None:
-    """``patches`` with each point's z replaced by the true terrain height where its beam
-    truly hit (:func:`~toolkit.analysis.truth_terrain.where_beams_hit`: the point moved by
-    the pose's error at its time), or None unless every log is simulated. Points off the
-    modelled terrain are dropped.
-
-    The points stay where they are (the same points, under the same tyres, as the model
-    scores): only their heights change. Looking the truth up under the point's *estimated*
-    position instead read the ground 16 cm (median) beside what the laser saw, and cost the
-    oracle its lead (on tuning seeds 801/802, learned test AUC 0.887 there against 0.900 where
-    the beams hit; the laser model 0.880: ``benchmarks/README.md``, "The oracle")."""
-    log_of_group = np.repeat(np.asarray(events.column("log_id").to_pylist(), dtype=object), 2)
-    z = patches.z.copy()
-    valid = patches.valid.copy()
-    for log_id in sorted(set(log_of_group.tolist())):
-        ground = true_ground(workspace.log_dir(log_id))
-        if ground is None:
-            return None
-        rows = np.flatnonzero(log_of_group == log_id)
-        mask = patches.valid[rows]
-        xyz = np.c_[patches.x[rows][mask], patches.y[rows][mask], patches.z[rows][mask]]
-        t_ns = np.round(patches.tau[rows][mask] * 1e9).astype(np.int64)
-        hit = where_beams_hit(workspace.log_dir(log_id), xyz, t_ns)
-        placed = np.isfinite(hit).all(axis=1)  # the true pose covers the point's time
-        h = np.full(hit.shape[0], np.nan)
-        # The terrain's tiles are synthesised by FFT (most of this lookup's time: ~30 s for
-        # an hour's route); pocketfft splits each transform's independent lines over the
-        # threads, so the heights are the same with one thread or two.
-        with scipy.fft.set_workers(THREADS):
-            h[placed], _ = ground.height_m(hit[placed])
-        sub = z[rows]
-        sub[mask] = h
-        z[rows] = sub
-        sub_valid = valid[rows]
-        sub_valid[mask] = np.isfinite(h)
-        valid[rows] = sub_valid
-    z[~valid] = 0.0
-    return TyrePatches(
-        patches.x,
-        patches.y,
-        z,
-        patches.tau,
-        patches.gamma,
-        patches.psi,
-        valid,
-        valid.sum(axis=1),
-        patches.laser,
-        patches.lasers,
-        patches.lead,
-    )
-
-
-def _routes(events: pa.Table, predicted: BoolArray, test: BoolArray) -> list[sc.Route]:
-    """Each log's test events, in driving order, as speed-control routes."""
-    routes = []
-    log_ids = np.asarray(events.column("log_id").to_pylist(), dtype=object)
-    col = {
-        n: events.column(n).to_numpy(zero_copy_only=False)
-        for n in ("s_start_m", "s_end_m", "speed_mph", "ruggedness", "rough")
-    }
-    for log_id in sorted(set(log_ids[test].tolist())):
-        rows = np.flatnonzero(test & (log_ids == log_id))
-        rows = rows[np.argsort(col["s_start_m"][rows], kind="stable")]
-        routes.append(
-            sc.Route(
-                s_start_m=col["s_start_m"][rows].astype(np.float64),
-                s_end_m=col["s_end_m"][rows].astype(np.float64),
-                speed_mps=col["speed_mph"][rows].astype(np.float64) * MPS_PER_MPH,
-                ruggedness=col["ruggedness"][rows].astype(np.float64),
-                rough=col["rough"][rows].astype(bool),
-                predicted=predicted[rows].astype(bool),
-                source=str(log_id),
-            )
-        )
-    return routes
-
-
-def speed_control(
-    events: pa.Table, predicted: BoolArray, test: BoolArray, config: EvaluateSettings, out_dir: Path
-) -> tuple[dict[str, Any], list[Path]]:
-    """Fig. 7: the curves, the CSV and PNG, and the summary entry."""
-    ev = config.evaluate
-    base = sc.SpeedControlParams(
-        slow_fraction=ev.slow_fractions[0],
-        decel_mps2=ev.decel_mps2,
-        recovery_mps2=ev.recovery_mps2,
-        hold_distance_m=ev.hold_distance_m,
-        lookahead_m=ev.lookahead_m,
-        shock_floor_g=ev.shock_floor_g,
-    )
-    routes = _routes(events, predicted, test)
-    reactive = sc.reactive_curve(routes, base, ev.slow_fractions, ev.recovery_rates_mps2)
-    proactive = sc.proactive_curve(routes, base, ev.slow_fractions)
-    none = sc.no_change_point(routes, base)
-    reduction = sc.shock_reduction_at_equal_time(
-        sc.pareto_front(reactive), sc.pareto_front(proactive)
-    )
-    curves = [reactive, proactive, [none]]
-    files = [
-        fig7.write_tradeoff_csv(out_dir, curves),
-        fig7.tradeoff_png(out_dir, curves, "Fig. 7 analogue"),
-    ]
-    best = reduction.max_reduction
-    return {
-        "shock_reduction_at_equal_time": None if not np.isfinite(best) else round(float(best), 6),
-        "reductions_along_reactive_front": [
-            {
-                "time_norm": round(float(t), 6),
-                "reduction": None if not np.isfinite(r) else round(float(r), 6),
-            }
-            for t, r in zip(reduction.time_norm, reduction.reductions, strict=True)
-        ],
-        "curves": fig7.CSV_NAME,
-        "shock_floor_g": ev.shock_floor_g,
-        "no_change": {
-            "time_s": round(none.time_s, 3),
-            "shock_g": round(none.shock_g, 6),
-            "shocks_over_floor": none.shocks_over_floor,
-        },
-    }, files
 
 
 @dataclass(frozen=True)
@@ -481,232 +191,277 @@ def _recall(last: Recalled) -> EvaluateResult:
     return EvaluateResult("up_to_date", done, report / INDEX_NAME, (), last.seconds)
 
 
-def _compute(call: Call) -> Made:
-    """Score, compare and write the report (the module docstring); the runner records it."""
-    config: EvaluateSettings = call.settings
-    workspace, inputs, cfg_hash, start = call.workspace, call.inputs, call.config_hash, call.start
-    # Each step's time, for the manifest (where an evaluation spends its minutes).
-    step_s: dict[str, float] = {}
-    current: list[Any] = [None, start]
+@dataclass(frozen=True)
+class _Tables:
+    """Every event (both splits, in table order) with its split, label and ruggedness, and
+    the model's patches of them (``order``: the lasers nearest first, when the model's
+    sample ranks them)."""
 
-    def tell(what: str | None) -> None:
-        now = time.perf_counter()
-        if current[0] is not None:
-            step_s[current[0]] = step_s.get(current[0], 0.0) + now - current[1]
-        current[:] = [what, now]
-        if what is not None:
-            call.step(what)
+    events: pa.Table
+    train: BoolArray
+    test: BoolArray
+    rough: BoolArray
+    ruggedness: FloatArray
+    order: tuple[str, ...]
+    patches: TyrePatches
 
-    warnings: list[str] = []
-    timings: dict[str, float] = {}
-    params, model_doc = load_model(workspace)
-    t0 = time.perf_counter()
-    tell("reading the tables")
+
+def _read_tables(workspace: Workspace, model: ModelConfig) -> _Tables:
+    """The events of both splits and the model's patches of them."""
     events = split_events(workspace, None)
     split = np.asarray(events.column("split").to_pylist(), dtype=object)
-    train, test = split == "train", split == "test"
     rough = events.column("rough").to_numpy(zero_copy_only=False).astype(bool)
     ruggedness = events.column("ruggedness").to_numpy(zero_copy_only=False).astype(np.float64)
-    order = laser_order(workspace, config.model)
-    patches = patches_of(workspace, events, config.model, order=order)
-    train_groups = _train_groups(train)
-    timings["read"] = time.perf_counter() - t0
+    order = laser_order(workspace, model)
+    patches = patches_of(workspace, events, model, order=order)
+    return _Tables(events, split == "train", split == "test", rough, ruggedness, order, patches)
 
-    # The report's order (its table and the ROC figure's curves).
-    methods: dict[str, MethodScores | None] = dict.fromkeys(METHOD_NAMES)
-    points: dict[str, dict[str, Any]] = {}
-    # Rows left out on purpose, and why (the report says so on their line).
-    not_run: dict[str, str] = {}
-    model_points = {"sample": config.model.point_sample, "only_laser": None}
-    t0 = time.perf_counter()
-    # Only the training split's pairs are held: each search scores them hundreds of times.
-    # Every event is scored once per method, a block of pairs at a time, so memory follows
-    # the training split, not the whole log (an hour's log: ~280 MB of pairs a split).
-    tell("scoring the learned model")
-    everything = model_pairs(patches)
-    learned = MethodScores(score_events(everything, params), None, params)
-    methods["self_supervised"] = learned
-    points["self_supervised"] = model_points
-    learnable = bool(rough[train].any() and (~rough[train]).any())
-    if not learnable:
-        warnings.append(
-            "the training split lacks rough or smooth events: baselines, oracle and "
-            "ablations not trained"
-        )
-    ev = config.evaluate
-    bp = BaselineParams(
+
+@dataclass
+class _Steps:
+    """The progress steps, each told to the user and timed for the manifest (where an
+    evaluation spends its minutes)."""
+
+    step: Callable[[str], None]
+    since: float
+    current: str | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def tell(self, what: str | None) -> None:
+        """The step ``what`` begins (None: the last one ends)."""
+        now = time.perf_counter()
+        if self.current is not None:
+            self.seconds[self.current] = self.seconds.get(self.current, 0.0) + now - self.since
+        self.current, self.since = what, now
+        if what is not None:
+            self.step(what)
+
+
+@dataclass(frozen=True)
+class _PointSets:
+    """The baselines' points: sect. 7.1's two readings of the race test, all lasers' points
+    equally (the uniform sample) and the closest laser's alone (None when there is none or
+    nothing is trained), and whether the latter are the model's own points."""
+
+    closest: str | None
+    uniform: TyrePatches
+    nearest: TyrePatches | None
+    same: bool
+
+
+def _baseline_params(ev: EvaluateConfig) -> BaselineParams:
+    """The race's obstacle test as ``[evaluate]`` sets it."""
+    return BaselineParams(
         ev.baseline_cell_m,
         ev.baseline_delta_m,
         ev.baseline_sigma0_m,
         ev.baseline_growth_m2_per_s,
         ev.baseline_confidence,
     )
-    tell("reading the baselines' points")
-    t_start_s = events.column("t_start_ns").to_numpy().astype(np.float64) * 1e-9
-    # Chosen on the training split's patches alone: the choice feeds trained rows.
-    closest = closest_laser(workspace, order, ev.baseline_closest_laser)
-    # Sect. 7.1's two readings of the race test: all lasers' points equally (the uniform
-    # sample), and the closest laser's alone. Then the race test on the model's own points,
-    # so that the two are also compared on the same points.
-    uniform = (
-        patches
-        if config.model.point_sample == "hash"
-        else patches_of(workspace, events, dataclasses.replace(config.model, point_sample="hash"))
-    )
-    nearest = (
-        patches_of(workspace, events, config.model, only_laser=closest, order=order)
-        if closest is not None and learnable
-        else None
-    )
-    # With the nearest laser first, a patch usually holds that laser's points alone (it
-    # puts ~130 under a tyre): then the rows on "the model's points" and on "the closest
-    # laser's points" are the same computation, done once and reported under both names.
-    same = nearest is not None and _same_points(patches, nearest)
-    point_sets: dict[str, tuple[TyrePatches | None, dict[str, Any]]] = {
-        "baseline_all_lasers": (uniform, {"sample": "hash", "only_laser": None}),
-        "baseline_closest_laser": (
-            nearest,
-            {"sample": config.model.point_sample, "only_laser": closest},
-        ),
-        "baseline_model_points": (
-            patches if config.model.point_sample != "hash" and not same else None,
-            model_points,
-        ),
-    }
-    for name, (p, where) in point_sets.items():
-        tell(f"training {name}")
-        if not learnable or p is None:
-            continue
-        methods[name] = _baseline(p, bp, train, rough, config.learn)
-        points[name] = where
-    if same and learnable and config.model.point_sample != "hash":
-        methods["baseline_model_points"] = methods["baseline_closest_laser"]
-        points["baseline_model_points"] = {**model_points, "same_as": "baseline_closest_laser"}
-    if learnable:
-        tell("training the paper-exact model")
-        paper = _paper_exact(config)
-        if paper == (config.model, config.learn):
-            methods["paper_exact"] = learned
-        else:
-            methods["paper_exact"] = _train_and_score(
-                pair_table(uniform.take(train_groups), paper[0], workspace.config_path),
-                model_pairs(uniform),
-                train,
-                rough,
-                paper[1],
-            )
-        points["paper_exact"] = {"sample": "hash", "only_laser": None}
-        if same:
-            methods["model_closest_laser"] = learned
-            points["model_closest_laser"] = {
-                **points["baseline_closest_laser"],
-                "same_as": "self_supervised",
-            }
-        elif nearest is not None and not ev.model_on_closest_laser:
-            not_run["model_closest_laser"] = "off ([evaluate] model_on_closest_laser)"
-        elif nearest is not None:
-            tell("training the model on the closest laser's points")
-            methods["model_closest_laser"] = _train_and_score(
-                pair_table(nearest.take(train_groups), config.model, workspace.config_path),
-                model_pairs(nearest),
-                train,
-                rough,
-                config.learn,
-            )
-            points["model_closest_laser"] = points["baseline_closest_laser"]
-        tell("training the gradient-boosted learner")
-        methods["boosted"] = _boosted(patches, order, t_start_s, train, rough, config)
-        points["boosted"] = model_points
-    train_pairs = pair_table(patches.take(train_groups), config.model, workspace.config_path)
-    for name, (fixed_values, frozen) in ABLATIONS.items():
-        tell(f"training the ablation {name}")
-        if not learnable:
-            continue
-        free = tuple(j not in frozen for j in range(len(ascent_config(config.learn).initial)))
-        methods[name] = _train_and_score(
-            train_pairs, everything, train, rough, config.learn, free, fixed_values
-        )
-        points[name] = model_points
-    tell("scoring the initial guess")
-    if learnable:
-        start_params = RoughnessParams.from_vector(ascent_config(config.learn).initial, 0.0)
-        initial = score_events(everything, start_params)
-        mu = best_threshold(initial.r_combined[train], rough[train], config.learn.lambda_fp).mu
-        start_params = dataclasses.replace(start_params, mu=mu)
-        methods["no_learning"] = MethodScores(
-            dataclasses.replace(initial, predicted=initial.r_combined > mu), None, start_params
-        )
-        points["no_learning"] = model_points
-    # The model's training pairs go before the oracle builds its own.
-    del train_pairs, uniform, nearest
-    tell("training the oracle")
-    truth = oracle_patches(workspace, events, patches) if learnable else None
-    if truth is None:
-        if learnable:
-            warnings.append("not every log is simulated: no oracle")
-    else:
-        oracle_pairs = pair_table(truth.take(train_groups), config.model, workspace.config_path)
-        methods["oracle"] = _train_and_score(
-            oracle_pairs, model_pairs(truth), train, rough, config.learn
-        )
-        points["oracle"] = {**model_points, "z": "true terrain height where each beam hit"}
-        del oracle_pairs, truth
-    timings["methods"] = time.perf_counter() - t0
 
-    tell("ROC and speed control")
+
+@dataclass(frozen=True)
+class _Run:
+    """One evaluation's methods as they are trained, in the report's order of steps: what
+    they read, and the rows they fill."""
+
+    workspace: Workspace
+    config: EvaluateSettings
+    tables: _Tables
+    trainer: Trainer
+    tell: Callable[[str | None], None]
+    rows: Rows
+    warnings: list[str]
+
+    @property
+    def model_points(self) -> dict[str, Any]:
+        """The points the model scores, as the summary says them."""
+        return {"sample": self.config.model.point_sample, "only_laser": None}
+
+    def learned(self, params: RoughnessParams) -> tuple[MethodScores, Blockwise]:
+        """The learned model's scores, and every event's pairs (the other rows on the
+        model's points score them too)."""
+        # Only the training split's pairs are held: each search scores them hundreds of
+        # times. Every event is scored once per method, a block of pairs at a time, so
+        # memory follows the training split, not the whole log (an hour's log: ~280 MB of
+        # pairs a split).
+        self.tell("scoring the learned model")
+        everything = model_pairs(self.tables.patches)
+        learned = MethodScores(score_events(everything, params), None, params)
+        self.rows.add("self_supervised", learned, self.model_points)
+        if not self.trainer.learnable:
+            self.warnings.append(
+                "the training split lacks rough or smooth events: baselines, oracle and "
+                "ablations not trained"
+            )
+        return learned, everything
+
+    def point_sets(self) -> _PointSets:
+        """The baselines' points (:class:`_PointSets`)."""
+        self.tell("reading the baselines' points")
+        ws, model, t = self.workspace, self.config.model, self.tables
+        # Chosen on the training split's patches alone: the choice feeds trained rows.
+        closest = closest_laser(ws, t.order, self.config.evaluate.baseline_closest_laser)
+        uniform = (
+            t.patches
+            if model.point_sample == "hash"
+            else patches_of(ws, t.events, dataclasses.replace(model, point_sample="hash"))
+        )
+        nearest = (
+            patches_of(ws, t.events, model, only_laser=closest, order=t.order)
+            if closest is not None and self.trainer.learnable
+            else None
+        )
+        # With the nearest laser first, a patch usually holds that laser's points alone (it
+        # puts ~130 under a tyre): then the rows on "the model's points" and on "the closest
+        # laser's points" are the same computation, done once and reported under both names.
+        same = nearest is not None and same_points(t.patches, nearest)
+        return _PointSets(closest, uniform, nearest, same)
+
+    def baselines(self, sets: _PointSets) -> None:
+        """The race test on all lasers' points, the closest laser's, and the model's own
+        (sect. 7.1), so that it is also compared with the model on the same points."""
+        model, bp = self.config.model, _baseline_params(self.config.evaluate)
+        hashed = model.point_sample == "hash"
+        point_sets: dict[str, tuple[TyrePatches | None, dict[str, Any]]] = {
+            "baseline_all_lasers": (sets.uniform, {"sample": "hash", "only_laser": None}),
+            "baseline_closest_laser": (
+                sets.nearest,
+                {"sample": model.point_sample, "only_laser": sets.closest},
+            ),
+            "baseline_model_points": (
+                self.tables.patches if not hashed and not sets.same else None,
+                self.model_points,
+            ),
+        }
+        for name, (p, where) in point_sets.items():
+            self.tell(f"training {name}")
+            if not self.trainer.learnable or p is None:
+                continue
+            self.rows.add(name, baseline(self.trainer, p, bp), where)
+        if sets.same and self.trainer.learnable and not hashed:
+            self.rows.add(
+                "baseline_model_points",
+                self.rows.methods["baseline_closest_laser"],
+                {**self.model_points, "same_as": "baseline_closest_laser"},
+            )
+
+    def models(self, learned: MethodScores, sets: _PointSets) -> None:
+        """The paper's method as written, the model on the closest laser's points, and the
+        gradient-boosted learner (trained only when the training split has both classes)."""
+        self.tell("training the paper-exact model")
+        config, t = self.config, self.tables
+        paper = paper_exact(config.model, config.learn)
+        same_config = paper == (config.model, config.learn)
+        row = learned if same_config else self.trainer.model_on(sets.uniform, paper[1])
+        self.rows.add("paper_exact", row, {"sample": "hash", "only_laser": None})
+        self.model_closest_laser(learned, sets)
+        self.tell("training the gradient-boosted learner")
+        t_start_s = t.events.column("t_start_ns").to_numpy().astype(np.float64) * 1e-9
+        cell_m = config.evaluate.baseline_cell_m
+        self.rows.add(
+            "boosted",
+            boosted_row(self.trainer, t.patches, t.order, t_start_s, cell_m),
+            self.model_points,
+        )
+
+    def model_closest_laser(self, learned: MethodScores, sets: _PointSets) -> None:
+        """The model on the closest laser's points: the learned model's row when they are
+        its own points, trained when ``[evaluate] model_on_closest_laser`` asks."""
+        if sets.nearest is None:
+            return
+        closest_points = self.rows.points["baseline_closest_laser"]
+        if sets.same:
+            self.rows.add(
+                "model_closest_laser", learned, {**closest_points, "same_as": "self_supervised"}
+            )
+        elif not self.config.evaluate.model_on_closest_laser:
+            self.rows.not_run["model_closest_laser"] = "off ([evaluate] model_on_closest_laser)"
+        else:
+            self.tell("training the model on the closest laser's points")
+            self.rows.add(
+                "model_closest_laser", self.trainer.model_on(sets.nearest), closest_points
+            )
+
+    def ablations(self, everything: Blockwise) -> None:
+        """The model learned again without the time or the rate terms, and the initial
+        guess unlearned."""
+        patches, trainer = self.tables.patches, self.trainer
+        train_pairs = trainer.pairs(patches.take(trainer.groups))
+        for name in ABLATIONS:
+            self.tell(f"training the ablation {name}")
+            if not trainer.learnable:
+                continue
+            self.rows.add(name, ablation(trainer, name, train_pairs, everything), self.model_points)
+        self.tell("scoring the initial guess")
+        if trainer.learnable:
+            self.rows.add("no_learning", no_learning(trainer, everything), self.model_points)
+
+    def oracle(self) -> None:
+        """The model's search on the true terrain heights (simulated logs only)."""
+        self.tell("training the oracle")
+        t = self.tables
+        learnable = self.trainer.learnable
+        truth = oracle_patches(self.workspace, t.events, t.patches) if learnable else None
+        if truth is None:
+            if learnable:
+                self.warnings.append("not every log is simulated: no oracle")
+            return
+        self.rows.add(
+            "oracle",
+            self.trainer.model_on(truth),
+            {**self.model_points, "z": "true terrain height where each beam hit"},
+        )
+
+
+def _train_methods(run: _Run, params: RoughnessParams) -> tuple[MethodScores, str | None]:
+    """Every method trained and scored into ``run.rows``; the learned model's scores and
+    the closest laser."""
+    learned, everything = run.learned(params)
+    sets = run.point_sets()
+    run.baselines(sets)
+    if run.trainer.learnable:
+        run.models(learned, sets)
+    closest = sets.closest
+    # The model's training pairs and the baselines' points go before the oracle builds its
+    # own.
+    del sets
+    run.ablations(everything)
+    run.oracle()
+    return learned, closest
+
+
+def _write_report(
+    run: _Run,
+    learned: MethodScores,
+    closest: str | None,
+    model_doc: dict[str, Any],
+    call: Call,
+    timings: dict[str, float],
+) -> tuple[dict[str, Any], dict[str, int]]:
+    """ROC, speed control, the summary and the scores, written into a new generation of the
+    report; the summary and the counts per split."""
+    run.tell("ROC and speed control")
     t0 = time.perf_counter()
+    t, ev, warnings = run.tables, run.config.evaluate, run.warnings
     # The report is replaced as a whole, as a log is: written into a new generation of
     # WS/report (WS/.report.<host>-<pid>-<hex>.gen) and switched to by one rename, so a
     # reader, or an evaluate killed while writing, sees the old report or the new one.
-    with open_generation(workspace.root, REPORT_NAME, carry_files=False) as gen:
+    with open_generation(run.workspace.root, REPORT_NAME, carry_files=False) as gen:
         report = gen.path  # made from nothing: a figure no longer drawn does not linger
-        testable = bool(rough[test].any() and (~rough[test]).any())
+        testable = bool(t.rough[t.test].any() and (~t.rough[t.test]).any())
         if not testable:
             warnings.append("the test split lacks rough or smooth events: no ROC")
-        rocs: dict[str, RocSummary | None] = {}
-        for name, m in methods.items():
-            rocs[name] = (
-                summarise(
-                    m.scores.r_combined[test],
-                    rough[test],
-                    ruggedness[test],
-                    ev.fpr_points,
-                    resamples=ev.bootstrap_resamples,
-                    seed=ev.bootstrap_seed,
-                )
-                if m is not None and testable
-                else None
-            )
-        speed, speed_files = speed_control(events, learned.scores.predicted, test, config, report)
+        rocs = method_rocs(run.rows.methods, t.test, t.rough, t.ruggedness, ev, testable)
+        speed, speed_files = speed_control(t.events, learned.scores.predicted, t.test, ev, report)
         timings["evaluate"] = time.perf_counter() - t0
-        tell(None)
-
-        def entry(name: str) -> dict[str, Any] | None:
-            r, m = rocs.get(name), methods.get(name)
-            if r is None or m is None:
-                return None
-            out = r.to_json()
-            out["params"] = m.params.to_json()
-            out["points"] = points.get(name)
-            if m.trained is not None:
-                t = m.trained
-                out["train_objective"] = t.objective
-                out["train_auc"] = t.auc
-                out["accepted_by"] = t.accepted_by
-                if t.start is not None:
-                    out["train_start"] = {"objective": t.start.objective, "auc": t.start.auc}
-            return out
-
-        counts = {
-            f"{side}_{k}": int(v)
-            for side, mask in (("train", train), ("test", test))
-            for k, v in (("events", mask.sum()), ("positives", (rough & mask).sum()))
-        }
+        run.tell(None)
+        counts = split_counts(t.train, t.test, t.rough)
         # What a reader must know of the learned row (and of an oracle below it).
         warnings += caveats(
             rocs.get("self_supervised"),
             rocs.get("oracle"),
-            int(learned.scores.predicted[test].sum()),
+            int(learned.scores.predicted[t.test].sum()),
             float(model_doc.get("objective", 0.0)),
         )
         # Too few rough events to tell methods apart: said on the page and on the terminal.
@@ -715,86 +470,19 @@ def _compute(call: Call) -> Made:
             if testable
             else {"train": counts["train_positives"]}
         )
-        summary: dict[str, Any] = {
-            **{name: entry(name) for name in MAIN_METHODS},
-            "ablations": {name: entry(name) for name in ABLATION_NAMES},
-            "speed_control": speed,
-            "not_run": not_run,
-            **counts,
-            "closest_laser": closest,
-            "model": {
-                k: model_doc[k]
-                for k in (
-                    "alpha",
-                    "upsilon",
-                    "omega",
-                    "zeta",
-                    "mu",
-                    "lambda",
-                    "objective",
-                    "tp_rate",
-                    "fp_rate",
-                    "iterations",
-                )
-            }
-            | {k: model_doc.get(k) for k in ("accepted_by", "train_auc", "start")}
-            | {"point_sample": config.model.point_sample, "laser_order": list(order)},
-            "baseline_test": {
-                "cell_m": bp.cell_m,
-                "delta_m": bp.delta_m,
-                "sigma0_m": bp.sigma0_m,
-                "growth_m2_per_s": bp.growth_m2_per_s,
-                "confidence": bp.confidence,
-            },
-            "warnings": warnings,
-            "toolkit_version": __version__,
-        }
-
-        def column(name: str) -> pa.Array:
-            m = methods.get(name)
-            if m is None:
-                return pa.nulls(events.num_rows, pa.float64())
-            v = m.scores.r_combined
-            return pa.array(v, pa.float64(), mask=~np.isfinite(v))
-
-        s = learned.scores
-        scores = pa.table(
-            {
-                "log_id": events.column("log_id"),
-                "event_id": events.column("event_id"),
-                "split": events.column("split"),
-                "r_left": s.r_left,
-                "r_right": s.r_right,
-                "r_combined": s.r_combined,
-                "predicted": s.predicted,
-                "rough": rough,
-                "ruggedness": ruggedness,
-                **{
-                    name: column(name)
-                    for name in (
-                        "baseline_all_lasers",
-                        "baseline_closest_laser",
-                        "paper_exact",
-                        "baseline_model_points",
-                        "model_closest_laser",
-                        "boosted",
-                        "oracle",
-                        *ABLATION_NAMES,
-                    )
-                },
-            }
-        )
+        model = model_entry(model_doc, run.config.model.point_sample, t.order)
+        bp = _baseline_params(ev)
+        summary = summary_json(run.rows, rocs, speed, counts, closest, model, bp, warnings)
         write_table(
             report / SCORES_NAME,
-            scores,
+            scores_table(t.events, learned, run.rows, t.rough, t.ruggedness),
             "scores",
-            source_sha256=sorted(inputs.values()),
-            config_hash=cfg_hash,
+            source_sha256=sorted(call.inputs.values()),
+            config_hash=call.config_hash,
         )
-        figures = [
-            roc_png(report / ROC_PNG, {n: r.curve for n, r in rocs.items() if r is not None})
-        ]
-        copied = _copy_log_figures(workspace, events, report)
+        curves = {n: r.curve for n, r in rocs.items() if r is not None}
+        figures = [roc_png(report / ROC_PNG, curves)]
+        copied = _copy_log_figures(run.workspace, t.events, report)
         atomic_write_json(report / SUMMARY_NAME, summary)
         write_index_html(
             report / INDEX_NAME,
@@ -802,8 +490,36 @@ def _compute(call: Call) -> Made:
                 summary, model_doc, [p.name for p in figures], [p.name for p in speed_files], copied
             ),
         )
-        names = [SCORES_NAME, SUMMARY_NAME, INDEX_NAME]
         gen.commit()
+    return summary, counts
+
+
+def _compute(call: Call) -> Made:
+    """Score, compare and write the report (the module docstring); the runner records it."""
+    config: EvaluateSettings = call.settings
+    workspace, start = call.workspace, call.start
+    steps = _Steps(call.step, start)
+    warnings: list[str] = []
+    timings: dict[str, float] = {}
+    params, model_doc = load_model(workspace)
+    t0 = time.perf_counter()
+    steps.tell("reading the tables")
+    tables = _read_tables(workspace, config.model)
+    timings["read"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    trainer = Trainer(
+        tables.train,
+        tables.rough,
+        config.learn,
+        lambda p: pair_table(p, config.model, workspace.config_path),
+    )
+    run = _Run(workspace, config, tables, trainer, steps.tell, Rows(), warnings)
+    learned, closest = _train_methods(run, params)
+    timings["methods"] = time.perf_counter() - t0
+
+    summary, counts = _write_report(run, learned, closest, model_doc, call, timings)
+    names = [SCORES_NAME, SUMMARY_NAME, INDEX_NAME]
     report = workspace.report_dir
     outcome = EvaluateResult(
         "written", summary, report / INDEX_NAME, tuple(warnings), time.perf_counter() - start
@@ -811,18 +527,14 @@ def _compute(call: Call) -> Made:
     return Made(
         outcome,
         tuple(f"{REPORT_NAME}/{n}" for n in names),
-        row_counts={**counts, "scores": events.num_rows},
+        row_counts={**counts, "scores": tables.events.num_rows},
         timings_s={
             **timings,
-            **{f"step: {k}": v for k, v in step_s.items()},
+            **{f"step: {k}": v for k, v in steps.seconds.items()},
             "total": time.perf_counter() - start,
         },
         warnings=tuple(warnings),
     )
-
-
-#: The report's folder under the workspace (a link to its current generation).
-REPORT_NAME = "report"
 
 
 def _copy_log_figures(

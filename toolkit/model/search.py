@@ -1,0 +1,42 @@
+"""The search of sect. 6 as the configuration's ``[learn]`` sets it: the initial guess of
+B, the increments, lambda of eq. (6), the rotations, which elements move and how steps are
+accepted (:class:`toolkit.model.ascent.AscentConfig`).
+
+Learn searches from it; evaluate's trained rows (the baselines, the ablations, the oracle)
+search from it as well, some with elements held fixed.
+"""
+
+from __future__ import annotations
+
+from toolkit.config import LearnConfig
+from toolkit.model.ascent import AscentConfig
+
+
+def ascent_config(
+    lc: LearnConfig,
+    free: tuple[bool, ...] | None = None,
+    fixed: dict[int, float] | None = None,
+) -> AscentConfig:
+    """The search of sect. 6 from ``[learn]``: B is the 13-vector (alpha_1..alpha_10,
+    upsilon, omega, zeta), or with ``lead_term`` the 15-vector whose alpha_11, alpha_12 weigh
+    the look-ahead (:mod:`toolkit.model.roughness`); ``free`` (one flag per element, for the
+    13 or 15 elements) says which elements move, ``fixed`` overrides initial values by index
+    (an ablation's zeroed terms)."""
+    alpha = [*lc.initial_alpha, *(lc.initial_lead if lc.lead_term else ())]
+    steps = [*lc.increment_alpha, *(lc.increment_lead if lc.lead_term else ())]
+    initial = [*alpha, lc.initial_upsilon, float(lc.initial_omega), lc.initial_zeta]
+    for j, v in (fixed or {}).items():
+        initial[j] = v
+    increments = (*steps, lc.increment_upsilon, lc.increment_omega, lc.increment_zeta)
+    return AscentConfig(
+        initial=tuple(float(v) for v in initial),
+        increments=tuple(float(v) for v in increments),
+        lambda_fp=lc.lambda_fp,
+        iterations=lc.iterations,
+        free=free if free is not None else (),
+        accept=lc.accept,
+        validation_share=lc.validation_share,
+    )
+
+
+__all__ = ["ascent_config"]
