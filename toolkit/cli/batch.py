@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import json
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypedDict
 
@@ -18,14 +19,10 @@ from toolkit.cli.stages import StageName
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 
 
-class BatchArgs(TypedDict):
-    """A verb's logs, workspace and configuration, with its executor and shard options,
-    checked: keyword arguments of :func:`toolkit.batch.run_ingest_batch` and
-    :func:`toolkit.pipeline.run_pipeline`."""
+class Executors(TypedDict):
+    """The executor and shard options, checked: keyword arguments of
+    :func:`toolkit.batch.run_ingest_batch` and :func:`toolkit.pipeline.run_pipeline`."""
 
-    logs: list[Path]
-    workspace_root: Path
-    config_path: Path | None
     executor_kind: str
     scheduler: str | None
     workers: int | None
@@ -33,14 +30,26 @@ class BatchArgs(TypedDict):
     num_shards: int
 
 
-def _check_executor_options(ctx: click.Context, batch: BatchArgs) -> None:
+@dataclass(frozen=True)
+class BatchArgs:
+    """A verb's logs, workspace and configuration (the first arguments of
+    :func:`~toolkit.batch.run_ingest_batch` and :func:`~toolkit.pipeline.run_pipeline`),
+    with its executor and shard options."""
+
+    logs: list[Path]
+    workspace: Path
+    config_path: Path | None
+    executors: Executors
+
+
+def _check_executor_options(ctx: click.Context, executors: Executors) -> None:
     """Usage errors among the executor and shard options (exit 2)."""
-    executor_kind, scheduler = batch["executor_kind"], batch["scheduler"]
+    executor_kind, scheduler = executors["executor_kind"], executors["scheduler"]
     if executor_kind == "dask" and not scheduler:
         raise click.UsageError("--executor dask needs --scheduler ADDR", ctx)
     if executor_kind != "dask" and scheduler is not None:
         raise click.UsageError("--scheduler applies only with --executor dask", ctx)
-    shard_index, num_shards = batch["shard_index"], batch["num_shards"]
+    shard_index, num_shards = executors["shard_index"], executors["num_shards"]
     if shard_index >= num_shards:
         raise click.BadParameter(
             f"{shard_index} is not below --num-shards {num_shards}",
@@ -69,17 +78,15 @@ def _batch_options(*own: Decorator) -> Decorator:
             num_shards: int,
             **own_values: Any,
         ) -> Any:
-            batch = BatchArgs(
-                logs=list(logs),
-                workspace_root=workspace,
-                config_path=config_path,
+            executors = Executors(
                 executor_kind=executor_kind,
                 scheduler=scheduler,
                 workers=workers,
                 shard_index=shard_index,
                 num_shards=num_shards,
             )
-            _check_executor_options(ctx, batch)
+            _check_executor_options(ctx, executors)
+            batch = BatchArgs(list(logs), workspace, config_path, executors)
             return f(ctx, batch, **own_values)
 
         wrapped: Callable[..., Any] = click.pass_context(checked)
@@ -166,7 +173,9 @@ def ingest(ctx: click.Context, batch: BatchArgs, overwrite: bool, as_json: bool)
     """
     from toolkit.batch import run_ingest_batch
 
-    summary = run_ingest_batch(**batch, overwrite=overwrite)
+    summary = run_ingest_batch(
+        batch.logs, batch.workspace, batch.config_path, overwrite=overwrite, **batch.executors
+    )
     if as_json:
         outcomes = [
             {
@@ -216,7 +225,15 @@ def run(
     """
     from toolkit.pipeline import run_pipeline
 
-    summary = run_pipeline(**batch, first=first, last=last, overwrite=overwrite)
+    summary = run_pipeline(
+        batch.logs,
+        batch.workspace,
+        batch.config_path,
+        first=first,
+        last=last,
+        overwrite=overwrite,
+        **batch.executors,
+    )
     click.echo(json.dumps(summary.to_dict(), indent=2) if as_json else summary.render())
     if summary.ok:
         return
