@@ -57,10 +57,12 @@ from toolkit.batch import (
     stage_task,
     this_shard,
 )
+from toolkit.config import PipelineConfig
 from toolkit.errors import ToolkitError, WorkspaceError
 from toolkit.manifest import Manifest
 from toolkit.progress import note, progress
 from toolkit.stages import registry
+from toolkit.stages.contract import Stage
 from toolkit.stages.runner import run_stage
 from toolkit.workspace import Workspace, log_id_for
 
@@ -195,6 +197,144 @@ def _per_log_report(
     return StageReport(stage, summary.seconds, statuses, rows, rejects, warnings, failures)
 
 
+Item = tuple[str, str]
+"""A log as the per-log stages take it: (path, log id)."""
+
+
+@dataclass
+class _RunLogs:
+    """The logs of a run, as :data:`Item`; the id is known once ingested (or, when ingest is
+    not part of this run, from the file's content, as ingest names it). ``every``: the logs a
+    stage may take (those its source stage, ingest, passed); ``passed``: each stage's."""
+
+    every: list[Item]
+    passed: dict[str, list[Item]] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, mine: Sequence[Path], ws: Workspace, *, named: bool) -> _RunLogs:
+        """This shard's logs; ``named``: their ids now, from their content (the run does
+        not ingest them), WorkspaceError unless each is ingested already."""
+        if not named:
+            return cls([(str(p), "") for p in mine])
+        items = [(str(p), log_id_for(p)) for p in mine]
+        missing = [i for _, i in items if i not in ws.log_ids()]
+        if missing:
+            raise WorkspaceError(
+                f"not ingested: {', '.join(missing)} (run from ingest)", path=ws.root
+            )
+        return cls(items)
+
+    def for_stage(self, spec: Stage) -> list[Item]:
+        """The logs its prerequisites passed: label needs pose, not project, so a log
+        without lasers is still labelled."""
+        needed = [set(self.passed[b]) for b in spec.after if b in self.passed]
+        return [it for it in self.every if all(it in ok for ok in needed)]
+
+    def record(self, spec: Stage, items: list[Item], results: dict[Any, Any]) -> list[Item]:
+        """The logs the stage passed (those with a result), kept for the stages after it;
+        a source stage's with the ids it gave them (it has read the files)."""
+        if spec.starts_log:
+            items = [(p, str(results[(p, i)].log_id)) for p, i in items if (p, i) in results]
+            self.every = items
+        else:
+            items = [it for it in items if it in results]
+        self.passed[spec.name] = items
+        return items
+
+    def ids(self) -> list[str]:
+        """Every log id a stage of this run passed."""
+        return sorted({i for done in self.passed.values() for _, i in done})
+
+
+@dataclass
+class _Run:
+    """One ``terrain run`` under way: its workspace, its configuration (written as the
+    workspace's once a stage used it, when ``adopt_config``), the stages' reports so far
+    (each said as it ends) and the notes for the summary."""
+
+    ws: Workspace
+    config: PipelineConfig
+    overwrite: bool
+    adopt_config: bool
+    say: Callable[[str], None]
+    root: str = ""  # the workspace's absolute path, for the stage tasks
+    cwd: str = ""  # where the run started: the tasks take relative log paths against it
+    reports: list[StageReport] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+    def per_log_stage(self, stage: str, logs: _RunLogs, pool: Executor | None, bar: Any) -> None:
+        """Run a per-log stage on the logs its prerequisites passed, through ``pool``."""
+        spec = registry.stage(stage)
+        items = logs.for_stage(spec)
+        task = functools.partial(
+            stage_task,
+            stage=stage,
+            workspace_root=self.root,
+            config=self.config,
+            overwrite=self.overwrite,
+            cwd=self.cwd,
+        )
+        if pool is None:  # opened whenever a per-log stage runs
+            raise RuntimeError("no executor for the per-log stages")
+        summary = run_batch(task, items, pool, desc=stage, unit="log", bar=bar)
+        if self.adopt_config and summary.results:
+            self.ws.write_config(self.config)  # a config becomes the workspace's once it worked
+            self.adopt_config = False
+        items = logs.record(spec, items, summary.results)
+        self._report(_per_log_report(stage, summary, self.ws, [i for _, i in items]))
+
+    def workspace_stages(self, stages: Sequence[str], bar: Any) -> Path | None:
+        """Run the workspace stages in order until one fails; the report's page if one of
+        them makes it. None run after a log failed a per-log stage: tables reads every log
+        of the workspace, and one whose stage just failed would enter with older outputs."""
+        report_path: Path | None = None
+        for stage in stages:
+            if any(r.failures for r in self.reports):
+                self.notes.append("workspace stages not run: a log failed a per-log stage")
+                break
+            spec = registry.stage(stage)
+            if not self._workspace_stage(stage, spec, bar):
+                break
+            if "index" in spec.makes:
+                report_path = self.ws.index_path
+        return report_path
+
+    def _workspace_stage(self, stage: str, spec: Stage, bar: Any) -> bool:
+        """Run one workspace stage and report it; whether it succeeded."""
+        t0 = time.perf_counter()
+        try:
+            result = run_stage(spec, self.ws, self.config, overwrite=self.overwrite)
+        except ToolkitError as exc:
+            reason = " ".join(str(exc).split())
+            self._report(
+                StageReport(
+                    stage, time.perf_counter() - t0, {"failed": 1}, failures={stage: reason}
+                )
+            )
+            return False
+        finally:
+            bar.update(1)
+        status = "up_to_date" if result.status == "up_to_date" else "done"
+        rec = self.ws.manifest().read().get("stages", {}).get(stage, {})
+        rows, rejects, warnings = _record_totals([rec], stage)
+        self._report(
+            StageReport(stage, time.perf_counter() - t0, {status: 1}, rows, rejects, warnings)
+        )
+        return True
+
+    def adopt_config_if_used(self) -> None:
+        """The configuration in force is the one these stages used: the workspace's, once
+        any stage did (or found up to date) its work with it."""
+        if self.adopt_config and any(
+            r.statuses.get("done") or r.statuses.get("up_to_date") for r in self.reports
+        ):
+            self.ws.write_config(self.config)
+
+    def _report(self, report: StageReport) -> None:
+        self.reports.append(report)
+        self.say(report.line())
+
+
 def run_pipeline(
     logs: Sequence[Path],
     workspace_root: Path,
@@ -213,7 +353,6 @@ def run_pipeline(
 ) -> RunSummary:
     """``terrain run`` (module docstring). ``echo`` receives each stage's line as it ends."""
     start = time.perf_counter()
-    say = echo or note  # each stage's line as it ends: off a terminal by default
     stages = stage_range(first, last)
     unique, mine = this_shard(logs, shard_index, num_shards)
     ws = Workspace(workspace_root)
@@ -221,32 +360,27 @@ def run_pipeline(
     config = _config_in_force(ws, config_path)
     with ws.created():  # a first run that ingests no log leaves no workspace
         adopt_config = ws.check_config(config, overwrite=overwrite)
-        root = os.path.abspath(workspace_root)
-        cwd = os.getcwd()
+        # Each stage's line as it ends: off a terminal by default.
+        run = _Run(
+            ws,
+            config,
+            overwrite,
+            adopt_config,
+            echo or note,
+            root=os.path.abspath(workspace_root),
+            cwd=os.getcwd(),
+        )
         per_log = [s for s in stages if registry.stage(s).scope == "log"]
         over_ws = [s for s in stages if s not in per_log]
         workspace_stages = over_ws if num_shards == 1 else []
-        starts = registry.stage(per_log[0]).starts_log if per_log else False
-        notes: list[str] = []
         if num_shards > 1 and over_ws:
-            notes.append(
+            run.notes.append(
                 f"shard {shard_index} of {num_shards}: per-log stages only for {len(mine)} of "
                 f"{len(unique)} logs; once every shard is done, run `terrain run LOGS... -w "
                 f"{workspace_root} --from tables`"
             )
-        reports: list[StageReport] = []
-        # Items are (path, log id); the id is known once ingested (or, when ingest is not part
-        # of this run, from the file's content, as ingest names it).
-        items: list[tuple[str, str]] = [(str(p), "") for p in mine]
-        if per_log and not starts:
-            items = [(str(p), log_id_for(p)) for p in mine]
-            missing = [i for _, i in items if i not in ws.log_ids()]
-            if missing:
-                raise WorkspaceError(
-                    f"not ingested: {', '.join(missing)} (run from ingest)", path=ws.root
-                )
-        ids: list[str] = [i for _, i in items]
-        every = items  # the logs a stage may take: those its source stage (ingest) passed
+        starts = registry.stage(per_log[0]).starts_log if per_log else False
+        run_logs = _RunLogs.of(mine, ws, named=bool(per_log) and not starts)
         with contextlib.ExitStack() as stack:
             stack.enter_context(ws.lock(shared=num_shards > 1))
             pool = executor
@@ -254,89 +388,19 @@ def run_pipeline(
                 pool = stack.enter_context(
                     make_executor(executor_kind, workers=workers, scheduler=scheduler)
                 )
-            total = len(items) * len(per_log) + len(workspace_stages)
+            total = len(run_logs.every) * len(per_log) + len(workspace_stages)
             with progress(total=total, desc="run", unit="step") as bar:
-                passed: dict[str, list[tuple[str, str]]] = {}
                 for stage in per_log:
-                    # A stage takes the logs its prerequisites passed: label needs pose, not
-                    # project, so a log without lasers is still labelled.
-                    spec = registry.stage(stage)
-                    needed = [set(passed[b]) for b in spec.after if b in passed]
-                    items = [it for it in every if all(it in ok for ok in needed)]
-                    task = functools.partial(
-                        stage_task,
-                        stage=stage,
-                        workspace_root=root,
-                        config=config,
-                        overwrite=overwrite,
-                        cwd=cwd,
-                    )
-                    if pool is None:  # opened above whenever a per-log stage runs
-                        raise RuntimeError("no executor for the per-log stages")
-                    summary = run_batch(task, items, pool, desc=stage, unit="log", bar=bar)
-                    if adopt_config and summary.results:
-                        ws.write_config(config)  # a config becomes the workspace's once it worked
-                        adopt_config = False
-                    if spec.starts_log:  # the log ids are known once it has read the files
-                        results = summary.results
-                        items = [
-                            (p, str(results[(p, i)].log_id)) for p, i in items if (p, i) in results
-                        ]
-                        every = items
-                    else:
-                        ok = summary.results
-                        items = [it for it in items if it in ok]
-                    passed[stage] = items
-                    ids = sorted({i for done in passed.values() for _, i in done})
-                    report = _per_log_report(stage, summary, ws, [i for _, i in items])
-                    reports.append(report)
-                    say(report.line())
-                report_path: Path | None = None
-                for stage in workspace_stages:
-                    t0 = time.perf_counter()
-                    if any(r.failures for r in reports):
-                        # Tables reads every log of the workspace: one whose stage just failed
-                        # would enter with its older outputs. Stop, as the docstring says.
-                        notes.append("workspace stages not run: a log failed a per-log stage")
-                        break
-                    try:
-                        spec = registry.stage(stage)
-                        result = run_stage(spec, ws, config, overwrite=overwrite)
-                    except ToolkitError as exc:
-                        reports.append(
-                            StageReport(
-                                stage,
-                                time.perf_counter() - t0,
-                                {"failed": 1},
-                                failures={stage: " ".join(str(exc).split())},
-                            )
-                        )
-                        say(reports[-1].line())
-                        break
-                    finally:
-                        bar.update(1)
-                    status = "up_to_date" if result.status == "up_to_date" else "done"
-                    rec = ws.manifest().read().get("stages", {}).get(stage, {})
-                    rows, rejects, warnings = _record_totals([rec], stage)
-                    reports.append(
-                        StageReport(
-                            stage, time.perf_counter() - t0, {status: 1}, rows, rejects, warnings
-                        )
-                    )
-                    say(reports[-1].line())
-                    if "index" in spec.makes:
-                        report_path = ws.index_path
-        if adopt_config and any(
-            r.statuses.get("done") or r.statuses.get("up_to_date") for r in reports
-        ):
-            ws.write_config(config)  # the configuration in force is the one these stages used
-        all_ids = tuple(sorted(set(ids) if per_log else ws.log_ids()))
+                    run.per_log_stage(stage, run_logs, pool, bar)
+                report_path = run.workspace_stages(workspace_stages, bar)
+        run.adopt_config_if_used()
+        all_ids = tuple(run_logs.ids() if per_log else sorted(ws.log_ids()))
         return RunSummary(
-            tuple(reports),
+            tuple(run.reports),
             all_ids,
             time.perf_counter() - start,
             report_path,
-            tuple(notes),
+            tuple(run.notes),
         )
 
 

@@ -1,0 +1,170 @@
+"""What every ``terrain`` command shares: the program's name, the global flags (before or
+after the verb), the mapping of errors to exit codes and one-line log records on stderr."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import sys
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import click
+
+from toolkit.errors import ToolkitError
+from toolkit.pools import Terminated
+from toolkit.progress import set_quiet
+
+PROG = "terrain"
+
+
+@dataclass(frozen=True)
+class CliOptions:
+    """The global options, kept on the click context for every verb."""
+
+    verbose: int = 0
+    quiet: bool = False
+    debug: bool = False
+
+
+def error_line(message: str) -> None:
+    """Print one error line to stderr (newlines in the message folded)."""
+    one_line = " ".join(str(message).split("\n"))
+    click.echo(f"{PROG}: error: {one_line}", err=True)
+
+
+def debug_on(ctx: click.Context) -> bool:
+    """Whether ``--debug`` was given (tracebacks wanted)."""
+    opts = ctx.find_object(CliOptions)
+    return bool(opts and opts.debug)
+
+
+def apply_global_flags(opts: CliOptions) -> None:
+    """Log level, trace display and progress bars as the global flags say."""
+    configure_logging(opts.verbose, opts.quiet, opts.debug)
+    set_quiet(opts.quiet)
+
+
+def _late_global_flag(ctx: click.Context, param: click.Parameter, value: Any) -> None:
+    """-v/-q/--debug given after the verb (``terrain ingest -q ...``): same as before it."""
+    if not value:
+        return
+    root = ctx.find_root()
+    opts = root.obj if isinstance(root.obj, CliOptions) else CliOptions()
+    if param.name == "late_verbose":
+        opts = dataclasses.replace(opts, verbose=opts.verbose + int(value))
+    elif param.name == "late_quiet":
+        opts = dataclasses.replace(opts, quiet=True)
+    elif param.name == "late_debug":
+        opts = dataclasses.replace(opts, debug=True)
+    root.obj = opts
+    apply_global_flags(opts)
+
+
+def _global_flags() -> list[click.Option]:
+    """The global flags, as options every verb also accepts (where users type them)."""
+
+    def flag(decls: list[str], **kind: Any) -> click.Option:
+        return click.Option(
+            decls,
+            expose_value=False,
+            is_eager=True,
+            callback=_late_global_flag,
+            help="As before the verb.",
+            **kind,
+        )
+
+    return [
+        flag(["-v", "--verbose", "late_verbose"], count=True),
+        flag(["-q", "--quiet", "late_quiet"], is_flag=True),
+        flag(["--debug", "late_debug"], is_flag=True),
+    ]
+
+
+class TerrainGroup(click.Group):
+    """A click group that maps the toolkit's errors to exit codes for all its commands, and
+    lets every command take the global flags after its name too."""
+
+    def add_command(self, cmd: click.Command, name: str | None = None) -> None:
+        cmd.params.extend(_global_flags())
+        super().add_command(cmd, name)
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except (click.exceptions.ClickException, click.exceptions.Exit, click.Abort):
+            raise  # usage errors (exit 2), explicit exits, Ctrl-C: click handles them
+        except Terminated:
+            error_line("stopped (SIGTERM)")  # said here, not in the signal handler
+            raise
+        except ToolkitError as exc:
+            if debug_on(ctx):
+                traceback.print_exc(file=sys.stderr)
+            error_line(str(exc))
+            ctx.exit(1)
+        except Exception as exc:
+            if debug_on(ctx):
+                traceback.print_exc(file=sys.stderr)
+                error_line(f"internal error: {type(exc).__name__}: {exc}")
+            else:
+                error_line(
+                    f"internal error: {type(exc).__name__}: {exc} "
+                    f"(run '{PROG} --debug ...' for the traceback)"
+                )
+            ctx.exit(1)
+
+
+class _OneLineFormatter(logging.Formatter):
+    """``terrain: warning: [logger] message`` on one line (tracebacks only with --debug)."""
+
+    def __init__(self, show_traces: bool) -> None:
+        super().__init__()
+        self.show_traces = show_traces
+
+    def format(self, record: logging.LogRecord) -> str:
+        message = " ".join(record.getMessage().splitlines())
+        line = f"{PROG}: {record.levelname.lower()}: [{record.name}] {message}"
+        if self.show_traces and record.exc_info:
+            line += "\n" + self.formatException(record.exc_info)
+        return line
+
+
+def configure_logging(verbose: int, quiet: bool, debug: bool) -> None:
+    """Route log records to stderr: WARNING by default, INFO with -v, DEBUG with -vv."""
+    if quiet:
+        level = logging.ERROR
+    elif verbose >= 2:
+        level = logging.DEBUG
+    elif verbose == 1:
+        level = logging.INFO
+    else:
+        level = logging.WARNING
+    root = logging.getLogger()
+    for handler in [h for h in root.handlers if getattr(h, "_terrain", False)]:
+        root.removeHandler(handler)
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(_OneLineFormatter(show_traces=debug))
+    handler._terrain = True  # type: ignore[attr-defined]
+    root.addHandler(handler)
+    root.setLevel(level)
+    logging.captureWarnings(True)
+
+
+Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
+
+
+def workspace_option(help: str) -> Decorator:
+    """The ``-w/--workspace`` option of the verbs that read a workspace, with its help."""
+    return click.option(
+        "-w",
+        "--workspace",
+        required=True,
+        type=click.Path(file_okay=False, path_type=Path),
+        help=help,
+    )
+
+
+WORKSPACE_OPTION = workspace_option("Workspace directory (with its training tables).")

@@ -1,0 +1,215 @@
+"""The verbs around the stages: ``sim`` (a synthetic log), ``info`` (what a log holds),
+``config init`` (a starting configuration), ``viz`` and ``export`` (a workspace's results for
+others) and ``logs`` (what a workspace holds)."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Protocol
+
+import click
+
+from toolkit.cli.base import WORKSPACE_OPTION, TerrainGroup
+from toolkit.cli.group import main
+from toolkit.errors import LogReadError, ToolkitError
+
+if TYPE_CHECKING:
+    from toolkit.config import PipelineConfig
+    from toolkit.workspace import Workspace
+
+
+def _require_file(path: Path, error: type[ToolkitError] = ToolkitError) -> None:
+    """Bad input, not a usage error: a missing input file exits 1 with one line."""
+    if not path.exists():
+        raise error("no such file", path=path)
+    if not path.is_file():
+        raise error("not a file", path=path)
+
+
+@main.command()
+@click.argument("out", metavar="OUT.mcap", type=click.Path(dir_okay=False, path_type=Path))
+@click.option(
+    "--profile",
+    type=click.Choice(["sample", "race", "calibration"]),
+    default="sample",
+    show_default=True,
+    help="sample: about a minute dense with rough features; race: a realistic desert "
+    "stretch (default 8 km); calibration: one obstacle type driven over at five speeds.",
+)
+@click.option(
+    "--distance-m",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=None,
+    help="Route length in metres (default: the profile's).",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option(
+    "--workers",
+    type=click.IntRange(min=0),
+    default=None,
+    help="Processes casting laser rays (default: one per core, at most 3; 0 on one core). "
+    "The log is the same whatever the number.",
+)
+@click.option(
+    "--no-lasers",
+    is_flag=True,
+    help="Leave the laser scans out: a fast log of the same drive and IMU, for judging "
+    "the vehicle's physics and the shock labels.",
+)
+@click.option("--overwrite", is_flag=True, help="Replace an existing OUT.mcap.")
+def sim(
+    out: Path,
+    profile: str,
+    distance_m: float | None,
+    seed: int,
+    workers: int | None,
+    no_lasers: bool,
+    overwrite: bool,
+) -> None:
+    """Write a synthetic race log with ground truth to OUT.mcap."""
+    if not out.parent.is_dir():
+        raise ToolkitError("output directory does not exist", path=out.parent)
+    # Like export and viz: a log already there (a recorded one, the bundled sample) is only
+    # replaced when asked.
+    if out.exists() and not overwrite:
+        raise ToolkitError("already exists; pass --overwrite to replace it", path=out)
+    from toolkit.workspace import refuse_inside_workspace
+
+    refuse_inside_workspace(out)  # a log written there would pass for one of the workspace's
+    from toolkit.sim.simulate import simulate
+
+    result = simulate(
+        out,
+        profile=profile,
+        distance_m=distance_m,
+        seed=seed,
+        show_progress=True,  # a bar on a terminal, a heartbeat off it, nothing with -q
+        workers=workers,
+        lasers=not no_lasers,
+    )
+    click.echo(result.summary())
+
+
+@main.command()
+@click.argument("log", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+@click.option(
+    "--full", is_flag=True, help="Read every record with CRC checks, even when an index exists."
+)
+def info(log: Path, as_json: bool, full: bool) -> None:
+    """Topics, types, counts, rates, duration and problems found in LOG.mcap."""
+    _require_file(log, LogReadError)
+    from toolkit.mcapio.info import render_table, scan_log
+
+    log_info = scan_log(log, full=full)
+    if as_json:
+        click.echo(json.dumps(log_info.to_dict(), indent=2, sort_keys=False))
+    else:
+        click.echo(render_table(log_info))
+
+
+@main.group(cls=TerrainGroup)
+def config() -> None:
+    """Pipeline configurations: write a starting one from a log."""
+
+
+@config.command("init")
+@click.argument("log", metavar="LOG.mcap", type=click.Path(path_type=Path))
+@click.option(
+    "--out",
+    "out_path",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Write the configuration to this file (default: stdout).",
+)
+@click.option("--overwrite", is_flag=True, help="Replace an existing --out file.")
+def config_init(log: Path, out_path: Path | None, overwrite: bool) -> None:
+    """A starting configuration for LOG.mcap's robot, written from the log itself.
+
+    Topics are matched to roles by message type, then by name; mounts come from /tf_static
+    when the log has it. Every guess is commented, every missing role said, and the head
+    of the file says which stages the log can feed. The output loads as it is; read the
+    lines marked CHECK, then pass it to ingest with -c.
+    """
+    _require_file(log, LogReadError)
+    if out_path is not None:
+        # Checked before the log is read: a configuration someone edited is not replaced
+        # by a fresh guess unless asked.
+        if out_path.exists() and not overwrite:
+            raise ToolkitError("already exists; pass --overwrite to replace it", path=out_path)
+        if not out_path.parent.is_dir():
+            raise ToolkitError("output directory does not exist", path=out_path.parent)
+    from toolkit.config_init import init_config
+
+    text = init_config(log)
+    if out_path is None:
+        click.echo(text, nl=False)
+        return
+    from toolkit.atomic import atomic_write_text
+
+    atomic_write_text(out_path, text)
+    click.echo(f"wrote {out_path}", err=True)
+
+
+def _out_option(name: str, help: str, **kind: bool) -> Callable[[Any], Any]:
+    """``--out``, where ``viz`` and ``export`` write (``kind``: a file or a folder)."""
+    return click.option(
+        "--out", name, required=True, type=click.Path(path_type=Path, **kind), help=help
+    )
+
+
+class _Summarised(Protocol):
+    def summary(self) -> str: ...
+
+
+def _publish(workspace: Path, write: Callable[[Workspace, PipelineConfig], _Summarised]) -> None:
+    """Write a workspace's results for others (``write``) and print its summary. Under the
+    shared lock: learn and evaluate cannot replace the scores or the model mid-read."""
+    from toolkit.workspace import Workspace
+
+    ws = Workspace(workspace).require()
+    cfg = ws.read_config()
+    with ws.lock(shared=True):
+        result = write(ws, cfg)
+    click.echo(result.summary())
+
+
+@main.command()
+@WORKSPACE_OPTION
+@click.option("--log", "log_id", required=True, help="The log to show (its workspace id).")
+@_out_option("out_path", "The MCAP file to write (Foxglove opens it).", dir_okay=False)
+@click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
+def viz(workspace: Path, log_id: str, out_path: Path, overwrite: bool) -> None:
+    """A Foxglove view of one log's results: pose, points by predicted roughness, events."""
+    from toolkit.publish.viz import run_viz
+
+    _publish(workspace, lambda ws, cfg: run_viz(ws, log_id, out_path, cfg, overwrite=overwrite))
+
+
+@main.command()
+@WORKSPACE_OPTION
+@_out_option(
+    "out_dir",
+    "The dataset folder to write (Hugging Face layout, dataset card, croissant.json).",
+    file_okay=False,
+)
+@click.option("--overwrite", is_flag=True, help="Replace an earlier export in that folder.")
+def export(workspace: Path, out_dir: Path, overwrite: bool) -> None:
+    """The labelled training and test tables as a dataset other teams load (datasets, Croissant)."""
+    from toolkit.publish.export import run_export
+
+    _publish(workspace, lambda ws, cfg: run_export(ws, out_dir, cfg, overwrite=overwrite))
+
+
+@main.command("logs")
+@WORKSPACE_OPTION
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+def logs_(workspace: Path, as_json: bool) -> None:
+    """The workspace's logs: source file, stages done, rows; then tables, learn, evaluate."""
+    from toolkit.listing import list_workspace
+    from toolkit.workspace import Workspace
+
+    listing = list_workspace(Workspace(workspace))
+    click.echo(listing.to_json() if as_json else listing.text())
