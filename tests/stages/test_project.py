@@ -18,16 +18,11 @@ from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.fusion.rotations import euler_to_rot
 from toolkit.manifest import file_sha256
+from toolkit.model.projection import Counts, PoseWindow, PreparedBatch
 from toolkit.mounts import frame_mounts
 from toolkit.stages import project as project_module
-from toolkit.stages.project import (
-    Counts,
-    PoseStream,
-    PoseWindow,
-    ScanBatch,
-    project_batch,
-    run_project,
-)
+from toolkit.stages.project import run_project
+from toolkit.stages.project_scans import LASER_COLUMNS, PoseStream, ScanBatch, project_batch
 from toolkit.tableio import (
     from_storage,
     iter_table_batches,
@@ -287,32 +282,6 @@ def test_the_papers_fig4_and_the_z_error_come_with_the_points(projected) -> None
         assert 0.01 < float(r["median_abs_m"]) < 0.2, r
 
 
-def test_the_z_error_sample_is_the_checked_points_own_error(projected) -> None:  # type: ignore[no-untyped-def]
-    """The project stage's z-error sample of a batch: of every 64th point, those on a checked
-    stretch of road, each with its own laser, range and error against the true terrain (the
-    stride, the stretch filter and the three columns stay aligned)."""
-    import threading
-
-    from toolkit.analysis.truth_terrain import true_ground
-
-    ws, log_id, _ = projected
-    ground = true_ground(ws.log_dir(log_id))
-    assert ground is not None
-    table = pq.ParquetFile(ws.log_table(log_id, "points")).read_row_group(0)
-    every = 2
-    sample = project_module._z_sample(ground, table, threading.Lock(), every)
-    assert sample is not None
-    xyz = np.stack([table.column(c).to_numpy() for c in "xyz"], axis=1)
-    strided = np.arange(0, table.num_rows, project_module.Z_ERROR_STRIDE)
-    s, d, z = ground.route_coordinates(xyz[strided])
-    on = strided[ground.checked_stretch(s, every) >= 0]
-    assert 0 < on.size < strided.size
-    assert sample.laser.to_pylist() == table.column("laser").take(pa.array(on)).to_pylist()
-    np.testing.assert_array_equal(sample.range_m, table.column("range").to_numpy()[on])
-    heights, z_sim = ground.height_m(xyz[on])
-    np.testing.assert_allclose(sample.z_error_m, z_sim - heights, rtol=0, atol=1e-9)
-
-
 def test_a_scan_with_nan_geometry_places_nothing(posed_copy: tuple[Workspace, str]) -> None:
     """NaN angles or time increment: every return of that scan is a counted bad_scan, never
     a NaN point written as a good one."""
@@ -370,7 +339,7 @@ def test_threads_write_what_one_batch_after_another_would(
     mounts, _ = frame_mounts(log_dir / "tf_static.json", "base_link", frames)
     poses, counts, previous = PoseStream(log_dir / "pose.parquet"), Counts(), {}
     batches = iter_table_batches(
-        log_dir / "laser.parquet", "laser", columns=project_module.LASER_COLUMNS, batch_rows=150
+        log_dir / "laser.parquet", "laser", columns=LASER_COLUMNS, batch_rows=150
     )
     tables = [
         project_batch(ScanBatch.from_record_batch(b), mounts, poses, previous, counts)
@@ -400,7 +369,7 @@ def test_a_failing_worker_leaves_the_last_cloud_as_it_was(
     real = project_module.project_prepared
     calls = {"n": 0}
 
-    def fails_on_the_fourth(batch: project_module.PreparedBatch) -> object:
+    def fails_on_the_fourth(batch: PreparedBatch) -> object:
         calls["n"] += 1
         if calls["n"] == 4:
             raise StageError("injected", path=points)
