@@ -41,17 +41,17 @@ from scipy import signal  # noqa: E402
 from toolkit.analysis.fig4 import write_fig4  # noqa: E402
 from toolkit.analysis.scan_agreement import ScanAgreement  # noqa: E402
 from toolkit.config import default_config  # noqa: E402
+from toolkit.model.projection import Counts  # noqa: E402
 from toolkit.mounts import frame_mounts, sensor_mounts  # noqa: E402
 from toolkit.stages.ingest import ingest_log  # noqa: E402
 from toolkit.stages.label import run_label  # noqa: E402
 from toolkit.stages.pose import run_pose  # noqa: E402
-from toolkit.stages.project import (  # noqa: E402
+from toolkit.stages.project import run_project  # noqa: E402
+from toolkit.stages.project_scans import (  # noqa: E402
     LASER_COLUMNS,
-    Counts,
     PoseStream,
     ScanBatch,
     project_batch,
-    run_project,
 )
 from toolkit.tableio import iter_table_batches, read_table  # noqa: E402
 from toolkit.workspace import Workspace  # noqa: E402

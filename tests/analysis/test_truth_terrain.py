@@ -28,20 +28,15 @@ from toolkit.analysis.truth_terrain import (
 )
 from toolkit.config import default_config
 from toolkit.errors import ConfigError, StageError
+from toolkit.model.projection import Counts
 from toolkit.mounts import frame_mounts
 from toolkit.sim import simulate as simulate_module
 from toolkit.sim.profiles import SimProfile, make_profile
 from toolkit.sim.sensors import ideal_lasers
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.pose import run_pose
-from toolkit.stages.project import (
-    LASER_COLUMNS,
-    Counts,
-    PoseStream,
-    ScanBatch,
-    project_batch,
-    run_project,
-)
+from toolkit.stages.project import run_project
+from toolkit.stages.project_scans import LASER_COLUMNS, PoseStream, ScanBatch, project_batch
 from toolkit.tableio import iter_table_batches
 from toolkit.workspace import Workspace
 

@@ -18,16 +18,11 @@ from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.fusion.rotations import euler_to_rot
 from toolkit.manifest import file_sha256
+from toolkit.model.projection import Counts, PreparedBatch
 from toolkit.mounts import frame_mounts
 from toolkit.stages import project as project_module
-from toolkit.stages.project import (
-    Counts,
-    PoseStream,
-    PoseWindow,
-    ScanBatch,
-    project_batch,
-    run_project,
-)
+from toolkit.stages.project import run_project
+from toolkit.stages.project_scans import LASER_COLUMNS, PoseStream, ScanBatch, project_batch
 from toolkit.tableio import (
     from_storage,
     iter_table_batches,
@@ -57,34 +52,6 @@ def projected(sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempP
     shutil.copytree(root, copy, symlinks=True)
     ws = Workspace(copy)
     return ws, log_id, run_project(ws, log_id, default_config(), overwrite=True)
-
-
-@pytest.mark.parametrize("turn_rad", [np.pi, 0.03], ids=["large_turns", "small_turns"])
-def test_interpolation_on_the_rotation_group_equals_scipys_slerp(turn_rad: float) -> None:
-    """PoseWindow.transform rotates by R_i exp(f log(R_i^T R_i+1)), which must be exactly
-    scipy's Slerp: for large turns between rows and across yaw = +-pi (Rodrigues'
-    trigonometric form), and for the few milliradians between real 100 Hz rows, where it
-    takes the Taylor series (up to 0.02 rad: the series' limit is crossed both ways)."""
-    rng = np.random.default_rng(4)
-    k = 50
-    t_ns = np.cumsum(rng.integers(5_000_000, 15_000_000, k)).astype(np.int64)
-    steps = np.c_[rng.uniform(-turn_rad, turn_rad, k), rng.normal(0, turn_rad / 10, (k, 2))]
-    rot = Rotation.from_euler("ZYX", np.cumsum(steps, axis=0) if turn_rad < 1 else steps)
-    window = PoseWindow(t_ns, rng.normal(0, 10, (k, 3)), rot, rng.normal(0, 1, (k, 2)))
-    tq = rng.integers(int(t_ns[0]), int(t_ns[-1]), 10_000).astype(np.int64)
-    p = rng.normal(0, 5, (tq.size, 3))
-    got, rates, ok = window.transform(tq, p.T)
-    ts = (t_ns - t_ns[0]) * 1e-9
-    tqs = (tq - t_ns[0]) * 1e-9
-    want = Slerp(ts, rot)(tqs).apply(p) + np.stack(
-        [np.interp(tqs, ts, window.position[:, j]) for j in range(3)], axis=1
-    )
-    np.testing.assert_allclose(got.T, want, atol=1e-9)
-    np.testing.assert_allclose(rates[1], np.interp(tqs, ts, window.rates[:, 1]), atol=1e-12)
-    # Rows more than 50 ms apart are a hole in the pose: no point is placed across it.
-    assert np.array_equal(
-        ok, (np.diff(t_ns)[np.searchsorted(t_ns, tq, side="right") - 1] <= 50_000_000)
-    )
 
 
 def test_every_return_is_a_point_or_a_counted_reject(projected) -> None:  # type: ignore[no-untyped-def]
@@ -287,32 +254,6 @@ def test_the_papers_fig4_and_the_z_error_come_with_the_points(projected) -> None
         assert 0.01 < float(r["median_abs_m"]) < 0.2, r
 
 
-def test_the_z_error_sample_is_the_checked_points_own_error(projected) -> None:  # type: ignore[no-untyped-def]
-    """The project stage's z-error sample of a batch: of every 64th point, those on a checked
-    stretch of road, each with its own laser, range and error against the true terrain (the
-    stride, the stretch filter and the three columns stay aligned)."""
-    import threading
-
-    from toolkit.analysis.truth_terrain import true_ground
-
-    ws, log_id, _ = projected
-    ground = true_ground(ws.log_dir(log_id))
-    assert ground is not None
-    table = pq.ParquetFile(ws.log_table(log_id, "points")).read_row_group(0)
-    every = 2
-    sample = project_module._z_sample(ground, table, threading.Lock(), every)
-    assert sample is not None
-    xyz = np.stack([table.column(c).to_numpy() for c in "xyz"], axis=1)
-    strided = np.arange(0, table.num_rows, project_module.Z_ERROR_STRIDE)
-    s, d, z = ground.route_coordinates(xyz[strided])
-    on = strided[ground.checked_stretch(s, every) >= 0]
-    assert 0 < on.size < strided.size
-    assert sample.laser.to_pylist() == table.column("laser").take(pa.array(on)).to_pylist()
-    np.testing.assert_array_equal(sample.range_m, table.column("range").to_numpy()[on])
-    heights, z_sim = ground.height_m(xyz[on])
-    np.testing.assert_allclose(sample.z_error_m, z_sim - heights, rtol=0, atol=1e-9)
-
-
 def test_a_scan_with_nan_geometry_places_nothing(posed_copy: tuple[Workspace, str]) -> None:
     """NaN angles or time increment: every return of that scan is a counted bad_scan, never
     a NaN point written as a good one."""
@@ -331,30 +272,6 @@ def test_a_scan_with_nan_geometry_places_nothing(posed_copy: tuple[Workspace, st
     assert result.points + sum(result.rejects.values()) == 30 * 181
 
 
-def test_the_pose_stream_serves_requests_that_reach_back_a_little() -> None:
-    """Windows asked in time order may start up to 1 s before the previous one (beam times of
-    a scan with a negative time_increment): the rows are still there; further back is an
-    out-of-order log, one line."""
-    import tempfile
-
-    from toolkit.tableio import load_table_schema
-    from toolkit.tableio import write_table as write
-
-    t = np.arange(0, 5_000_000_000, 10_000_000, dtype=np.int64)
-    cols = {c.name: pa.array(np.zeros(t.size)) for c in load_table_schema("pose").columns}
-    cols["t_ns"] = pa.array(t)
-    with tempfile.TemporaryDirectory() as d:
-        path = Path(d) / "pose.parquet"
-        write(path, pa.table(cols), "pose", source_sha256="0" * 64, config_hash="c")
-        stream = PoseStream(path)
-        first = stream.window(2_000_000_000, 2_100_000_000)
-        assert first.t_ns[0] <= 2_000_000_000 and first.t_ns[-1] >= 2_100_000_000
-        back = stream.window(1_500_000_000, 1_600_000_000)
-        assert back.t_ns[0] <= 1_500_000_000 and back.t_ns[-1] >= 1_600_000_000
-        with pytest.raises(StageError, match="not in time order"):
-            stream.window(500_000_000, 600_000_000)
-
-
 def test_threads_write_what_one_batch_after_another_would(
     posed_copy: tuple[Workspace, str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -370,7 +287,7 @@ def test_threads_write_what_one_batch_after_another_would(
     mounts, _ = frame_mounts(log_dir / "tf_static.json", "base_link", frames)
     poses, counts, previous = PoseStream(log_dir / "pose.parquet"), Counts(), {}
     batches = iter_table_batches(
-        log_dir / "laser.parquet", "laser", columns=project_module.LASER_COLUMNS, batch_rows=150
+        log_dir / "laser.parquet", "laser", columns=LASER_COLUMNS, batch_rows=150
     )
     tables = [
         project_batch(ScanBatch.from_record_batch(b), mounts, poses, previous, counts)
@@ -400,7 +317,7 @@ def test_a_failing_worker_leaves_the_last_cloud_as_it_was(
     real = project_module.project_prepared
     calls = {"n": 0}
 
-    def fails_on_the_fourth(batch: project_module.PreparedBatch) -> object:
+    def fails_on_the_fourth(batch: PreparedBatch) -> object:
         calls["n"] += 1
         if calls["n"] == 4:
             raise StageError("injected", path=points)
