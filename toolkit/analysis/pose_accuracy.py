@@ -94,7 +94,7 @@ class TruthAccuracy:
             self._buf is None or int(self._buf.column("t_ns")[-1].as_py()) < t_hi
         ):
             try:
-                batch = pa.Table.fromtable_batches([next(self._batches)])
+                batch = pa.Table.from_batches([next(self._batches)])
             except StopIteration:
                 self._exhausted = True
                 break
