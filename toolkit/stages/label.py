@@ -3,15 +3,15 @@
 Inputs ``WS/logs/<id>/{imu,pose}.parquet``, ``tf_static.json`` (the IMU's mount) and, on
 simulated logs, the truth ingest wrote. Output ``events.parquet`` (schema ``events``):
 
-* **Events** (:func:`path_events`): the rear-axle path (pose x, y; base_link is on the
+* **Events** (:mod:`toolkit.model.events`): the rear-axle path (pose x, y; base_link is on the
   ground below the rear-axle centre) cut by distance ``s`` into consecutive stretches of
   ``label.event_length_m``; event ``k`` is ``s`` in ``[k L, (k+1) L)``, entered and left at the
   times the path reaches those distances (linear between pose samples). Its ``event_id`` is
   ``k``: rejected events leave gaps.
-* **Speed**: the mean speed over the event, ``L / (t_end - t_start)`` (the time mean of the
-  path speed), in mph (1 mph = 0.44704 m/s exactly). Events slower than
-  ``label.min_speed_mps`` are rejected (``too_slow``) before anything is divided by their
-  speed; a stop lies inside one long slow event, so it makes none.
+* **Speed** (:mod:`toolkit.model.ruggedness`): the mean speed over the event, ``L / (t_end -
+  t_start)`` (the time mean of the path speed), in mph (1 mph = 0.44704 m/s exactly). Events
+  slower than ``label.min_speed_mps`` are rejected (``too_slow``) before anything is divided
+  by their speed; a stop lies inside one long slow event, so it makes none.
 * **Shock** (:mod:`toolkit.model.shock`): the z axis of the IMU's specific force turned
   into base_link by the mount (``a_z = R[2, :] a_imu``), filtered by the type-IV FIR designed
   for the IMU's measured rate, each output stamped at its window's centre (the 19.5-sample
@@ -36,15 +36,16 @@ simulated logs, the truth ingest wrote. Output ``events.parquet`` (schema ``even
 
 Manifest: record ``label`` (inputs, config hash, rows, rejects by reason, timings, warnings)
 and a header section ``label`` with the IMU rate, the filter's taps and measured response,
-the counts, the attribution (:func:`attribution_summary`: under ``impact``, how many events'
-shock it lowered, how many kept no impact of their own, and the positives ``span_peak`` would
-have had against these; in the summary line when the positives differ), and the truth and
-Fig. 5 summaries. Idempotent: an up-to-date label is not recomputed. Memory: the IMU is
-streamed in batches of :data:`BATCH_ROWS` and only the filtered samples of the event being
-labelled (plus the interpolation margin, and under ``impact`` the filter's reach) are kept; the
-pose (cut into events run by run, :func:`path_events_step`) and the truth (simulated logs)
-are streamed too. Only the events' own arrays are held whole (a dozen numbers an event,
-~4 MB for an hour's 28,000 events: 1/14 of the pose's rows at 10 m/s).
+the counts, the attribution (:func:`~toolkit.model.ruggedness.attribution_summary`: under
+``impact``, how many events' shock it lowered, how many kept no impact of their own, and the
+positives ``span_peak`` would have had against these; in the summary line when the positives
+differ), and the truth and Fig. 5 summaries. Idempotent: an up-to-date label is not
+recomputed. Memory: the IMU is streamed in batches (:mod:`toolkit.stages.label_inputs`) and
+only the filtered samples of the event being labelled (plus the interpolation margin, and
+under ``impact`` the filter's reach) are kept; the pose (cut into events run by run,
+:func:`~toolkit.model.events.path_events_step`) and the truth (simulated logs) are streamed
+too. Only the events' own arrays are held whole (a dozen numbers an event, ~4 MB for an
+hour's 28,000 events: 1/14 of the pose's rows at 10 m/s).
 """
 
 from __future__ import annotations
@@ -122,7 +123,8 @@ class LabelResult:
     #: Calibration logs: Fig. 5's fit (slope_g_per_mph, intercept_g, r2, passes).
     fig5: dict[str, Any] | None = None
     outputs: tuple[str, ...] = field(default=(OUTPUT,))
-    #: What the attribution rule changed (:func:`attribution_summary`); None on old manifests.
+    #: What the attribution rule changed (:func:`~toolkit.model.ruggedness.attribution_summary`);
+    #: None on old manifests.
     attribution: dict[str, Any] | None = None
 
     @property

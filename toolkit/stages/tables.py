@@ -27,15 +27,16 @@ Split (sect. 7 trains on miles 60-70 and tests on 70-80): by distance along the 
 ``train_fraction`` of its total length trains, the rest tests. ``"per_log"``: each log is
 split the same way on its own. An event belongs to the side its middle lies on.
 
-Streaming: points are read a batch at a time in time order; only the events whose start lies
-within ``max_lookahead_s`` after the batch have their tyre paths sampled and indexed (a
-KD-tree of their samples, rebuilt per batch), from the pose rows around them (the pose is
-read forward a batch at a time, :class:`~toolkit.timewindow.TimeWindow`, its yaw unwrapped
-as over the whole log, :class:`RunningUnwrap`). The points, the pose and the tyre paths are
-never whole in memory; each log's events are (a dozen numbers an event, ~4 MB for an
-hour's 28,000). Both tables are written aside and published when both are complete; a kill
-between the two renames leaves outputs the manifest does not match, which the next run
-redoes.
+Streaming (:mod:`toolkit.stages.tables_points`; the matching:
+:mod:`toolkit.model.tyre_match`): points are read a batch at a time in time order; only the
+events whose start lies within ``max_lookahead_s`` after the batch have their tyre paths
+sampled and indexed (a KD-tree of their samples, rebuilt per batch), from the pose rows
+around them (the pose is read forward a batch at a time,
+:class:`~toolkit.timewindow.TimeWindow`, its yaw unwrapped as over the whole log,
+:class:`RunningUnwrap`). The points, the pose and the tyre paths are never whole in memory;
+each log's events are (a dozen numbers an event, ~4 MB for an hour's 28,000). Both tables
+are written aside and published when both are complete; a kill between the two renames
+leaves outputs the manifest does not match, which the next run redoes.
 """
 
 from __future__ import annotations
