@@ -20,8 +20,6 @@ from toolkit.stages.label import (
     FIG5_CSV,
     FIG5_PNG,
     LabelResult,
-    path_events,
-    path_events_step,
     run_label,
 )
 from toolkit.stages.pose import run_pose
@@ -375,34 +373,6 @@ def test_a_neighbours_smear_is_small_and_still_labelled(
     assert runs["impact"][1].attribution["events_without_own_impact"] >= 1  # type: ignore[index]
 
 
-def test_attribution_applies_to_the_peak_only() -> None:
-    """rms has no crest: nothing is attributed or counted; under impact the counts compare
-    the two rules' ruggedness at the threshold."""
-    from toolkit.stages.label import attribution_summary
-
-    shock = np.array([5.0, 1.0, 0.0])
-    span = np.array([5.0, 4.5, 0.3])
-    own = np.array([True, True, False])
-    speed = np.full(3, 22.4)
-    args = (shock, span, own, speed, G, 0.02)
-    assert attribution_summary("impact", "rms", *args) == {"rule": "impact", "applied": False}
-    assert attribution_summary("span_peak", "max_abs", *args) == {
-        "rule": "span_peak",
-        "applied": False,
-    }
-    got = attribution_summary("impact", "max_abs", *args, np.array([False, True, True]))
-    assert got == {
-        "rule": "impact",
-        "applied": True,
-        "events_reduced": 2,
-        "events_without_own_impact": 1,
-        "rough_span_peak": 2,
-        "rough": 1,
-        "rough_lost": 1,
-        "rough_lost_featureless": 1,
-    }
-
-
 def test_attribution_is_configured() -> None:
     """``[label] attribution``: "impact" by default, "span_peak" the rule before; anything
     else is refused, naming the key."""
@@ -468,47 +438,6 @@ def test_label_needs_a_finished_pose(tmp_path: Path) -> None:
     (ws.log_dir(LOG_ID) / "pose.parquet").unlink()
     with pytest.raises(StageError, match="run `terrain pose` first"):
         run_label(ws, LOG_ID, default_config())
-
-
-def test_path_events_times() -> None:
-    t = T0_NS + np.arange(11, dtype=np.int64) * 100_000_000
-    x = np.array([0, 1, 2, 3, 3, 3, 4, 5, 6, 7, 8.5])  # standstill from 0.3 to 0.5 s
-    bounds, s = path_events(t, x, np.zeros(11), 1.4)
-    assert s.tolist() == pytest.approx([0, 1.4, 2.8, 4.2, 5.6, 7.0, 8.4])
-    expected = [0.0, 0.14, 0.28, 0.62, 0.76, 0.9, 0.9 + 1.4 / 1.5 * 0.1]
-    np.testing.assert_allclose((bounds - T0_NS) * 1e-9, expected, atol=1e-9)
-    empty, _ = path_events(t[:1], x[:1], np.zeros(1), 1.4)
-    assert empty.size == 0
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_path_events_fed_in_runs_equal_the_whole_path(seed: int) -> None:
-    """The stage feeds the pose a batch at a time: any split into runs gives the whole
-    path's boundaries bit for bit, across stops and rows that land exactly on a boundary."""
-    rng = np.random.default_rng(seed)
-    n = 3_000
-    step = rng.uniform(0.0, 0.3, n - 1)
-    step[rng.random(n - 1) < 0.1] = 0.0  # standstills, some across a run's edge
-    step[500:540] = 0.35  # 0.35 m steps: every fourth row is exactly on a 1.4 m boundary
-    heading = np.cumsum(rng.normal(0.0, 0.05, n - 1))
-    x = np.concatenate([[5.0], 5.0 + np.cumsum(step * np.cos(heading))])
-    y = np.concatenate([[-2.0], -2.0 + np.cumsum(step * np.sin(heading))])
-    t = T0_NS + np.cumsum(rng.integers(9_000_000, 11_000_000, n)).astype(np.int64)
-    whole_t, whole_s = path_events(t, x, y, 1.4)
-    cuts = np.sort(rng.choice(np.arange(1, n), size=40, replace=False))
-    carry = None
-    parts_t, parts_s = [], []
-    for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, n], strict=True):
-        t_b, s_b, carry = path_events_step(t[lo:hi], x[lo:hi], y[lo:hi], 1.4, carry)
-        parts_t.append(t_b)
-        parts_s.append(s_b)
-    assert whole_t.size > 100
-    np.testing.assert_array_equal(np.concatenate(parts_t), whole_t)
-    np.testing.assert_array_equal(np.concatenate(parts_s), whole_s)
-    # Each boundary lies within the pose rows that bracket its distance.
-    s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(x), np.diff(y)))])
-    i = np.searchsorted(s, whole_s[1:], side="left")
-    assert np.all((t[i - 1] <= whole_t[1:]) & (whole_t[1:] <= t[i]))
 
 
 # --------------------------------------------------------------------------------------
@@ -597,27 +526,3 @@ def test_calibration_log_gives_fig5(calibration_label: tuple[Workspace, LabelRes
     record = ws.manifest(result.log_id).stage("label")
     assert record is not None and set(record.outputs) == {"events.parquet", FIG5_CSV, FIG5_PNG}
     assert ws.manifest(result.log_id).read()["label"]["fig5"] == fig5
-
-
-def test_the_imu_rate_of_jittered_stamps_is_unbiased(tmp_path: Path) -> None:
-    """100 Hz stamps with +-2 ms uniform jitter and a few gaps: 100 Hz within 0.05 %."""
-    import pyarrow as pa
-
-    from toolkit.stages.label import _imu_period_ns
-    from toolkit.tableio import write_table
-
-    rng = np.random.default_rng(5)
-    t = np.arange(20_000, dtype=np.int64) * 10_000_000 + rng.integers(-2_000_000, 2_000_001, 20_000)
-    t = np.sort(np.delete(t, np.arange(500, 20_000, 1_000)))  # gaps of two periods
-    zeros = np.zeros(t.size)
-    from toolkit.tableio import load_table_schema
-
-    cols = {"t_ns": t, **{f"{q}_{a}": zeros for q in ("accel", "gyro") for a in "xyz"}}
-    schema = load_table_schema("imu")
-    for c in schema.columns:  # the orientation the IMU does not report: nulls
-        if c.name not in cols:
-            cols[c.name] = pa.nulls(t.size, c.arrow_type())
-    table = pa.table(cols)
-    path = tmp_path / "imu.parquet"
-    write_table(path, table, "imu", source_sha256="0" * 64, config_hash="c")
-    assert 1e9 / _imu_period_ns(path) == pytest.approx(100.0, rel=5e-4)

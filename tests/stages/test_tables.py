@@ -18,14 +18,9 @@ from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.manifest import file_sha256
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.tables import (
-    PathSource,
-    RunningUnwrap,
-    TablesResult,
-    run_tables,
-    tyre_paths,
-)
+from toolkit.stages.tables import TablesResult, run_tables
 from toolkit.tableio import read_table, write_table
+from toolkit.tyre_paths import tyre_paths
 from toolkit.workspace import Workspace
 
 SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
@@ -253,53 +248,6 @@ def test_tyre_paths_are_dense_and_beside_the_axle() -> None:
     assert np.diff(np.sort(left[:, 0])).max() <= 0.05 + 1e-9
 
 
-def test_paths_of_a_run_of_events_are_those_of_the_whole_log() -> None:
-    """Tables samples the paths of the open events only (bounded memory); they must be bit
-    for bit the whole log's, across yaw wrapping through +-pi and slow and fast stretches."""
-    rng = np.random.default_rng(3)
-    t = np.cumsum(rng.integers(9_000_000, 11_000_000, 3000)).astype(np.int64)
-    speed = 2.0 + 12.0 * rng.random(t.size)
-    yaw = np.angle(np.exp(1j * np.cumsum(rng.normal(0.0, 0.02, t.size))))  # wraps at +-pi
-    step = np.diff(t, prepend=t[0]) * 1e-9 * speed
-    xy = np.c_[np.cumsum(step * np.cos(yaw)), np.cumsum(step * np.sin(yaw))]
-    bounds = np.sort(rng.integers(t[0], t[-1], 201))
-    t_start, t_end = bounds[:-1], bounds[1:]
-    whole = tyre_paths(t, xy, yaw, t_start, t_end, 1.65)
-    unwrapped = np.unwrap(yaw)
-    for first, stop in [(0, 200), (0, 1), (37, 90), (199, 200)]:
-        # The pose rows around the run only, as the stage's pose window hands them over.
-        lo = max(int(np.searchsorted(t, t_start[first], side="right")) - 1, 0)
-        hi = min(int(np.searchsorted(t, t_end[stop - 1], side="left")) + 1, t.size)
-        source = PathSource(t[lo:hi], xy[lo:hi], unwrapped[lo:hi], t_start, t_end, 1.65)
-        run = source.paths(first, stop)
-        for w in (0, 1):
-            lo, hi = whole.first[w][first], whole.first[w][stop]
-            mine = run.wheel == w
-            np.testing.assert_array_equal(run.xy[mine], whole.xy[lo:hi])
-            np.testing.assert_array_equal(run.event[mine], whole.event[lo:hi])
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_running_unwrap_is_np_unwrap_of_the_whole_column(seed: int) -> None:
-    """The stage unwraps the pose's yaw batch by batch: bit for bit np.unwrap of the whole
-    column, for any split (batches of one row, steps of exactly pi, many turns)."""
-    rng = np.random.default_rng(seed)
-    raw = np.cumsum(rng.normal(0.0, 0.8, 5_000))
-    raw[100:110] = np.cumsum(np.full(10, np.pi))  # steps of exactly +pi
-    yaw = np.angle(np.exp(1j * raw))  # wrapped to (-pi, pi]
-    yaw[200:205] = [np.pi, -np.pi, np.pi, -np.pi, 0.0]
-    cuts = np.sort(rng.choice(np.arange(1, yaw.size), size=60, replace=False))
-    cuts = np.unique(np.r_[1, 2, cuts])  # batches of one row at the start
-    unwrap = RunningUnwrap("yaw")
-    parts = [
-        unwrap({"yaw": yaw[lo:hi]})["yaw"]
-        for lo, hi in zip(np.r_[0, cuts], np.r_[cuts, yaw.size], strict=True)
-    ]
-    mine = np.concatenate(parts)
-    np.testing.assert_array_equal(mine, np.unwrap(yaw))
-    assert np.abs(np.diff(mine)).max() <= np.pi + 1e-12  # steps within pi, to rounding
-
-
 def test_without_labelled_logs_tables_refuses_in_one_line(tmp_path: Path) -> None:
     ws = Workspace(tmp_path / "ws")
     ingest_log(SAMPLE_LOG, ws, default_config())
@@ -308,60 +256,12 @@ def test_without_labelled_logs_tables_refuses_in_one_line(tmp_path: Path) -> Non
     assert not ws.events_table.exists()
 
 
-@pytest.mark.parametrize("bitmap", [True, False], ids=["bitmap_sieve", "sorted_key_sieve"])
-def test_matching_equals_brute_force_also_where_samples_crowd(
-    bitmap: bool, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """_match_batch against brute force: two events' tyre paths, one sampled every 1 mm (a
-    crawl: hundreds of samples within the radius, more than the fixed-k query asks for), the
-    other every 5 cm; random points around them, some seen after an event started. Both
-    ways of the first sieve (a bitmap of cells, sorted cell keys for huge areas)."""
-    from toolkit import tyre_paths
-    from toolkit.stages.tables import NEIGHBOURS, TyrePaths, _match_batch
-
-    if not bitmap:
-        monkeypatch.setattr(tyre_paths, "MAX_BITMAP_CELLS", 0)
-
-    rng = np.random.default_rng(7)
-    crawl = np.c_[np.arange(0.0, 1.4, 0.001), np.zeros(1400)]
-    cruise = np.c_[np.arange(1.4, 2.8, 0.05), np.full(28, 0.1)]
-    # Wheel-major, events in order within each wheel, as tyre_paths lays them out.
-    xy = np.concatenate([crawl, cruise, crawl + [0, -1.65], cruise + [0, -1.65]])
-    one_wheel = np.concatenate([np.zeros(1400, np.int64), np.ones(28, np.int64)])
-    event = np.concatenate([one_wheel, one_wheel])
-    wheel = np.repeat(np.array([0, 1], np.int64), 1428)
-    first = np.array([0, 1400, 1428], np.int64)
-    paths = TyrePaths(xy, event, wheel, (first, first + 1428))
-
-    class BothEvents:  # the open events here are both, whose paths are the above
-        def paths(self, first: int, stop: int) -> TyrePaths:
-            assert (first, stop) == (0, 2)
-            return paths
-
-    n = 5000
-    pts = np.c_[rng.uniform(-0.5, 3.3, n), rng.uniform(-2.2, 0.6, n)]
-    t = rng.integers(0, 2_000_000_000, n).astype(np.int64)
-    t_start = np.array([1_500_000_000, 1_800_000_000], dtype=np.int64)
-    batch = pa.RecordBatch.from_pydict({"t_ns": t, "x": pts[:, 0], "y": pts[:, 1]})
-    point, ev, wh = _match_batch(batch, t_start, BothEvents(), 0.3, 60_000_000_000)
-    got = set(zip(point.tolist(), ev.tolist(), wh.tolist(), strict=True))
-    want = set()
-    for k in range(n):
-        d = np.hypot(*(xy - pts[k]).T)
-        for e, w in set(zip(event[d <= 0.3].tolist(), wheel[d <= 0.3].tolist(), strict=True)):
-            if 0 < t_start[e] - t[k] <= 60_000_000_000:
-                want.add((k, e, w))
-    assert got == want
-    crowded = [(k, e) for k, e, _ in want if e == 0]
-    assert len(crowded) > 100 and NEIGHBOURS < 600  # the crawl saturates the fixed-k query
-
-
 def test_a_failing_matcher_leaves_the_last_tables_as_they_were(
     tabled, monkeypatch: pytest.MonkeyPatch
 ) -> None:  # type: ignore[no-untyped-def]
     """An error while a thread matches a batch reaches the caller as itself; the tables
     published before stay as they were and nothing half-written is left beside them."""
-    from toolkit.stages import tables
+    from toolkit.stages import tables_points as tables
 
     ws = tabled[0]
     before = {p.name: file_sha256(p) for p in ws.tables_dir.iterdir()}
@@ -387,7 +287,7 @@ def test_a_pose_read_in_small_batches_gives_the_same_tables(
     """The pose is streamed (read forward, unwrapped as it comes, rows let go behind the
     points): read 7 rows at a time, across many pose batches per point batch and rows
     forgotten between point batches, the tables are those of the default run row for row."""
-    from toolkit.stages import tables
+    from toolkit.stages import tables_points as tables
 
     ws = tabled[0]
     copy = Workspace(tmp_path / "ws")
