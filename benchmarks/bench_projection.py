@@ -17,7 +17,7 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-from toolkit.mounts import frame_mounts
+from toolkit.geometry.mounts import frame_mounts
 from toolkit.stages import project, project_scans
 from toolkit.tableio import iter_table_batches
 

@@ -50,8 +50,8 @@ from scipy.spatial.transform import Rotation, Slerp
 from scipy.stats import kurtosis
 
 from toolkit.analysis.truth_terrain import true_ground
-from toolkit.fusion.rotations import euler_to_rot
-from toolkit.mounts import frame_mounts
+from toolkit.geometry.mounts import frame_mounts
+from toolkit.geometry.rotations import euler_to_rot
 
 GRAVITY_MPS2 = 9.80665
 CELL_M = 0.25

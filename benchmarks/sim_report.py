@@ -41,8 +41,8 @@ from scipy import signal  # noqa: E402
 from toolkit.analysis.fig4 import write_fig4  # noqa: E402
 from toolkit.analysis.scan_agreement import ScanAgreement  # noqa: E402
 from toolkit.config import default_config  # noqa: E402
+from toolkit.geometry.mounts import frame_mounts, sensor_mounts  # noqa: E402
 from toolkit.model.projection import Counts  # noqa: E402
-from toolkit.mounts import frame_mounts, sensor_mounts  # noqa: E402
 from toolkit.stages.ingest import ingest_log  # noqa: E402
 from toolkit.stages.label import run_label  # noqa: E402
 from toolkit.stages.pose import run_pose  # noqa: E402

@@ -14,8 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from toolkit.arrays import FloatArray, IntArray
 
 #: Largest spacing of the samples of a tyre's path, m.
 PATH_STEP_M = 0.05

@@ -28,8 +28,8 @@ from toolkit.analysis.truth_terrain import (
 )
 from toolkit.config import default_config
 from toolkit.errors import ConfigError, StageError
+from toolkit.geometry.mounts import frame_mounts
 from toolkit.model.projection import Counts
-from toolkit.mounts import frame_mounts
 from toolkit.sim import simulate as simulate_module
 from toolkit.sim.profiles import SimProfile, make_profile
 from toolkit.sim.sensors import ideal_lasers

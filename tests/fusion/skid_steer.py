@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from toolkit.fusion.estimator_io import SensorData
-from toolkit.fusion.rotations import FloatArray, euler_to_rot
+from toolkit.geometry.rotations import FloatArray, euler_to_rot
 
 TRUTH_HZ = 1000
 IMU_HZ = 50

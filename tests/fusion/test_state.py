@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 from filterpy.kalman import unscented_transform as filterpy_unscented_transform
 
-from toolkit.fusion.rotations import wrap_angle
 from toolkit.fusion.state import (
     DIM_X,
     YAW,
@@ -16,6 +15,7 @@ from toolkit.fusion.state import (
     state_residual,
     unscented_transform,
 )
+from toolkit.geometry.rotations import wrap_angle
 
 
 def test_residuals_wrap_angles() -> None:

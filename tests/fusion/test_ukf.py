@@ -9,7 +9,6 @@ import pytest
 from tests.fusion.test_process import stationary_increment
 from toolkit.fusion.measurements import Measurement, gps_model, wheel_model, yaw_model
 from toolkit.fusion.process import ImuIncrement, NoiseModel, propagate
-from toolkit.fusion.rotations import euler_to_rot, rot_to_euler, wrap_angle
 from toolkit.fusion.state import (
     ATT,
     BA,
@@ -26,6 +25,7 @@ from toolkit.fusion.state import (
     angle_residual,
 )
 from toolkit.fusion.ukf import PoseUKF
+from toolkit.geometry.rotations import euler_to_rot, rot_to_euler, wrap_angle
 
 #: Process noise densities of the test filter: accel, gyro, accel bias walk, gyro bias walk.
 NOISE = NoiseModel(accel=0.5, gyro=0.01, accel_bias_walk=0.001, gyro_bias_walk=0.0001)

@@ -14,7 +14,7 @@ import pyarrow as pa
 import pytest
 from scipy.spatial.transform import Rotation
 
-from toolkit.ingestion.attitude import euler_rates_zyx
+from toolkit.geometry.rotations import euler_rates_zyx
 from toolkit.ingestion.roles import ROLE_SPECS
 from toolkit.ingestion.rows import ConvertContext, RoleRows
 from toolkit.mcapio.cdr import decode_batch

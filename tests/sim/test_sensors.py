@@ -19,7 +19,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from scipy.ndimage import uniform_filter1d
 
-from toolkit.geodesy import GeodeticOrigin, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin, geodetic_to_enu
 from toolkit.sim.profiles import make_profile
 from toolkit.sim.sensors import Mount, SensorParams
 from toolkit.sim.simulate import SimResult

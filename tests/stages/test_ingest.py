@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from toolkit.config import PipelineConfig, default_config, load_config, parse_config
 from toolkit.errors import ConfigError, LogReadError, StageError, ToolkitError
-from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.ingestion.roles import ROLE_SPECS
 from toolkit.manifest import file_sha256
 from toolkit.mcapio.cdr_encode import encode_batch

@@ -426,7 +426,7 @@ def test_a_filter_locked_out_by_its_gate_reinitialises(
     # The pose follows the moved fixes to the end (truth does not: it was not moved).
     pose = read_table(ws.log_table(log_id, "pose"), "pose")
     origin = json.loads(read_table_metadata(ws.log_table(log_id, "pose"))["enu_origin"])
-    from toolkit.geodesy import GeodeticOrigin, geodetic_to_enu
+    from toolkit.geometry.geodesy import GeodeticOrigin, geodetic_to_enu
 
     o = GeodeticOrigin(origin["latitude_deg"], origin["longitude_deg"], origin["altitude_m"])
     moved = read_table(ws.log_table(log_id, "gps"), "gps")

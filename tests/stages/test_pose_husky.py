@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from toolkit.config import PipelineConfig, load_config
-from toolkit.geodesy import GeodeticOrigin, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin, geodetic_to_enu
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.pose import PoseResult, run_pose
 from toolkit.tableio import read_table, read_table_metadata
@@ -77,7 +77,7 @@ def _straight_runs_yaw(ws: Workspace, log_id: str, span_s: float) -> tuple[np.nd
     fixes ``span_s`` apart where the robot moved faster than 0.5 m/s and its gyro (rotated
     by the configured IMU mount) turned less than 5 deg between them, so that the chord's
     direction is the heading and not a cut across a turn."""
-    from toolkit.fusion.rotations import euler_to_rot
+    from toolkit.geometry.rotations import euler_to_rot
 
     t_fix, xy = _fixes_enu(ws, log_id)
     imu = read_table(ws.log_table(log_id, "imu"), "imu")
@@ -139,7 +139,7 @@ def _odometry_and_gyro(ws: Workspace, log_id: str, t0_ns: int) -> tuple[np.ndarr
     """The plain dead reckoning a reader would do by hand from t0: wheel speed along the
     heading the gyro (rotated by the configured mount) integrates, at the IMU's 30 Hz.
     Returns (t_ns, x, y, distance travelled)."""
-    from toolkit.fusion.rotations import euler_to_rot
+    from toolkit.geometry.rotations import euler_to_rot
 
     imu = read_table(ws.log_table(log_id, "imu"), "imu")
     t = imu.column("t_ns").to_numpy()

@@ -16,10 +16,10 @@ from scipy.spatial.transform import Rotation, Slerp
 from tests.stages.crafted import write_table
 from toolkit.config import default_config
 from toolkit.errors import StageError
-from toolkit.fusion.rotations import euler_to_rot
+from toolkit.geometry.mounts import frame_mounts
+from toolkit.geometry.rotations import euler_to_rot
 from toolkit.manifest import file_sha256
 from toolkit.model.projection import Counts, PreparedBatch
-from toolkit.mounts import frame_mounts
 from toolkit.stages import project as project_module
 from toolkit.stages.project import run_project
 from toolkit.stages.project_scans import LASER_COLUMNS, PoseStream, ScanBatch, project_batch

@@ -23,14 +23,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from toolkit.analysis.figures import new_figure, save_png_atomic, write_csv_atomic
 from toolkit.analysis.histograms import bins_covering, histogram_quantile
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.errors import ConfigError
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Pair classes, in the order of the accumulators' first axis.
 SAME_LASER, DIFFERENT_LASER = 0, 1

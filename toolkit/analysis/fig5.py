@@ -21,11 +21,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
+from toolkit.arrays import FloatArray
 from toolkit.atomic import atomic_write_bytes, atomic_write_text
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

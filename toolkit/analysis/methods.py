@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from toolkit.arrays import BoolArray, FloatArray
 from toolkit.config import LearnConfig, ModelConfig
 from toolkit.model import boosted
 from toolkit.model.ascent import AscentResult, best_threshold, coordinate_ascent
@@ -36,9 +36,6 @@ from toolkit.model.roughness import (
     score_events,
 )
 from toolkit.model.search import ascent_config
-
-BoolArray = NDArray[np.bool_]
-FloatArray = NDArray[np.float64]
 
 #: Elements of B an ablation fixes at zero (0-based: alpha_3; alpha_7 and alpha_9), and the
 #: exponents that then have nothing to weigh (kept at their initial value).

@@ -14,11 +14,10 @@ import scipy.fft
 from numpy.typing import NDArray
 
 from toolkit.analysis.truth_terrain import TrueGround, true_ground, where_beams_hit
+from toolkit.arrays import FloatArray
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roughness import THREADS
 from toolkit.workspace import Workspace
-
-FloatArray = NDArray[np.float64]
 
 
 def oracle_patches(

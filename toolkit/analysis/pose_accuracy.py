@@ -20,9 +20,10 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from toolkit.arrays import FloatArray
 from toolkit.errors import StageError
-from toolkit.fusion.rotations import FloatArray, wrap_angle
-from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.geometry.rotations import wrap_angle
 from toolkit.layout import LogFiles
 from toolkit.sim.record import SIM_RECORD
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata

@@ -98,7 +98,6 @@ from toolkit.analysis.fig4 import (
     fig4_bins,
 )
 from toolkit.analysis.scan_cells import (
-    IntArray,
     Observations,
     Points,
     first_at_or_after,
@@ -106,6 +105,7 @@ from toolkit.analysis.scan_cells import (
     observe,
     scan_starts,
 )
+from toolkit.arrays import IntArray
 from toolkit.errors import StageError
 from toolkit.tableio import iter_table_batches
 

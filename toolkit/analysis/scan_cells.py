@@ -11,10 +11,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.errors import StageError
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Names of :class:`Points`' columns, in its field order.
 POINT_FIELDS = ("t_ns", "laser", "beam", "x", "y", "z", "scan_t_ns")

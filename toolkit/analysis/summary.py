@@ -16,19 +16,16 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from numpy.typing import NDArray
 
 from toolkit import __version__
 from toolkit.analysis import fig7
 from toolkit.analysis.methods import ABLATION_NAMES, MAIN_METHODS, MethodScores, Rows
+from toolkit.arrays import BoolArray, FloatArray
 from toolkit.config import EvaluateConfig
 from toolkit.model import speed_control as sc
 from toolkit.model.baseline import BaselineParams
 from toolkit.model.roc import RocSummary, summarise
 from toolkit.model.shock import MPS_PER_MPH
-
-BoolArray = NDArray[np.bool_]
-FloatArray = NDArray[np.float64]
 
 #: model.json's keys the summary repeats, as learn wrote them.
 MODEL_KEYS = (

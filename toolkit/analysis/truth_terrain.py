@@ -42,14 +42,12 @@ from scipy.spatial import cKDTree
 
 from toolkit.analysis.figures import new_figure, save_png_atomic, write_csv_atomic
 from toolkit.analysis.histograms import bins_covering, histogram_quantile
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.errors import ConfigError, StageError, ToolkitError
-from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.layout import LogFiles
 from toolkit.sim.record import SIM_RECORD, sim_origin
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Spacing of the route samples the first guess of a point's route position comes from, m.
 ROUTE_GUESS_SPACING_M = 0.5
@@ -233,7 +231,7 @@ def where_beams_hit(log_dir: Path, xyz_m: ArrayLike, t_ns: ArrayLike) -> FloatAr
     """
     from scipy.spatial.transform import Rotation, Slerp
 
-    from toolkit.fusion.rotations import euler_to_rot
+    from toolkit.geometry.rotations import euler_to_rot
 
     p = np.asarray(xyz_m, np.float64).reshape(-1, 3)
     t = np.asarray(t_ns, np.int64)

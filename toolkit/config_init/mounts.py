@@ -18,7 +18,7 @@ from toolkit.config import (
 from toolkit.config_init.render import Setting, Settings
 from toolkit.config_init.roles import ROLE_WORDS, RoleGuess
 from toolkit.config_init.summary import LEVEL_DEG, MAX_MOUNT_M, LogSummary
-from toolkit.mounts import Mount, chain_to_base
+from toolkit.geometry.mounts import Mount, chain_to_base
 
 
 def mount_of(frame: str, summary: LogSummary, base: str) -> tuple[Mount | None, str]:

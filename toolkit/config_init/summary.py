@@ -14,11 +14,11 @@ from pathlib import Path
 import numpy as np
 
 from toolkit.errors import ToolkitError
+from toolkit.geometry.mounts import StaticTransform
 from toolkit.ingestion.roles import ROLE_SPECS
 from toolkit.mcapio.info import LogInfo, scan_log
 from toolkit.mcapio.msgdefs import full_type_name
 from toolkit.mcapio.reader import LogReader
-from toolkit.mounts import StaticTransform
 
 #: Sensor roles whose messages carry the frame their mount is looked up by.
 FRAMED_ROLES: tuple[str, ...] = ("lasers", "imu", "gps")

@@ -12,8 +12,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.signal import lfilter
 
-from toolkit.fusion.rotations import FloatArray, euler_to_rot
+from toolkit.arrays import FloatArray
 from toolkit.fusion.state import DIM_X, POS, VEL
+from toolkit.geometry.rotations import euler_to_rot
 
 #: Time constant of the running estimate of the accelerometer's noise in odometry dead
 #: reckoning (:class:`AccelNoise`), s: long against the 20-100 Hz vibration it measures

@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from toolkit.arrays import FloatArray
 from toolkit.fusion.accel_noise import AccelNoise, vibration_q
 from toolkit.fusion.epochs import MAX_BRIDGE_S, MAX_CROSS_S, MAX_STEP_S
 from toolkit.fusion.estimator_io import FilterSettings, SensorData
@@ -40,7 +41,6 @@ from toolkit.fusion.measurements import (
     yaw_model,
 )
 from toolkit.fusion.process import ImuIncrement
-from toolkit.fusion.rotations import FloatArray, euler_to_rot, wrap_angle
 from toolkit.fusion.state import (
     ATT,
     BA,
@@ -57,6 +57,7 @@ from toolkit.fusion.state import (
 )
 from toolkit.fusion.track_heading import TRACK_YAW_FLOOR_RAD, YawHistory, track_headings
 from toolkit.fusion.ukf import PoseUKF
+from toolkit.geometry.rotations import euler_to_rot, wrap_angle
 
 
 def initial_state(

@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from toolkit.arrays import FloatArray
 from toolkit.fusion.estimator_io import SensorData
-from toolkit.fusion.rotations import FloatArray
 
 #: Longest filter step, s.
 MAX_STEP_S = 0.1

@@ -68,6 +68,7 @@ from collections.abc import Callable, Iterable, Iterator
 
 import numpy as np
 
+from toolkit.arrays import FloatArray
 from toolkit.fusion.accel_noise import AccelNoise
 from toolkit.fusion.epoch_filter import EpochFilter
 from toolkit.fusion.epochs import MAX_BRIDGE_S, filter_epochs
@@ -79,7 +80,6 @@ from toolkit.fusion.estimator_io import (
     SensorData,
 )
 from toolkit.fusion.pose_output import OutputGrid, carried_pose
-from toolkit.fusion.rotations import FloatArray
 from toolkit.fusion.track_heading import start_heading
 
 

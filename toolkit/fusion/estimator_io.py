@@ -8,8 +8,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from toolkit.arrays import FloatArray
 from toolkit.fusion.process import NoiseModel
-from toolkit.fusion.rotations import FloatArray
 
 
 @dataclass(frozen=True)

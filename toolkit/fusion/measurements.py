@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from toolkit.fusion.rotations import FloatArray, euler_to_rot
+from toolkit.arrays import FloatArray
 from toolkit.fusion.state import (
     ATT,
     FORWARD,
@@ -41,6 +41,7 @@ from toolkit.fusion.state import (
     plain_mean,
     plain_residual,
 )
+from toolkit.geometry.rotations import euler_to_rot
 
 #: 1 sigma of the non-holonomic constraint (lateral and vertical axle speed), m/s.
 NHC_STD_MPS = 0.3

@@ -23,11 +23,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from toolkit.arrays import FloatArray
 from toolkit.fusion.epoch_filter import Segments
 from toolkit.fusion.epochs import grid_outside_gaps
 from toolkit.fusion.estimator_io import OutputChunk
-from toolkit.fusion.rotations import FloatArray, euler_rates, euler_to_rot, rot_to_euler, wrap_angle
 from toolkit.fusion.state import ATT, GRAVITY, POS, VEL
+from toolkit.geometry.rotations import euler_rates, euler_to_rot, rot_to_euler, wrap_angle
 
 #: The pose columns of a segment end, in output order (``speed`` follows them in a row):
 #: base_link position (m, world), roll-pitch-yaw (rad), velocity (m/s, world), Euler rates

@@ -30,8 +30,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from toolkit.fusion.rotations import FloatArray, euler_to_rot, rot_to_euler, so3_exp, so3_exp_one
+from toolkit.arrays import FloatArray
 from toolkit.fusion.state import ATT, BA, BG, DIM_X, GRAVITY, POS, SCALE, VEL
+from toolkit.geometry.rotations import euler_to_rot, rot_to_euler, so3_exp, so3_exp_one
 
 
 @dataclass

@@ -26,7 +26,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from toolkit.fusion.rotations import FloatArray, wrap_angle
+from toolkit.arrays import FloatArray
+from toolkit.geometry.rotations import wrap_angle
 
 #: Dimension of the state vector.
 DIM_X = 16

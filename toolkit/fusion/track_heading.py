@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from toolkit.arrays import FloatArray
 from toolkit.fusion.estimator_io import SensorData
-from toolkit.fusion.rotations import FloatArray, wrap_angle
+from toolkit.geometry.rotations import wrap_angle
 
 #: Longest time a run of fixes may span to give the GPS-track heading, s.
 TRACK_MAX_SPAN_S = 30.0

@@ -34,10 +34,10 @@ from types import MappingProxyType
 import numpy as np
 from filterpy.kalman import MerweScaledSigmaPoints
 
+from toolkit.arrays import FloatArray
 from toolkit.errors import StageError
 from toolkit.fusion.measurements import MeasFn, Measurement
 from toolkit.fusion.process import ImuIncrement, NoiseModel, propagate
-from toolkit.fusion.rotations import FloatArray, wrap_angle
 from toolkit.fusion.state import (
     ATT,
     DIM_X,
@@ -50,6 +50,7 @@ from toolkit.fusion.state import (
     state_residual,
     unscented_transform,
 )
+from toolkit.geometry.rotations import wrap_angle
 
 
 class PoseUKF:

@@ -35,18 +35,16 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from toolkit.ingestion.attitude import (
+from toolkit.arrays import BoolArray, FloatArray, IntArray
+from toolkit.geometry.rotations import (
     euler_rates_zyx,
     quaternion_to_euler_zyx,
     rotate_body_to_world,
 )
 from toolkit.ingestion.rows import (
     NS_PER_S,
-    BoolArray,
     Columns,
     ConvertContext,
-    FloatArray,
-    IntArray,
     RoleRows,
     all_finite,
     explode,

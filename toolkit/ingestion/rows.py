@@ -18,15 +18,12 @@ from typing import Any
 
 import numpy as np
 import pyarrow as pa
-from numpy.typing import NDArray
 
+from toolkit.arrays import BoolArray, FloatArray, IntArray
 from toolkit.config import TimeConfig
 from toolkit.mcapio.msgdefs import full_type_name
 
 Columns = Mapping[str, Any]
-BoolArray = NDArray[np.bool_]
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 NS_PER_S = 1_000_000_000
 

@@ -13,11 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 import pyarrow as pa
 
+from toolkit.arrays import BoolArray, IntArray
 from toolkit.errors import CdrError
 from toolkit.ingestion.accounts import TopicAccount
 from toolkit.ingestion.dedup import DuplicateFilter
 from toolkit.ingestion.plans import TopicPlan
-from toolkit.ingestion.rows import BoolArray, IntArray, RoleRows
+from toolkit.ingestion.rows import RoleRows
 
 
 @dataclass

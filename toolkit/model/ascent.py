@@ -62,8 +62,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 
+from toolkit.arrays import BoolArray, FloatArray
 from toolkit.model.roughness import (
     N_ALPHA,
     N_ALPHA_LEAD,
@@ -72,9 +72,6 @@ from toolkit.model.roughness import (
     combine,
     total_score,
 )
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 #: Names of the 13 elements of B, in order.
 B_NAMES = tuple(f"alpha_{i}" for i in range(1, N_ALPHA + 1)) + ("upsilon", "omega", "zeta")

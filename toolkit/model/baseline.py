@@ -41,10 +41,10 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.stats import norm
 
+from toolkit.arrays import FloatArray
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roughness import CHUNK_GROUPS, Blockwise, top_w
 
-FloatArray = NDArray[np.float64]
 Float32Array = NDArray[np.float32]
 
 

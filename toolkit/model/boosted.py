@@ -60,11 +60,9 @@ from numpy.typing import NDArray
 from sklearn.ensemble import HistGradientBoostingClassifier
 from threadpoolctl import threadpool_limits
 
+from toolkit.arrays import BoolArray, FloatArray
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roughness import CHUNK_GROUPS
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 #: OpenMP threads of the fit and the scores: one, so that the sums of gradients are added in
 #: one order whatever the machine (bit-for-bit the same scores on 2 cores or 64).

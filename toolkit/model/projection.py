@@ -7,7 +7,7 @@ After projection every return is a point with the six features of the paper's eq
 its position in the world frame, the time it was observed and the first derivatives of the
 vehicle's estimated roll (gamma) and pitch (psi) then. Each return is placed with the pose
 *at the beam's own time* and the laser's mount (``base_link_from_laser``, a
-:class:`~toolkit.mounts.Mount`)::
+:class:`~toolkit.geometry.mounts.Mount`)::
 
     tau_b     = t_scan + b * time_increment                      (ROS LaserScan: stamp = beam 0)
     theta_b   = angle_min + b * angle_increment
@@ -43,10 +43,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from toolkit.mounts import Mount
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
+from toolkit.arrays import FloatArray, IntArray
+from toolkit.geometry.mounts import Mount
 
 #: Points projected at a time within a batch: small enough that the ~40 temporary arrays of
 #: the arithmetic stay in the processor's cache (32 k points: 256 kB each), large enough that

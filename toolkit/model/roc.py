@@ -34,13 +34,11 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.stats import norm, spearmanr
 from sklearn.metrics import auc as sk_auc
 from sklearn.metrics import roc_auc_score, roc_curve
 
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
+from toolkit.arrays import BoolArray, FloatArray
 
 DEFAULT_FPR_POINTS = (0.05, 0.1, 0.2)
 

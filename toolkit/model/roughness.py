@@ -75,9 +75,9 @@ from typing import Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from toolkit.arrays import FloatArray
 from toolkit.model.patches import TyrePatches
 
-FloatArray = NDArray[np.float64]
 Float32Array = NDArray[np.float32]
 
 N_ALPHA = 10

@@ -27,11 +27,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from toolkit.arrays import BoolArray, FloatArray, IntArray
 from toolkit.model.shock import MPS_PER_MPH
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 
 def event_speed_mps(bounds_ns: IntArray, length_m: float) -> FloatArray:

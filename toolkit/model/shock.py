@@ -62,13 +62,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy import signal
 
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.errors import StageError
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Largest gain allowed on [0, stop_hz], dB: what is left of gravity and the body modes is
 #: then at most 3 % of them (a 1 G pitch change leaves < 0.03 G).

@@ -45,11 +45,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.model.shock import (
     INTERP_MARGIN,
     INTERP_UP,
-    FloatArray,
-    IntArray,
     ShockFir,
     covered_span,
     event_shock,

@@ -95,11 +95,9 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from toolkit.arrays import BoolArray, FloatArray
 from toolkit.errors import ConfigError, StageError
 from toolkit.model.shock import MPS_PER_MPH
-
-FloatArray = NDArray[np.float64]
-BoolArray = NDArray[np.bool_]
 
 Method = Literal["no_change", "reactive", "proactive"]
 METHODS: tuple[Method, ...] = ("no_change", "reactive", "proactive")

@@ -18,13 +18,10 @@ from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.tyre_paths import TyrePaths, near_cells, tyre_paths
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Samples asked for per point near a tyre path (at 5 cm spacing a 30 cm radius holds ~13
 #: of one event's path; a point near two events' ends, or a slow stretch, holds more).

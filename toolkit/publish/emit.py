@@ -41,8 +41,10 @@ from foxglove.messages import (
 )
 from numpy.typing import NDArray
 
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.config import PipelineConfig
-from toolkit.frames import ORIGIN_MIN_STATUS, valid_fixes
+from toolkit.geometry.frames import ORIGIN_MIN_STATUS, valid_fixes
+from toolkit.geometry.rotations import quaternion_zyx
 from toolkit.layout import LogFiles
 from toolkit.publish.scene import (
     DESCRIPTIONS,
@@ -58,8 +60,6 @@ from toolkit.publish.scene import (
     Cloud,
     CloudSettings,
     EventRows,
-    FloatArray,
-    IntArray,
     PoseRows,
     Scene,
     column_array,
@@ -67,7 +67,6 @@ from toolkit.publish.scene import (
     iter_clouds,
     path_vertices,
     point_colors,
-    quaternion_zyx,
     require_times,
     tf_rows,
 )

@@ -17,16 +17,13 @@ import pyarrow.compute as pc
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from toolkit.arrays import BoolArray, FloatArray, IntArray
 from toolkit.errors import StageError
 from toolkit.layout import LogFiles, log_file_name
 from toolkit.manifest import Manifest, file_sha256, require_finished
 from toolkit.stages.tables import EVENT_COLUMNS
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
 from toolkit.workspace import Workspace
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
-BoolArray = NDArray[np.bool_]
 
 TOPIC_TF = "/tf"
 TOPIC_POINTS = "/points"
@@ -328,22 +325,6 @@ def read_scene(workspace: Workspace, log_id: str, log_dir: Path, warnings: list[
 # --------------------------------------------------------------------------------------
 
 
-def quaternion_zyx(
-    roll: FloatArray, pitch: FloatArray, yaw: FloatArray
-) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-    """(x, y, z, w) of the rotation R = Rz(yaw) Ry(pitch) Rx(roll) (Z-Y-X Euler angles, the
-    pose's convention), element-wise."""
-    cr, sr = np.cos(0.5 * roll), np.sin(0.5 * roll)
-    cp, sp = np.cos(0.5 * pitch), np.sin(0.5 * pitch)
-    cy, sy = np.cos(0.5 * yaw), np.sin(0.5 * yaw)
-    return (
-        sr * cp * cy - cr * sp * sy,
-        cr * sp * cy + sr * cp * sy,
-        cr * cp * sy - sr * sp * cy,
-        cr * cp * cy + sr * sp * sy,
-    )
-
-
 #: Where on the ramp a point not predicted rough stops (orange): only a verdict is red.
 NOT_ROUGH_MAX = 0.9
 
@@ -540,7 +521,6 @@ __all__ = [
     "iter_clouds",
     "path_vertices",
     "point_colors",
-    "quaternion_zyx",
     "ramp_rgb",
     "read_model_mu",
     "read_pose",

@@ -12,12 +12,12 @@ sample.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.sim.route import Route
 from toolkit.sim.speed_control import (
     ReactiveSpeedController,
@@ -37,8 +37,6 @@ from toolkit.sim.suspension import (
 from toolkit.sim.terrain import Terrain, WindowCache
 from toolkit.sim.tyre import TyreFootprint
 from toolkit.sim.vehicle import VehicleParams
-
-FloatArray = NDArray[np.floating[Any]]
 
 GRAVITY_MPS2 = 9.80665
 

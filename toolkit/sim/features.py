@@ -9,16 +9,16 @@ or marked as judgement.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
+
+from toolkit.arrays import AnyFloatArray as FloatArray
 
 if TYPE_CHECKING:
     from toolkit.sim.route import Route
     from toolkit.sim.world import WorldParams
 
-FloatArray = NDArray[np.floating[Any]]
 
 FEATURE_KINDS = ("washboard", "pothole", "rock", "rut", "cattle_guard")
 # Height (peak-to-peak, or depth) range of each kind, metres: washboard corrugations are

@@ -19,13 +19,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.pools import process_pool
 from toolkit.sim.raycast import RayCaster
 from toolkit.sim.sensors import LaserParams
 from toolkit.sim.terrain import WindowCache
 from toolkit.sim.world import WorldParams, make_world
-
-FloatArray = NDArray[np.floating[Any]]
 
 # Casting the rays is about two thirds of a race log's CPU time and the rest (the vehicle,
 # the other sensors, writing) stays in the main process: on two cores two casters and the

@@ -8,18 +8,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.mcapio.cdr_encode import Column
 from toolkit.mcapio.writer import LogWriter
 from toolkit.sim.sensors import Mount, SensorParams
 from toolkit.sim.world import World
-
-FloatArray = NDArray[np.floating[Any]]
 
 TOPIC_LASER = "/laser/front_{}"
 TOPIC_IMU = "/imu/data"

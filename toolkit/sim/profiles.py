@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 from toolkit.errors import SimulationError
-from toolkit.geodesy import GeodeticOrigin
+from toolkit.geometry.geodesy import GeodeticOrigin
 from toolkit.sim.sensors import GpsParams, SensorParams
 from toolkit.sim.speed_control import ReactiveSpeedParams
 from toolkit.sim.vehicle import VehicleParams

@@ -5,15 +5,13 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.sim.route import Route
 from toolkit.sim.terrain import TerrainWindow
-
-FloatArray = NDArray[np.floating[Any]]
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
 import toolkit
-from toolkit.geodesy import GeodeticOrigin
+from toolkit.geometry.geodesy import GeodeticOrigin
 
 if TYPE_CHECKING:
     from toolkit.sim.profiles import SimProfile

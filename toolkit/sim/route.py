@@ -10,15 +10,14 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
-from numpy.typing import NDArray
+
+from toolkit.arrays import AnyFloatArray as FloatArray
 
 if TYPE_CHECKING:
     from toolkit.sim.world import WorldParams
-
-FloatArray = NDArray[np.floating[Any]]
 
 
 @dataclass(frozen=True)

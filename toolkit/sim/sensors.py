@@ -8,16 +8,13 @@ errors) and latency (clock offsets and timestamp jitter between sensors).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation
 
+from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.config import default_config
-
-FloatArray = NDArray[np.floating[Any]]
 
 
 @dataclass(frozen=True)

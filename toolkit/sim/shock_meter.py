@@ -23,10 +23,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from toolkit.arrays import FloatArray
 from toolkit.config import LabelConfig
 from toolkit.model.shock import ShockFir, design_shock_fir
-
-FloatArray = NDArray[np.float64]
 
 
 @dataclass

@@ -23,8 +23,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.config import default_config
 from toolkit.mcapio.cdr_encode import encode_message
 from toolkit.mcapio.writer import LogWriter
@@ -44,8 +44,6 @@ from toolkit.sim.record import SIM_RECORD, sim_metadata
 from toolkit.sim.shock_meter import ShockMeter
 from toolkit.sim.suite import BLOCK_SAMPLES, ImuSamples, SensorSuite
 from toolkit.sim.world import World, make_world
-
-FloatArray = NDArray[np.floating[Any]]
 
 HISTORY_SAMPLES = 20  # of the previous block, for IMU averaging and scans across blocks
 WARMUP_BLOCKS = 30  # let the suspension settle before recording

@@ -5,12 +5,10 @@ route's safe speed profile: ``v <= sqrt(a_lat / |kappa|)`` in bends, braking ahe
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.floating[Any]]
+from toolkit.arrays import AnyFloatArray as FloatArray
 
 
 @dataclass(frozen=True)

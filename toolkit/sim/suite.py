@@ -9,13 +9,13 @@ the same log less its scans (see :class:`SensorSuite`).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
-from toolkit.geodesy import enu_to_geodetic
+from toolkit.arrays import AnyFloatArray as FloatArray
+from toolkit.geometry.geodesy import enu_to_geodetic
 from toolkit.mcapio.cdr_encode import Column, encode_batch
 from toolkit.sim.drive import GRAVITY_MPS2, TrueBlock
 from toolkit.sim.laser_workers import LaserRays
@@ -41,8 +41,6 @@ from toolkit.sim.messages import (
 from toolkit.sim.profiles import SimProfile
 from toolkit.sim.sensors import SensorParams, draw_laser_truth, gauss_markov
 from toolkit.sim.world import World
-
-FloatArray = NDArray[np.floating[Any]]
 
 BLOCK_SAMPLES = 100  # 0.1 s at the 1 kHz dynamics rate
 

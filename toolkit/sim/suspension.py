@@ -39,16 +39,14 @@ J. Y. Wong, *Theory of Ground Vehicles*, 3rd ed., Wiley 2001, ch. 7 (vehicle rid
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 from scipy.linalg import expm
 from scipy.signal import lfilter
 
+from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.sim.vehicle import VehicleParams
-
-FloatArray = NDArray[np.floating[Any]]
 
 N_STATES = 14
 # r_FL..r_RR (m), r'_FL..r'_RR (m/s), a_x (m/s^2), a_y (m/s^2), and a constant 1 that carries

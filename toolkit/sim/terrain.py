@@ -18,13 +18,13 @@ import numpy as np
 import scipy.fft
 from numpy.typing import NDArray
 
+from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.sim.features import RoughFeature, feature_height
 from toolkit.sim.route import Route
 
 if TYPE_CHECKING:
     from toolkit.sim.world import WorldParams
 
-FloatArray = NDArray[np.floating[Any]]
 
 ISO8608_N0_CYCLES_PER_M = 0.1
 # Geometric mean of each ISO 8608 class's Gd(n0), in m^3.

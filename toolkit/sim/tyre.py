@@ -21,14 +21,11 @@ model", *Vehicle System Dynamics* 4 (1975).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
+from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.sim.vehicle import VehicleParams
-
-FloatArray = NDArray[np.floating[Any]]
 
 # Where the footprint samples the road (m, along the wheel from the contact centre). The
 # print itself is about 0.13-0.14 m long: 2 cm steps there. Beyond it the round outline only

@@ -17,12 +17,10 @@ ride); H. B. Pacejka, *Tyre and Vehicle Dynamics*, 2nd ed., Butterworth-Heineman
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.floating[Any]]
+from toolkit.arrays import AnyFloatArray as FloatArray
 
 GRAVITY_MPS2 = 9.80665
 

@@ -34,7 +34,6 @@ from typing import Any, cast
 
 import numpy as np
 import pyarrow as pa
-from numpy.typing import NDArray
 
 from toolkit.analysis.fig4 import PNG_NAME as FIG4_PNG
 from toolkit.analysis.figures import write_bytes_atomic
@@ -61,6 +60,7 @@ from toolkit.analysis.summary import (
     split_counts,
     summary_json,
 )
+from toolkit.arrays import BoolArray, FloatArray
 from toolkit.atomic import atomic_write_json
 from toolkit.config import EvaluateConfig, LearnConfig, ModelConfig, PipelineConfig
 from toolkit.errors import StageError
@@ -98,9 +98,6 @@ MODEL_NAME = workspace_file_name("model")
 ROC_PNG = "roc.png"
 #: The report's folder under the workspace (a link to its current generation).
 REPORT_NAME = "report"
-
-BoolArray = NDArray[np.bool_]
-FloatArray = NDArray[np.float64]
 
 
 @dataclass(frozen=True)

@@ -62,8 +62,10 @@ import pyarrow as pa
 from numpy.typing import NDArray
 
 from toolkit.analysis.fig5 import LineFit, fit_line, obstacle_passes, write_fig5
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.config import LabelConfig, PipelineConfig, VehicleConfig
 from toolkit.errors import StageError
+from toolkit.geometry.mounts import sensor_mounts
 from toolkit.layout import LogFiles, log_file_name
 from toolkit.model.events import PathCarry, path_events, path_events_step
 from toolkit.model.ruggedness import (
@@ -75,7 +77,6 @@ from toolkit.model.ruggedness import (
 )
 from toolkit.model.shock import ShockFir, design_shock_fir
 from toolkit.model.shock_attribution import impact_envelope
-from toolkit.mounts import sensor_mounts
 from toolkit.sim.record import SIM_RECORD
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.label_inputs import (
@@ -92,8 +93,6 @@ from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 STAGE = "label"
 #: Configuration sections label reads: its own, and the vehicle (IMU mount, track, wheelbase).

@@ -16,14 +16,12 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.errors import StageError
 from toolkit.model.events import PathCarry, path_events_step
 from toolkit.model.shock import INTERP_MARGIN, ShockFir, event_shock, filter_stream
 from toolkit.model.shock_attribution import ImpactEnvelope, event_impact_shock
 from toolkit.tableio import iter_table_batches
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Rows per IMU read batch.
 BATCH_ROWS = 4_096

@@ -31,18 +31,15 @@ from typing import Any
 
 import numpy as np
 import pyarrow.parquet as pq
-from numpy.typing import NDArray
 
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.errors import StageError
-from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.layout import LogFiles
 from toolkit.sim.record import SIM_RECORD, sim_origin
 from toolkit.sim.route import Route
 from toolkit.sim.world import WorldParams, make_world
 from toolkit.tableio import iter_table_batches, read_table_metadata
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Largest distance (m) between a feature's published centre and the rebuilt route's point
 #: at its (s, d): the simulator writes both from one route, so only another route differs.

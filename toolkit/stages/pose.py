@@ -3,7 +3,7 @@
 Inputs ``WS/logs/<id>/{imu,gps,heading,wheels}.parquet`` and ``tf_static.json`` (lever arms);
 output ``pose.parquet`` (contract columns, base_link in the local ENU frame whose origin is
 the first valid GPS fix that the fixes after it agree with,
-:func:`~toolkit.frames.choose_enu_origin`; earlier fixes are ignored; stored as JSON under
+:func:`~toolkit.geometry.frames.choose_enu_origin`; earlier fixes are ignored; stored as JSON under
 the ``enu_origin`` metadata key). Manifest record ``pose``: input hashes, config hash, rows,
 gating rejections per sensor, IMU gaps bridged / restarted, re-initialisations from the GPS
 (``reinitialised``), timings; for simulated logs (``truth_pose.parquet`` and the
@@ -31,6 +31,7 @@ import numpy as np
 import pyarrow as pa
 
 from toolkit.analysis.pose_accuracy import TruthAccuracy, truth_accuracy
+from toolkit.arrays import FloatArray
 from toolkit.config import (
     PipelineConfig,
     PoseConfig,
@@ -38,7 +39,6 @@ from toolkit.config import (
     TopicsConfig,
     VehicleConfig,
 )
-from toolkit.frames import ENU_FRAME_ID
 from toolkit.fusion.estimator import estimate_stream
 from toolkit.fusion.estimator_io import (
     EstimateResult,
@@ -47,10 +47,10 @@ from toolkit.fusion.estimator_io import (
     SensorData,
 )
 from toolkit.fusion.process import NoiseModel
-from toolkit.fusion.rotations import FloatArray
-from toolkit.geodesy import GeodeticOrigin
+from toolkit.geometry.frames import ENU_FRAME_ID
+from toolkit.geometry.geodesy import GeodeticOrigin
+from toolkit.geometry.mounts import sensor_mounts
 from toolkit.layout import log_file_name
-from toolkit.mounts import sensor_mounts
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.pose_inputs import PoseInputs, sensor_data
 from toolkit.stages.runner import run_stage

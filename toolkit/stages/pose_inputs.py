@@ -7,9 +7,9 @@ window by window, its orientation thinned to the filter's update rate), so memor
 the log's length. Times are seconds from the IMU's first stamp (``t0_ns``).
 
 The GPS fixes used are those at ``pose.gps_min_status`` or better with finite coordinates,
-from the first one the fixes after it agree with (:func:`~toolkit.frames.choose_enu_origin`,
-the ENU frame's origin); without any, the frame is local, its origin the first pose (wheel
-speeds dead-reckon).
+from the first one the fixes after it agree with
+(:func:`~toolkit.geometry.frames.choose_enu_origin`, the ENU frame's origin); without any,
+the frame is local, its origin the first pose (wheel speeds dead-reckon).
 """
 
 from __future__ import annotations
@@ -24,15 +24,16 @@ import pyarrow.compute as pc
 from scipy.spatial.transform import Rotation
 
 from toolkit.analysis.pose_accuracy import column, last_t_ns, table_batches
+from toolkit.arrays import FloatArray
 from toolkit.config import PoseConfig
 from toolkit.errors import StageError
-from toolkit.frames import choose_enu_origin
 from toolkit.fusion.epochs import MAX_BRIDGE_S, MAX_STEP_S
 from toolkit.fusion.estimator_io import ImuWindow, SensorData
-from toolkit.fusion.rotations import FloatArray, rot_to_euler
-from toolkit.geodesy import GeodeticOrigin, geodetic_to_enu
+from toolkit.geometry.frames import choose_enu_origin
+from toolkit.geometry.geodesy import GeodeticOrigin, geodetic_to_enu
+from toolkit.geometry.mounts import Mount
+from toolkit.geometry.rotations import rot_to_euler
 from toolkit.layout import LogFiles
-from toolkit.mounts import Mount
 from toolkit.tableio import read_table
 
 IMU_COLUMNS = ["t_ns"] + [f"{q}_{a}" for q in ("accel", "gyro") for a in "xyz"]

@@ -3,7 +3,7 @@
 Every return of every scan becomes a world point of the paper's eq. (1), ``L_i = [x, y, z,
 tau, gamma, psi]``, placed with the pose *at the beam's own time* and the laser's mount
 (``base_link_from_laser``, from ``tf_static.json`` by the scan's ``frame_id``,
-:func:`~toolkit.mounts.frame_mounts`): the arithmetic, its interpolation of the pose on the
+:func:`~toolkit.geometry.mounts.frame_mounts`): the arithmetic, its interpolation of the pose on the
 rotation group and the reasons a return is dropped are :mod:`toolkit.model.projection`'s.
 The pose is the causal filter output, what the vehicle knew while driving, as the paper
 projects with. Each point keeps its laser, beam, range, scan time (``scan_t_ns``) and the
@@ -48,9 +48,9 @@ from toolkit.config import (
     VehicleConfig,
 )
 from toolkit.errors import StageError
+from toolkit.geometry.mounts import Mount, frame_mounts
 from toolkit.layout import LogFiles, log_file_name
 from toolkit.model.projection import Counts, PoseWindow, PreparedBatch
-from toolkit.mounts import Mount, frame_mounts
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.project_figures import Figures, ZSample
 from toolkit.stages.project_scans import (

@@ -18,7 +18,6 @@ from typing import NamedTuple
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-from numpy.typing import NDArray
 
 from toolkit.analysis.fig4 import ScanAgreementResult, write_fig4
 from toolkit.analysis.scan_agreement import ScanAgreement
@@ -28,9 +27,8 @@ from toolkit.analysis.truth_terrain import (
     true_ground,
     write_z_error,
 )
+from toolkit.arrays import FloatArray
 from toolkit.errors import StageError
-
-FloatArray = NDArray[np.float64]
 
 #: Fig. 4 is accumulated over the scans of the log's first this-many seconds: all their
 #: pairs up to 10 s apart, from one stretch of driving (as the paper's figure is), at a bounded

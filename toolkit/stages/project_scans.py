@@ -19,8 +19,10 @@ import pyarrow.compute as pc
 from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.errors import StageError
-from toolkit.fusion.rotations import euler_to_rot
+from toolkit.geometry.mounts import Mount
+from toolkit.geometry.rotations import euler_to_rot
 from toolkit.model.projection import (
     Counts,
     PoseWindow,
@@ -29,12 +31,8 @@ from toolkit.model.projection import (
     prepare_scans,
     project_points,
 )
-from toolkit.mounts import Mount
 from toolkit.tableio import iter_table_batches
 from toolkit.timewindow import TimeWindow
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Pose rows per read batch.
 POSE_BATCH = 65_536

@@ -77,8 +77,6 @@ from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 STAGE = "tables"
 #: What the tables are made from: the split, the vehicle (tyre track) and, of the model's

@@ -22,15 +22,13 @@ import pyarrow as pa
 import pyarrow.compute as pc
 from numpy.typing import NDArray
 
+from toolkit.arrays import IntArray
 from toolkit.errors import StageError
 from toolkit.layout import LogFiles
 from toolkit.model.tyre_match import EventPaths, PathSource, match_points
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata, table_num_rows
 from toolkit.timewindow import Columns, TimeWindow
 from toolkit.tyre_paths import META_KEPT_WITHIN_M, PATH_STEP_M
-
-FloatArray = NDArray[np.float64]
-IntArray = NDArray[np.int64]
 
 #: Points per read batch.
 POINT_BATCH = 262_144

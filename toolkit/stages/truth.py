@@ -2,7 +2,7 @@
 
 The simulator writes its true pose (``/truth/odom``) in its own world frame: local ENU at the
 origin in its ``terrain_sim`` metadata record. The contract wants ``truth_pose.parquet`` in
-the pose's frame, local ENU at the log's agreeing GPS fix (:mod:`toolkit.frames`), so the
+the pose's frame, local ENU at the log's agreeing GPS fix (:mod:`toolkit.geometry.frames`), so the
 two tables compare row for row. Positions move exactly, through geodetic coordinates::
 
     p_enu = geodetic_to_enu(enu_to_geodetic(p_sim, sim_origin), origin)
@@ -21,8 +21,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from toolkit.frames import ENU_FRAME_ID, choose_enu_origin
-from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.geometry.frames import ENU_FRAME_ID, choose_enu_origin
+from toolkit.geometry.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
 from toolkit.tableio import TableWriter
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from toolkit.fusion.rotations import SO3_SERIES_BELOW_RAD, FloatArray, so3_exp, so3_exp_one
+from toolkit.geometry.rotations import SO3_SERIES_BELOW_RAD, FloatArray, so3_exp, so3_exp_one
 
 AXIS = np.array([0.48, -0.6, 0.64])  # unit length, no zero component
 

@@ -23,13 +23,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import NDArray
 from scipy.spatial.transform import Rotation
 
+from toolkit.arrays import FloatArray
 from toolkit.config import VehicleConfig
 from toolkit.errors import StageError
-
-FloatArray = NDArray[np.float64]
 
 #: Where a mount came from.
 FROM_TF_STATIC = "tf_static"

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from toolkit.frames import choose_enu_origin
-from toolkit.geodesy import GeodeticOrigin, enu_to_geodetic
+from toolkit.geometry.frames import choose_enu_origin
+from toolkit.geometry.geodesy import GeodeticOrigin, enu_to_geodetic
 
 ORIGIN = GeodeticOrigin(35.6, -115.4, 800.0)
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from toolkit.geodesy import GeodeticOrigin, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin, geodetic_to_enu
 
 #: The fastest a ground vehicle is believed to move (m/s; 216 km/h), for the agreement test.
 MAX_SPEED_MPS = 60.0

@@ -1,7 +1,9 @@
-"""Rotations for the pose filter, vectorised over leading axes.
+"""Every rotation of the toolkit, vectorised: Z-Y-X Euler angles, matrices, quaternions.
 
 Attitude is Z-Y-X Euler (roll, pitch, yaw): ``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` maps
-base_link vectors into ENU (world from body).
+base_link vectors into ENU (world from body). Quaternions are (x, y, z, w), as ROS 2 and
+Foxglove write them. The pose filter works on stacked arrays (``(..., 3)``); ingest and the
+Foxglove view on one column per component.
 """
 
 from __future__ import annotations
@@ -9,9 +11,8 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numpy.typing import NDArray
 
-FloatArray = NDArray[np.float64]
+from toolkit.arrays import FloatArray
 
 
 def wrap_angle(a: FloatArray | float) -> FloatArray:
@@ -103,7 +104,9 @@ def so3_exp_one(phi: FloatArray) -> FloatArray:
 
 
 def euler_rates(rpy: FloatArray, omega_body: FloatArray) -> FloatArray:
-    """Time derivatives of roll, pitch, yaw (..., 3) given the body rate (..., 3)."""
+    """Time derivatives of roll, pitch, yaw (..., 3) given the body rate (..., 3): the
+    filter's form of :func:`euler_rates_zyx` (the same maths; the float operations are
+    ordered as each caller has always computed them, so the tables stay bit for bit)."""
     r, p = rpy[..., 0], rpy[..., 1]
     wx, wy, wz = omega_body[..., 0], omega_body[..., 1], omega_body[..., 2]
     sr, cr, tp, cp = np.sin(r), np.cos(r), np.tan(p), np.cos(p)
@@ -111,3 +114,71 @@ def euler_rates(rpy: FloatArray, omega_body: FloatArray) -> FloatArray:
     pitch_dot = cr * wy - sr * wz
     yaw_dot = (sr * wy + cr * wz) / cp
     return np.stack([roll_dot, pitch_dot, yaw_dot], axis=-1)
+
+
+# -- quaternions, one column per component ---------------------------------------------
+
+
+def _unit(
+    qx: FloatArray, qy: FloatArray, qz: FloatArray, qw: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """The quaternions (x, y, z, w) normalised; a zero or non-finite one becomes NaN."""
+    norm = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        inv = np.where(norm > 1e-12, 1.0 / norm, np.nan)
+    return qx * inv, qy * inv, qz * inv, qw * inv
+
+
+def quaternion_to_euler_zyx(
+    qx: FloatArray, qy: FloatArray, qz: FloatArray, qw: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """(roll, pitch, yaw) in rad of unit quaternions (x, y, z, w), Z-Y-X convention.
+
+    The quaternions are normalised first; a zero or non-finite one gives NaN angles.
+    """
+    x, y, z, w = _unit(qx, qy, qz, qw)
+    roll = np.arctan2(2.0 * (w * x + y * z), 1.0 - 2.0 * (x * x + y * y))
+    pitch = np.arcsin(np.clip(2.0 * (w * y - z * x), -1.0, 1.0))
+    yaw = np.arctan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return roll, pitch, yaw
+
+
+def quaternion_zyx(
+    roll: FloatArray, pitch: FloatArray, yaw: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """(x, y, z, w) of the rotation R = Rz(yaw) Ry(pitch) Rx(roll), element-wise: the
+    inverse of :func:`quaternion_to_euler_zyx`."""
+    cr, sr = np.cos(0.5 * roll), np.sin(0.5 * roll)
+    cp, sp = np.cos(0.5 * pitch), np.sin(0.5 * pitch)
+    cy, sy = np.cos(0.5 * yaw), np.sin(0.5 * yaw)
+    return (
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+        cr * cp * cy + sr * sp * sy,
+    )
+
+
+def rotate_body_to_world(
+    q: tuple[FloatArray, FloatArray, FloatArray, FloatArray], v: tuple[FloatArray, ...]
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Rotate body-frame vectors ``v`` (x, y, z) by unit quaternions ``q`` (x, y, z, w)."""
+    x, y, z, w = _unit(*q)
+    vx, vy, vz = v
+    wx = (1 - 2 * (y * y + z * z)) * vx + 2 * (x * y - w * z) * vy + 2 * (x * z + w * y) * vz
+    wy = 2 * (x * y + w * z) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z - w * x) * vz
+    wz = 2 * (x * z - w * y) * vx + 2 * (y * z + w * x) * vy + (1 - 2 * (x * x + y * y)) * vz
+    return wx, wy, wz
+
+
+def euler_rates_zyx(
+    roll: FloatArray, pitch: FloatArray, p: FloatArray, q: FloatArray, r: FloatArray
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Z-Y-X Euler-angle rates (roll, pitch, yaw rates, rad/s) from body rates p, q, r (rad/s).
+
+    roll' = p + tan(pitch) (q sin(roll) + r cos(roll)); pitch' = q cos(roll) - r sin(roll);
+    yaw' = (q sin(roll) + r cos(roll)) / cos(pitch). Singular at pitch = +-90 degrees.
+    """
+    sr, cr = np.sin(roll), np.cos(roll)
+    qr = q * sr + r * cr
+    return p + np.tan(pitch) * qr, q * cr - r * sr, qr / np.cos(pitch)

@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from toolkit.config import default_config
 from toolkit.errors import StageError
-from toolkit.mounts import FROM_CONFIG, FROM_TF_STATIC, Mount, sensor_mounts
+from toolkit.geometry.mounts import FROM_CONFIG, FROM_TF_STATIC, Mount, sensor_mounts
 
 
 def _tf(parent: str, child: str, xyz: list[float], rpy: list[float]) -> dict[str, object]:

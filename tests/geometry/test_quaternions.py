@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from toolkit.ingestion.attitude import euler_rates_zyx, quaternion_to_euler_zyx
+from toolkit.geometry.rotations import euler_rates_zyx, quaternion_to_euler_zyx
 
 
 def test_euler_rates_match_finite_differences() -> None:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from toolkit.geodesy import (
+from toolkit.geometry.geodesy import (
     WGS84_A_M,
     WGS84_E2,
     WGS84_F,

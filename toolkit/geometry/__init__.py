@@ -1,0 +1,1 @@
+"""Geometry every stage shares: rotations, frames, sensor mounts, WGS-84."""
