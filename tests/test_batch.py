@@ -22,6 +22,7 @@ from click.testing import CliRunner
 from toolkit import batch
 from toolkit.batch import (
     BatchSummary,
+    Executors,
     InlineExecutor,
     ItemOutcome,
     make_executor,
@@ -270,7 +271,12 @@ def test_run_ingest_batch_records_the_config_and_shards(
     ws = tmp_path / "ws"
     logs = [Path("c.mcap"), Path("a.mcap"), Path("./a.mcap"), Path("b.mcap")]
     summary = run_ingest_batch(
-        logs, ws, None, overwrite=True, shard_index=1, num_shards=2, executor=InlineExecutor()
+        logs,
+        ws,
+        None,
+        overwrite=True,
+        executors=Executors(shard_index=1, num_shards=2),
+        executor=InlineExecutor(),
     )
     assert summary.done == [Path("b.mcap")]
     assert (ws / "b.mcap.seen").read_text() == f"True True ingest {default_config().name}"
@@ -358,11 +364,7 @@ def test_cli_ingest_passes_its_options(monkeypatch: pytest.MonkeyPatch) -> None:
     assert call_args == ([Path("a.mcap"), Path("b.mcap")], Path("ws"), Path("cfg.toml"))
     assert kwargs == {
         "overwrite": True,
-        "executor_kind": "dask",
-        "scheduler": "tcp://h:8786",
-        "workers": 3,
-        "shard_index": 1,
-        "num_shards": 4,
+        "executors": Executors("dask", "tcp://h:8786", workers=3, shard_index=1, num_shards=4),
     }
     assert "ingest: 2 logs: 2 ingested, 0 failed" in result.output
 
@@ -373,9 +375,7 @@ def test_cli_ingest_defaults(monkeypatch: pytest.MonkeyPatch) -> None:
     assert result.exit_code == 0, result.output
     (call_args, kwargs) = fake.calls[0]
     assert call_args == ([Path("a.mcap")], Path("ws"), None)
-    assert kwargs["executor_kind"] == "local" and kwargs["scheduler"] is None
-    assert kwargs["workers"] is None and kwargs["overwrite"] is False
-    assert (kwargs["shard_index"], kwargs["num_shards"]) == (0, 1)
+    assert kwargs == {"overwrite": False, "executors": Executors()}
 
 
 def test_cli_ingest_failure_lines_and_exit_1(monkeypatch: pytest.MonkeyPatch) -> None:

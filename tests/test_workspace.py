@@ -151,12 +151,12 @@ def test_shared_locks_coexist_and_exclude_an_exclusive_one(tmp_path: Path) -> No
 
 
 def test_ingest_honours_the_lock_a_pose_holds(tmp_path: Path) -> None:
-    from toolkit.batch import run_ingest_batch
+    from toolkit.batch import Executors, run_ingest_batch
 
     ws = Workspace(tmp_path / "ws")
     sample = Path(__file__).resolve().parents[1] / "sample_logs" / "sample.mcap"
     with ws.lock(), pytest.raises(WorkspaceError, match="in use"):
-        run_ingest_batch([sample], ws.root, None, overwrite=False, workers=1)
+        run_ingest_batch([sample], ws.root, None, overwrite=False, executors=Executors(workers=1))
     assert not ws.log_ids()
 
 

@@ -512,17 +512,38 @@ def _config_in_force(workspace: Workspace, config_path: Path | None) -> Pipeline
     return default_config()
 
 
+@dataclass(frozen=True)
+class Executors:
+    """Where a batch's logs run: a local pool (``workers`` processes, 0 in this process) or
+    a Dask cluster (``scheduler``), and which share of the logs is this job's
+    (``shard_index`` of ``num_shards``, for job arrays)."""
+
+    executor_kind: str = "local"
+    scheduler: str | None = None
+    workers: int | None = None
+    shard_index: int = 0
+    num_shards: int = 1
+
+    def open(self) -> contextlib.AbstractContextManager[Executor]:
+        """The executor (:func:`make_executor`); closing the ``with`` shuts it down."""
+        return make_executor(self.executor_kind, workers=self.workers, scheduler=self.scheduler)
+
+    def mine(self, logs: Sequence[Path]) -> tuple[dict[str, Path], list[Path]]:
+        """The logs once each, and this shard's share (:func:`this_shard`)."""
+        return this_shard(logs, self.shard_index, self.num_shards)
+
+
+#: Every log, on a local pool of one process per CPU.
+LOCAL = Executors()
+
+
 def run_ingest_batch(
     logs: Sequence[Path],
     workspace_root: Path,
     config_path: Path | None,
     *,
     overwrite: bool,
-    executor_kind: str = "local",
-    scheduler: str | None = None,
-    workers: int | None = None,
-    shard_index: int = 0,
-    num_shards: int = 1,
+    executors: Executors = LOCAL,
     executor: Executor | None = None,
 ) -> BatchSummary:
     """``terrain ingest``: ingest this shard's logs in parallel; return the summary.
@@ -539,7 +560,8 @@ def run_ingest_batch(
     The workspace lock is taken shared: the jobs of an array share one workspace (each log's
     files and manifest are its own), while a stage holding it exclusively refuses them.
     """
-    unique, mine = this_shard(logs, shard_index, num_shards)
+    unique, mine = executors.mine(logs)
+    shard_index, num_shards = executors.shard_index, executors.num_shards
 
     workspace = Workspace(workspace_root)
     # Validated before anything is made: a bad configuration leaves no workspace.
@@ -563,7 +585,7 @@ def run_ingest_batch(
             if executor is not None:
                 summary = run_batch(task, mine, executor, desc="ingest", unit="log")
             else:
-                with make_executor(executor_kind, workers=workers, scheduler=scheduler) as opened:
+                with executors.open() as opened:
                     summary = run_batch(task, mine, opened, desc="ingest", unit="log")
         if adopt_config and (summary.done or summary.up_to_date):
             workspace.write_config(config)  # a config becomes the workspace's once it has worked

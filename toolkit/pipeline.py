@@ -50,12 +50,12 @@ from pathlib import Path
 from typing import Any
 
 from toolkit.batch import (
+    LOCAL,
     BatchSummary,
+    Executors,
     _config_in_force,
-    make_executor,
     run_batch,
     stage_task,
-    this_shard,
 )
 from toolkit.config import PipelineConfig
 from toolkit.errors import ToolkitError, WorkspaceError
@@ -343,18 +343,15 @@ def run_pipeline(
     first: str | None = None,
     last: str | None = None,
     overwrite: bool = False,
-    executor_kind: str = "local",
-    scheduler: str | None = None,
-    workers: int | None = None,
-    shard_index: int = 0,
-    num_shards: int = 1,
+    executors: Executors = LOCAL,
     executor: Executor | None = None,
     echo: Callable[[str], None] | None = None,
 ) -> RunSummary:
     """``terrain run`` (module docstring). ``echo`` receives each stage's line as it ends."""
     start = time.perf_counter()
     stages = stage_range(first, last)
-    unique, mine = this_shard(logs, shard_index, num_shards)
+    unique, mine = executors.mine(logs)
+    shard_index, num_shards = executors.shard_index, executors.num_shards
     ws = Workspace(workspace_root)
     # Validated before anything is made: a bad configuration leaves no workspace.
     config = _config_in_force(ws, config_path)
@@ -385,9 +382,7 @@ def run_pipeline(
             stack.enter_context(ws.lock(shared=num_shards > 1))
             pool = executor
             if pool is None and per_log:
-                pool = stack.enter_context(
-                    make_executor(executor_kind, workers=workers, scheduler=scheduler)
-                )
+                pool = stack.enter_context(executors.open())
             total = len(run_logs.every) * len(per_log) + len(workspace_stages)
             with progress(total=total, desc="run", unit="step") as bar:
                 for stage in per_log:

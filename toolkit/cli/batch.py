@@ -8,7 +8,7 @@ import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypedDict
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -16,18 +16,10 @@ from toolkit.cli.base import debug_on, error_line
 from toolkit.cli.group import main
 from toolkit.cli.stages import StageName
 
+if TYPE_CHECKING:  # the runners load numpy and pyarrow: imported when a verb runs
+    from toolkit.batch import Executors
+
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
-
-
-class Executors(TypedDict):
-    """The executor and shard options, checked: keyword arguments of
-    :func:`toolkit.batch.run_ingest_batch` and :func:`toolkit.pipeline.run_pipeline`."""
-
-    executor_kind: str
-    scheduler: str | None
-    workers: int | None
-    shard_index: int
-    num_shards: int
 
 
 @dataclass(frozen=True)
@@ -44,12 +36,12 @@ class BatchArgs:
 
 def _check_executor_options(ctx: click.Context, executors: Executors) -> None:
     """Usage errors among the executor and shard options (exit 2)."""
-    executor_kind, scheduler = executors["executor_kind"], executors["scheduler"]
+    executor_kind, scheduler = executors.executor_kind, executors.scheduler
     if executor_kind == "dask" and not scheduler:
         raise click.UsageError("--executor dask needs --scheduler ADDR", ctx)
     if executor_kind != "dask" and scheduler is not None:
         raise click.UsageError("--scheduler applies only with --executor dask", ctx)
-    shard_index, num_shards = executors["shard_index"], executors["num_shards"]
+    shard_index, num_shards = executors.shard_index, executors.num_shards
     if shard_index >= num_shards:
         raise click.BadParameter(
             f"{shard_index} is not below --num-shards {num_shards}",
@@ -78,6 +70,8 @@ def _batch_options(*own: Decorator) -> Decorator:
             num_shards: int,
             **own_values: Any,
         ) -> Any:
+            from toolkit.batch import Executors
+
             executors = Executors(
                 executor_kind=executor_kind,
                 scheduler=scheduler,
@@ -174,7 +168,11 @@ def ingest(ctx: click.Context, batch: BatchArgs, overwrite: bool, as_json: bool)
     from toolkit.batch import run_ingest_batch
 
     summary = run_ingest_batch(
-        batch.logs, batch.workspace, batch.config_path, overwrite=overwrite, **batch.executors
+        batch.logs,
+        batch.workspace,
+        batch.config_path,
+        overwrite=overwrite,
+        executors=batch.executors,
     )
     if as_json:
         outcomes = [
@@ -232,7 +230,7 @@ def run(
         first=first,
         last=last,
         overwrite=overwrite,
-        **batch.executors,
+        executors=batch.executors,
     )
     click.echo(json.dumps(summary.to_dict(), indent=2) if as_json else summary.render())
     if summary.ok:

@@ -8,15 +8,8 @@ from collections.abc import Sequence
 from typing import Any
 
 from toolkit import __version__
-from toolkit.publish.dataset import (
-    CITATION,
-    EVENT_POINTS,
-    EVENTS,
-    SPLITS,
-    TYPES,
-    DatasetFacts,
-    data_file,
-)
+from toolkit.publish import dataset
+from toolkit.publish.dataset import DatasetFacts
 from toolkit.tableio import ColumnSpec
 
 DATASET_NAME = "terrain-roughness-self-supervised"
@@ -74,7 +67,7 @@ def croissant_metadata(facts: DatasetFacts) -> dict[str, Any]:
         "name": DATASET_NAME,
         "description": _description(facts),
         "conformsTo": CROISSANT_CONFORMS_TO,
-        "citeAs": CITATION,
+        "citeAs": dataset.CITATION,
         "license": "https://creativecommons.org/licenses/by/4.0/",
         # Where the dataset is published is not known here: its landing page is the card
         # beside this file (replace with the hosting URL when publishing).
@@ -119,8 +112,8 @@ def _distribution(facts: DatasetFacts) -> list[dict[str, Any]]:
     """A FileObject per Parquet file (its size and sha256), then a FileSet per config."""
     distribution: list[dict[str, Any]] = []
     for name in facts.columns:
-        for split in SPLITS:
-            path = data_file(name, split)
+        for split in dataset.SPLITS:
+            path = dataset.data_file(name, split)
             size, sha = facts.files[path]
             distribution.append(
                 {
@@ -156,12 +149,12 @@ def _record_set(name: str, columns: Sequence[ColumnSpec]) -> dict[str, Any]:
             "@id": f"{name}/{col.name}",
             "name": col.name,
             "description": col.description + (f" [{col.unit}]" if col.unit else ""),
-            "dataType": TYPES[col.type][1],
+            "dataType": dataset.TYPES[col.type][1],
             "source": {"fileSet": {"@id": f"{name}-files"}, "extract": {"column": col.name}},
         }
         for col in columns
     ]
-    if name == EVENT_POINTS:
+    if name == dataset.EVENT_POINTS:
         # A point's split is the file it is in (its event's split).
         fields.append(
             {
@@ -185,7 +178,7 @@ def _record_set(name: str, columns: Sequence[ColumnSpec]) -> dict[str, Any]:
         "name": name,
         "description": (
             "one row per event: its shock, speed, ruggedness, rough label and split"
-            if name == EVENTS
+            if name == dataset.EVENTS
             else "one row per laser point, event and rear tyre (the paper's L_i)"
         ),
         "field": fields,
