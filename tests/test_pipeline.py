@@ -113,6 +113,7 @@ def test_run_equals_the_verbs_one_by_one(
     assert any(k.startswith("report/") for k in want) and "model.json" in want
 
 
+@pytest.mark.slow  # end to end: run by .ci/run, left out of the README's command
 def test_a_second_run_does_nothing(uninterrupted: Path, logs: list[Path], tmp_path: Path) -> None:
     """Every stage reports up to date and no output changes (content or modification time;
     the manifests are rewritten, the lock file touched)."""
@@ -186,6 +187,7 @@ def test_killed_at_random_moments_then_rerun_gives_the_same_outputs(
         assert [p for p in want if got[p] != want[p]] == [], k
 
 
+@pytest.mark.slow  # end to end: run by .ci/run, left out of the README's command
 def test_a_new_configuration_reaches_every_stage_it_runs(
     uninterrupted: Path, logs: list[Path], tmp_path: Path
 ) -> None:

@@ -29,6 +29,10 @@ from toolkit.workspace import Workspace
 from .logdata import SimLog, label_log
 from .reference_labeller import Events
 
+# The race simulated, ingested, posed and labelled three times: run by .ci/run, left out of
+# the README's command.
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def events(race_log: SimLog) -> Events:

@@ -266,6 +266,7 @@ def _gps_residuals(log: SimLog) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return enu - antenna, t[ok], yaw
 
 
+@pytest.mark.slow  # reads the 1.4 km race: run by .ci/run, left out of the README's command
 def test_gps_noise_and_drift_against_truth(race_log: SimLog) -> None:
     """On the race log (7 minutes, every heading): white noise from fix-to-fix differences,
     slow Gauss-Markov drift from the smoothed residual, and the lever arm applied."""

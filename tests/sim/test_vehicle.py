@@ -324,6 +324,7 @@ def test_no_tensile_tyre_force_over_a_rough_race_stretch(
 # -- the IMU's vertical spectrum --------------------------------------------------------------
 
 
+@pytest.mark.slow  # reads the 1.4 km race: run by .ci/run, left out of the README's command
 def test_imu_vertical_spectrum_has_the_wheel_hop_peak(race_log: SimLog) -> None:
     """The IMU's z acceleration over the race log's ordinary road (ISO class D, 2 s windows
     at least 3 m before and 8 m after every rough feature the tyres could meet: the rear axle
