@@ -1,6 +1,6 @@
 """The runner: what every stage needs done around its computation, done once.
 
-For a stage on the runner's check (:attr:`Stage.compute`), :func:`run_stage`
+For every stage, :func:`run_stage`
 
 1. opens a new generation of the log (a per-log stage), committed in one atomic switch only
    when the stage computed something: killed at any moment, the log is as before or after;
@@ -42,8 +42,6 @@ from toolkit.manifest import (
 )
 from toolkit.stages.contract import Call, Made, Outcome, Recalled, Stage
 from toolkit.workspace import Workspace
-
-_log = logging.getLogger(__name__)
 
 
 def _quiet(_: str) -> None:
