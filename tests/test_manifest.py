@@ -13,10 +13,10 @@ import pytest
 from toolkit.errors import WorkspaceError
 from toolkit.manifest import Manifest, StageRecord, check_up_to_date, digest_files, file_sha256
 
-# -- hashing and log ids ------------------------------------------------------------------
-
 
 def _record(**overrides: object) -> StageRecord:
+    """A stage record with plausible fields, ``overrides`` replacing some (also used by
+    test_workspace)."""
     fields: dict[str, object] = {
         "inputs": {"log": "aa" * 32},
         "config_hash": "cc" * 32,

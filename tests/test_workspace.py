@@ -11,10 +11,11 @@ from pathlib import Path
 
 import pytest
 
+from tests.test_manifest import _record
 from toolkit.atomic import atomic_write_bytes
 from toolkit.config import default_config
 from toolkit.errors import ConfigError, WorkspaceError
-from toolkit.manifest import StageRecord, digest_files
+from toolkit.manifest import digest_files
 from toolkit.workspace import Workspace, log_id_for, make_log_id
 
 # -- hashing and log ids ------------------------------------------------------------------
@@ -47,20 +48,6 @@ def test_make_log_id_sanitises_stem() -> None:
 
 
 # -- manifest -----------------------------------------------------------------------------
-
-
-def _record(**overrides: object) -> StageRecord:
-    fields: dict[str, object] = {
-        "inputs": {"log": "aa" * 32},
-        "config_hash": "cc" * 32,
-        "outputs": ("imu.parquet",),
-        "row_counts": {"imu": 10},
-        "rejects": {"clock_skew": 2},
-        "timings_s": {"total": 1.25},
-        "warnings": ("gps gap of 3 s",),
-    }
-    fields.update(overrides)
-    return StageRecord(**fields)  # type: ignore[arg-type]
 
 
 def test_workspace_is_up_to_date_uses_log_manifest(tmp_path: Path) -> None:

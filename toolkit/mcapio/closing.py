@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from types import TracebackType
 from typing import Self
 
 
-class Closing:
+class Closing(ABC):
     """Used as a context manager: leaving ``with`` normally calls :meth:`close`, leaving it on
     an exception calls :meth:`abort` (which closes too, unless a subclass discards instead,
     as :class:`~toolkit.mcapio.writer.LogWriter` does)."""
@@ -25,8 +26,9 @@ class Closing:
         else:
             self.abort()
 
+    @abstractmethod
     def close(self) -> None:
-        raise NotImplementedError
+        """Finish and release the file."""
 
     def abort(self) -> None:
         """Give up on an exception: by default, close."""
