@@ -16,7 +16,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import pytest
 
-from toolkit.config import LabelConfig, PipelineConfig, default_config
+from toolkit.config import LabelConfig, PipelineConfig, VehicleConfig, config_hash, default_config
 from toolkit.errors import StageError, WorkspaceError
 from toolkit.manifest import Manifest, file_sha256
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
@@ -70,8 +70,7 @@ DOUBLE = Stage(
     _recall,
     needs=(Need("seed", "seed"),),
     makes=("double",),
-    sections=("label",),
-    settings=DoubleSettings,
+    settings=DoubleSettings,  # its up-to-date key: the sections it holds, [label]
 )
 
 
@@ -112,6 +111,24 @@ def test_only_the_sections_a_stage_reads_rerun_it(seeded: tuple[Workspace, str, 
     assert run_stage(DOUBLE, ws, other_pose, log_id=log_id).status == "up_to_date"
     other_label = _with_threshold(config, config.label.rough_threshold_g_per_mph * 2)
     assert run_stage(DOUBLE, ws, other_label, log_id=log_id).status == "doubled"
+
+
+def test_a_stage_is_keyed_by_its_settings_sections_unless_it_declares_fewer() -> None:
+    @dataclasses.dataclass(frozen=True)
+    class LabelAndVehicle:
+        label: LabelConfig
+        vehicle: VehicleConfig
+
+    config = default_config()
+    wider = dataclasses.replace(
+        config, vehicle=dataclasses.replace(config.vehicle, track_m=config.vehicle.track_m + 0.1)
+    )
+    by_settings = Stage("both", "log", _double, _recall, settings=LabelAndVehicle)
+    declared = Stage("both", "log", _double, _recall, settings=LabelAndVehicle, sections=("label",))
+    assert by_settings.hashed_sections(config) == ("label", "vehicle")
+    assert by_settings.config_hash(config) == config_hash(config, ("label", "vehicle"))
+    assert by_settings.config_hash(wider) != by_settings.config_hash(config)
+    assert declared.config_hash(wider) == declared.config_hash(config)
 
 
 def test_a_missing_need_names_the_stage_that_makes_it(tmp_path: Path) -> None:

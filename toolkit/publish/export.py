@@ -119,7 +119,7 @@ def log_source(workspace: Workspace, log_id: str, config: PipelineConfig) -> Log
             path=manifest_path,
         )
     labelled = manifest.stage(label_stage.STAGE)
-    if labelled is None or labelled.config_hash != label_stage.stage_config_hash(config):
+    if labelled is None or labelled.config_hash != label_stage.SPEC.config_hash(config):
         raise StageError(
             f"log {log_id}: its events were labelled with another configuration than the "
             "workspace's (or not at all); run `terrain label` and `terrain tables` again",

@@ -15,7 +15,7 @@ import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal, Protocol
+from typing import Any, Generic, Literal, Protocol, TypeVar
 
 from toolkit.config import SECTIONS, PipelineConfig, config_hash
 from toolkit.layout import LogFiles
@@ -32,6 +32,10 @@ class Outcome(Protocol):
 
     @property
     def status(self) -> str: ...  # "up_to_date" when it found nothing to do
+
+
+#: A stage's outcome type (its ``...Result``): what its compute makes and its recall gives.
+OutcomeT = TypeVar("OutcomeT", bound=Outcome)
 
 
 def _summary(outcome: Any) -> str:
@@ -76,12 +80,12 @@ class Call:
 
 
 @dataclass(frozen=True)
-class Made:
+class Made(Generic[OutcomeT]):
     """What a stage's compute function gives back: its outcome, and what the runner records
     (the files it wrote, relative to its directory; rows per table; rejects by reason;
     seconds per step; warnings; and the manifest's header fields it sets)."""
 
-    outcome: Outcome
+    outcome: OutcomeT
     outputs: tuple[str, ...]
     row_counts: Mapping[str, int] = field(default_factory=dict)
     rejects: Mapping[str, int] = field(default_factory=dict)
@@ -106,19 +110,20 @@ class Recalled:
 
 
 @dataclass(frozen=True)
-class Stage:
+class Stage(Generic[OutcomeT]):
     """One stage's declaration.
 
     - ``name``, ``scope``: as listed in the registry.
     - ``compute`` makes its outputs from a :class:`Call`; ``recall`` gives its outcome from
       its record when it is up to date.
     - ``needs``, ``makes``: what it reads and writes, by layout name (:mod:`toolkit.layout`).
-    - ``sections``: the configuration it reads (a section, ``"label"``, or one key,
-      ``"model.wheel_window_radius_m"``), whose hash is its configuration's part of the
-      up-to-date key; ``hashed`` overrides them when what it reads depends on the
-      configuration (project reads the tyres' radius only when it cuts by one).
     - ``settings``: the frozen dataclass it receives, whose fields are named after the
       configuration's sections (fields with defaults that are no section stay as they are).
+    - ``sections``: the configuration whose hash is its configuration's part of the
+      up-to-date key: by default the sections its ``settings`` hold; declared when it reads
+      less (one key, ``"model.wheel_window_radius_m"``, or not a section whose changes reach
+      it through its inputs anyway); ``hashed`` overrides them when what it reads depends on
+      the configuration (project reads the tyres' radius only when it cuts by one).
     - ``check`` refuses, before anything is hashed, a log the stage cannot work on (a role
       it needs missing).
     - ``gather`` replaces the hashing of ``needs`` for a stage whose inputs are no fixed
@@ -132,8 +137,8 @@ class Stage:
 
     name: str
     scope: Scope
-    compute: Callable[[Call], Made]
-    recall: Callable[[Recalled], Outcome]
+    compute: Callable[[Call], Made[OutcomeT]]
+    recall: Callable[[Recalled], OutcomeT]
     needs: tuple[Need, ...] = ()
     makes: tuple[str, ...] = ()
     sections: tuple[str, ...] = ()
@@ -159,7 +164,11 @@ class Stage:
 
     def hashed_sections(self, config: PipelineConfig) -> tuple[str, ...]:
         """The configuration whose hash keys this stage's up-to-date check."""
-        return self.hashed(config) if self.hashed is not None else self.sections
+        if self.hashed is not None:
+            return self.hashed(config)
+        if self.sections or self.settings is None:
+            return self.sections
+        return tuple(f.name for f in dataclasses.fields(self.settings) if f.name in SECTIONS)
 
     def config_hash(self, config: PipelineConfig) -> str:
         """The hash of the configuration this stage reads (:meth:`hashed_sections`): its part

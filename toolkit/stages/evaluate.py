@@ -30,7 +30,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -71,9 +71,9 @@ from toolkit.model.baseline import BaselineParams
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roc import caveats, small_sample_warnings
 from toolkit.model.roughness import Blockwise, RoughnessParams, model_pairs, score_events
+from toolkit.stages import learn as learn_stage
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.label import FIG5_PNG
-from toolkit.stages.learn import stage_config_hash as learn_config_hash
 from toolkit.stages.runner import run_stage
 from toolkit.stages.training_data import (
     closest_laser,
@@ -90,7 +90,6 @@ from toolkit.workspace import Workspace
 _log = logging.getLogger(__name__)
 
 STAGE = "evaluate"
-CONFIG_SECTIONS = ("model", "learn", "evaluate")
 SCORES_NAME = workspace_file_name("scores")
 SUMMARY_NAME = workspace_file_name("summary")
 INDEX_NAME = workspace_file_name("index")
@@ -147,8 +146,7 @@ def run_evaluate(
 ) -> EvaluateResult:
     """Score every event by every method, compare them on the test split, write the report
     (module docstring)."""
-    result = run_stage(SPEC, workspace, config, overwrite=overwrite, step=step)
-    return cast(EvaluateResult, result)
+    return run_stage(SPEC, workspace, config, overwrite=overwrite, step=step)
 
 
 def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str], None]:
@@ -171,7 +169,8 @@ def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str
         )
     # ... and with this configuration: the patches evaluate builds ([model]) must be the
     # ones the model was learned on, and the ablations search as [learn] now says.
-    if learned_from is not None and learned_from.config_hash != learn_config_hash(config):
+    learn_hash = learn_stage.SPEC.config_hash(config)
+    if learned_from is not None and learned_from.config_hash != learn_hash:
         raise StageError(
             "the model was learned with another [model] or [learn] configuration than the "
             "one in force; run `terrain learn` again",
@@ -491,7 +490,7 @@ def _write_report(
     return summary, counts
 
 
-def _compute(call: Call) -> Made:
+def _compute(call: Call) -> Made[EvaluateResult]:
     """Score, compare and write the report (the module docstring); the runner records it."""
     config: EvaluateSettings = call.settings
     workspace, start = call.workspace, call.start
@@ -559,7 +558,6 @@ SPEC = Stage(
         Need("model", "learn"),
     ),
     makes=("scores", "summary", "index"),
-    sections=CONFIG_SECTIONS,
     settings=EvaluateSettings,
     gather=_gather,
     compute=_compute,
@@ -567,9 +565,6 @@ SPEC = Stage(
     rows=("scores",),
     describe=EvaluateResult.text,
 )
-
-#: The hash of the configuration this stage reads (its up-to-date key).
-stage_config_hash = SPEC.config_hash
 
 
 __all__ = ["SPEC", "STAGE", "EvaluateResult", "closest_laser", "oracle_patches", "run_evaluate"]

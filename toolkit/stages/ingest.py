@@ -19,7 +19,7 @@ import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 from toolkit.config import PipelineConfig, TimeConfig, TopicsConfig
 from toolkit.errors import LogReadError
@@ -40,10 +40,6 @@ _log = logging.getLogger(__name__)
 
 #: The manifest's name for this stage.
 STAGE = "ingest"
-
-#: Configuration sections ingest reads: its identity (a pose tuning change must not make
-#: every ingest stale, so ``[pose]`` is not among them).
-CONFIG_SECTIONS: tuple[str, ...] = ("topics", "time")
 
 
 @dataclass(frozen=True)
@@ -77,8 +73,9 @@ class IngestResult:
 
 @dataclass(frozen=True)
 class IngestSettings:
-    """What ingest reads of the configuration: the topics of each role and the clocks; and
-    how many bytes each table holds back for sorting (not a configuration key)."""
+    """What ingest reads of the configuration: the topics of each role and the clocks (its
+    up-to-date key: a pose tuning change must not make every ingest stale); and how many bytes
+    each table holds back for sorting (not a configuration key)."""
 
     topics: TopicsConfig
     time: TimeConfig
@@ -105,10 +102,9 @@ def ingest_log(
     rows each table holds back for sorting.
     """
     settings = IngestSettings(config.topics, config.time, reorder_buffer_bytes)
-    result = run_stage(
+    return run_stage(
         SPEC, workspace, config, overwrite=overwrite, settings=settings, source=Path(log_path)
     )
-    return cast(IngestResult, result)
 
 
 # --------------------------------------------------------------------------------------
@@ -176,7 +172,7 @@ def _nonzero(topics: Mapping[str, Any], key: str) -> dict[str, dict[str, int]]:
 # --------------------------------------------------------------------------------------
 
 
-def _compute(call: Call) -> Made:
+def _compute(call: Call) -> Made[IngestResult]:
     """Read the log into its tables (``docs/ingest.md``); the runner records them."""
     source: _Source = call.found
     previous = call.manifest.stage(STAGE)
@@ -270,7 +266,7 @@ def _made(
     missing: Mapping[str, list[str]],
     out_files: Sequence[str],
     warnings: Sequence[str],
-) -> Made:
+) -> Made[IngestResult]:
     """The outcome and what the runner records: rows, rejects, timings, the manifest's
     ``source`` and ``ingest`` sections."""
     source_header = {
@@ -320,7 +316,6 @@ SPEC = Stage(
     STAGE,
     "log",
     makes=("imu", "gps", "heading", "wheels", "laser", "tf_static", "mcap_metadata"),
-    sections=CONFIG_SECTIONS,
     settings=IngestSettings,
     locate=_locate,
     compute=_compute,
@@ -329,17 +324,12 @@ SPEC = Stage(
     unit="log",
 )
 
-#: The hash of the configuration this stage reads (its up-to-date key).
-stage_config_hash = SPEC.config_hash
-
 
 __all__ = [
     "SPEC",
-    "CONFIG_SECTIONS",
     "STAGE",
     "IngestResult",
     "IngestSettings",
     "MCAP_METADATA_OUTPUT",
     "ingest_log",
-    "stage_config_hash",
 ]

@@ -95,8 +95,6 @@ _log = logging.getLogger(__name__)
 
 
 STAGE = "label"
-#: Configuration sections label reads: its own, and the vehicle (IMU mount, track, wheelbase).
-CONFIG_SECTIONS = ("label", "vehicle")
 OUTPUT = log_file_name("events")
 FIG5_CSV = log_file_name("fig5_csv")
 FIG5_PNG = log_file_name("fig5_png")
@@ -187,8 +185,7 @@ def run_label(
     workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
 ) -> LabelResult:
     """Label one posed log (see the module docstring)."""
-    result = run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
-    return cast(LabelResult, result)
+    return run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
 
 
 def _recall(last: Recalled) -> LabelResult:
@@ -417,7 +414,7 @@ def _made(
     written: _Written,
     timings: dict[str, float],
     warnings: list[str],
-) -> Made:
+) -> Made[LabelResult]:
     """The outcome and what the runner records (the header's ``label`` section)."""
     n_rough = int(written.labels.rough.sum())
     detail: dict[str, Any] = {
@@ -457,7 +454,7 @@ def _made(
     )
 
 
-def _compute(call: Call) -> Made:
+def _compute(call: Call) -> Made[LabelResult]:
     """Label the log in ``call.files`` (the module docstring); the runner records it."""
     timings: dict[str, float] = {}
     warnings: list[str] = []
@@ -484,15 +481,11 @@ SPEC = Stage(
         Need("pose", "pose"),
     ),
     makes=("events",),
-    sections=CONFIG_SECTIONS,
     settings=LabelSettings,
     compute=_compute,
     recall=_recall,
     rows=("events",),
 )
-
-#: The hash of the configuration this stage reads (its up-to-date key).
-stage_config_hash = SPEC.config_hash
 
 
 __all__ = [
@@ -505,5 +498,4 @@ __all__ = [
     "path_events",
     "path_events_step",
     "run_label",
-    "stage_config_hash",
 ]

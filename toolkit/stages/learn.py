@@ -23,7 +23,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -48,7 +48,6 @@ from toolkit.workspace import Workspace
 _log = logging.getLogger(__name__)
 
 STAGE = "learn"
-CONFIG_SECTIONS = ("model", "learn")
 MODEL_FORMAT = "terrain.roughness_model"
 MODEL_FORMAT_VERSION = 1
 
@@ -164,7 +163,7 @@ def run_learn(
     """Learn the model from the training split and write ``model.json`` (module docstring);
     ``progress`` is told each rotation of the search."""
     step = (lambda _: progress(1)) if progress is not None else None
-    return cast(LearnResult, run_stage(SPEC, workspace, config, overwrite=overwrite, step=step))
+    return run_stage(SPEC, workspace, config, overwrite=overwrite, step=step)
 
 
 def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str], None]:
@@ -178,7 +177,7 @@ def _recall(last: Recalled) -> LearnResult:
     return LearnResult("up_to_date", doc, last.seconds)
 
 
-def _compute(call: Call) -> Made:
+def _compute(call: Call) -> Made[LearnResult]:
     """Learn and write ``model.json`` (the module docstring); the runner records it."""
     config: LearnSettings = call.settings
     workspace, inputs, cfg_hash, start = call.workspace, call.inputs, call.config_hash, call.start
@@ -232,7 +231,6 @@ SPEC = Stage(
     "workspace",
     needs=(Need("events_table", "tables"), Need("event_points_table", "tables")),
     makes=("model",),
-    sections=CONFIG_SECTIONS,
     settings=LearnSettings,
     gather=_gather,
     compute=_compute,
@@ -241,9 +239,6 @@ SPEC = Stage(
     unit="rotation",
     progress_total=lambda config: config.learn.iterations,
 )
-
-#: The hash of the configuration this stage reads (its up-to-date key).
-stage_config_hash = SPEC.config_hash
 
 
 __all__ = ["SPEC", "STAGE", "LearnResult", "require_both_classes", "run_learn"]

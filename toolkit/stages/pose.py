@@ -25,7 +25,7 @@ import json
 import logging
 import time
 from dataclasses import dataclass, field
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -172,8 +172,7 @@ def run_pose(
     workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
 ) -> PoseResult:
     """Estimate the pose of one ingested log (see the module docstring)."""
-    result = run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
-    return cast(PoseResult, result)
+    return run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
 
 
 def _recall(last: Recalled) -> PoseResult:
@@ -350,7 +349,7 @@ def _made(
     tally: _PathTally,
     timings: dict[str, float],
     warnings: list[str],
-) -> Made:
+) -> Made[PoseResult]:
     """The outcome and what the runner records (the header's ``pose`` and
     ``pose_accuracy``)."""
     dead_reckoning = _dead_reckoning(call.settings, est, tally, warnings)
@@ -395,7 +394,7 @@ def _made(
     )
 
 
-def _compute(call: Call) -> Made:
+def _compute(call: Call) -> Made[PoseResult]:
     """Estimate the pose of the log in ``call.files`` (the module docstring)."""
     timings: dict[str, float] = dict.fromkeys(("read", "filter", "write", "accuracy"), 0.0)
     t = time.perf_counter()
@@ -423,9 +422,6 @@ SPEC = Stage(
     rows=("pose",),
 )
 
-#: The hash of the configuration this stage reads (its up-to-date key).
-stage_config_hash = SPEC.config_hash
-
 
 __all__ = [
     "SPEC",
@@ -434,5 +430,4 @@ __all__ = [
     "PoseSettings",
     "TruthAccuracy",
     "run_pose",
-    "stage_config_hash",
 ]

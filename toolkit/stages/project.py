@@ -33,7 +33,7 @@ from collections.abc import Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NamedTuple, cast
+from typing import NamedTuple
 
 import numpy as np
 import pyarrow as pa
@@ -73,7 +73,7 @@ STAGE = "project"
 OUTPUT = log_file_name("points")
 #: Configuration sections projection reads: the vehicle (its base frame, for the mounts; its
 #: track, for the tyres' paths) and which points to keep; with ``keep = "near_path"`` also
-#: the tables' radius around a tyre (:func:`stage_config_hash`).
+#: the tables' radius around a tyre (:meth:`Stage.config_hash`).
 CONFIG_SECTIONS = ("vehicle", "project")
 #: Scans per read batch (5 lasers x 181 beams: ~360 k points, ~40 MB of arrays in flight).
 SCAN_BATCH = 2_000
@@ -148,8 +148,7 @@ def run_project(
     workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
 ) -> ProjectResult:
     """Project one log's scans into the world (see the module docstring)."""
-    result = run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
-    return cast(ProjectResult, result)
+    return run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
 
 
 def _require_lasers(files: LogFiles, config: ProjectSettings) -> None:
@@ -176,7 +175,7 @@ def _recall(last: Recalled) -> ProjectResult:
     )
 
 
-def _compute(call: Call) -> Made:
+def _compute(call: Call) -> Made[ProjectResult]:
     """Project the scans of the log in ``call.files`` (the module docstring): open the
     inputs, project and write the batches, then write the figures."""
     config: ProjectSettings = call.settings
@@ -332,7 +331,7 @@ def _made(
     fig4: ScanAgreementResult,
     figure_files: list[str],
     warnings: list[str],
-) -> Made:
+) -> Made[ProjectResult]:
     """The stage's outcome and record from a finished projection."""
     counts, far_from_path, timings = loop.counts, loop.far_from_path, loop.timings
     dropped = {k: v for k, v in counts.rejects.items() if v}
@@ -465,9 +464,6 @@ SPEC = Stage(
     rows=("points",),
 )
 
-#: The hash of the configuration this stage reads (its up-to-date key).
-stage_config_hash = SPEC.config_hash
-
 
 __all__ = [
     "LASER_COLUMNS",
@@ -484,5 +480,4 @@ __all__ = [
     "project_batch",
     "project_prepared",
     "run_project",
-    "stage_config_hash",
 ]

@@ -11,7 +11,7 @@ declaration is asked for. Adding a stage is one new module with a ``SPEC`` and o
 from __future__ import annotations
 
 import importlib
-from typing import TYPE_CHECKING, Literal, NamedTuple
+from typing import TYPE_CHECKING, Any, Literal, NamedTuple
 
 from toolkit.errors import ToolkitError
 
@@ -74,7 +74,7 @@ def listed(name: str) -> Listed:
     return line
 
 
-def stage(name: str) -> Stage:
+def stage(name: str) -> Stage[Any]:
     """The declaration of stage ``name`` (ToolkitError when there is none, or it does not
     match its line)."""
     from toolkit.stages.contract import Stage
@@ -86,7 +86,7 @@ def stage(name: str) -> Stage:
     return spec
 
 
-def stages() -> tuple[Stage, ...]:
+def stages() -> tuple[Stage[Any], ...]:
     """Every stage's declaration, in order; each reads only stages listed before it."""
     out = tuple(stage(n) for n in REGISTRY)
     seen: set[str] = set()

@@ -27,7 +27,7 @@ import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Generic
 
 from toolkit.config import PipelineConfig
 from toolkit.errors import StageError
@@ -40,7 +40,7 @@ from toolkit.manifest import (
     file_sha256,
     require_finished,
 )
-from toolkit.stages.contract import Call, Made, Outcome, Recalled, Stage
+from toolkit.stages.contract import Call, Made, OutcomeT, Recalled, Stage
 from toolkit.workspace import Workspace
 
 
@@ -49,7 +49,7 @@ def _quiet(_: str) -> None:
 
 
 def run_stage(
-    spec: Stage,
+    spec: Stage[OutcomeT],
     workspace: Workspace,
     config: PipelineConfig,
     *,
@@ -58,7 +58,7 @@ def run_stage(
     step: Callable[[str], None] | None = None,
     settings: Any = None,
     source: Path | None = None,
-) -> Outcome:
+) -> OutcomeT:
     """Run one stage (the module docstring) on one log (``log_id``) or the workspace.
 
     ``settings`` replaces the stage's own built from ``config`` (a test's smaller buffer);
@@ -87,7 +87,7 @@ def run_stage(
     return outcome
 
 
-def _start_log(here: _Here, source: Path) -> tuple[Outcome, str]:
+def _start_log(here: _Here[OutcomeT], source: Path) -> tuple[OutcomeT, str]:
     """Run a stage that starts a log from its file: it names the log and hashes the file
     (:attr:`Stage.locate`); the workspace is made if need be, and the configuration, checked
     against the workspace's before anything is read, becomes the workspace's once the stage
@@ -109,10 +109,10 @@ def _start_log(here: _Here, source: Path) -> tuple[Outcome, str]:
 
 
 @dataclass(frozen=True)
-class _Here:
+class _Here(Generic[OutcomeT]):
     """One run of one stage: what :meth:`fresh_or_computed` works with."""
 
-    spec: Stage
+    spec: Stage[OutcomeT]
     workspace: Workspace
     config: PipelineConfig
     log_id: str
@@ -126,7 +126,7 @@ class _Here:
         manifest: Manifest,
         directory: Path,
         gathered: tuple[dict[str, str], Any] | None = None,
-    ) -> Outcome:
+    ) -> OutcomeT:
         """Steps 2-4 of the module docstring: ``directory`` holds the stage's outputs (a
         log's new generation, or the workspace's root) and ``manifest`` its records;
         ``gathered`` the inputs' hashes and what was found with them, when known already."""
@@ -175,7 +175,7 @@ class _Here:
         return files.path(name) if self.spec.scope == "log" else self.workspace.path(name)
 
 
-def hash_needs(spec: Stage, files: LogFiles, manifest: Manifest) -> dict[str, str]:
+def hash_needs(spec: Stage[Any], files: LogFiles, manifest: Manifest) -> dict[str, str]:
     """Layout name -> sha256 of every file ``spec`` needs that is there, each checked
     against the last finished run of the stage that makes it. StageError naming the first
     required file missing; WorkspaceError naming a file its maker did not write."""
@@ -198,7 +198,7 @@ def hash_needs(spec: Stage, files: LogFiles, manifest: Manifest) -> dict[str, st
 def record_made(
     manifest: Manifest,
     stage: str,
-    made: Made,
+    made: Made[Any],
     inputs: Mapping[str, str],
     cfg_hash: str,
     directory: Path,

@@ -45,7 +45,6 @@ import logging
 import time
 from collections import defaultdict, deque
 from dataclasses import dataclass, field
-from typing import cast
 
 import numpy as np
 import pyarrow as pa
@@ -218,7 +217,7 @@ def run_tables(
 ) -> TablesResult:
     """Build ``tables/events.parquet`` and ``tables/event_points.parquet`` from every log
     (see the module docstring)."""
-    return cast(TablesResult, run_stage(SPEC, workspace, config, overwrite=overwrite))
+    return run_stage(SPEC, workspace, config, overwrite=overwrite)
 
 
 def _gather(
@@ -397,7 +396,7 @@ def _write_tables(
     return totals, distinct_points
 
 
-def _compute(call: Call) -> Made:
+def _compute(call: Call) -> Made[TablesResult]:
     """Write the two tables (the module docstring); the runner records them."""
     config: TablesSettings = call.settings
     workspace, start = call.workspace, call.start
@@ -456,9 +455,6 @@ SPEC = Stage(
     recall=_recall,
     rows=("train_events", "test_events", "train_points", "test_points"),
 )
-
-#: The hash of the configuration this stage reads (its up-to-date key).
-stage_config_hash = SPEC.config_hash
 
 
 __all__ = [

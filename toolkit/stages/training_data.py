@@ -54,7 +54,7 @@ def table_inputs(workspace: Workspace, config: PipelineConfig) -> dict[str, str]
     hashes = {p.name: file_sha256(p) for p in paths}
     record = workspace.manifest().stage(tables_stage.STAGE)
     require_finished(record, tables_stage.STAGE, hashes, workspace.tables_dir)
-    if record is not None and record.config_hash != tables_stage.stage_config_hash(config):
+    if record is not None and record.config_hash != tables_stage.SPEC.config_hash(config):
         raise StageError(
             "the tables were made with another configuration than the workspace's "
             f"({workspace.config_path.name}); run `terrain tables` again",
