@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 
 from toolkit.config import default_config
-from toolkit.stages.label import run_label
+from toolkit.stages.label import SPEC as LABEL
+from toolkit.stages.runner import run_stage
 from toolkit.workspace import Workspace
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -64,7 +65,7 @@ def run(root: Path, imu_rows: int, minutes: float) -> None:
     ws = Workspace(root / "ws")
     before = peak_rss_mb()
     t0 = time.perf_counter()
-    result = run_label(ws, LOG_ID, default_config(), overwrite=True)
+    result = run_stage(LABEL, ws, default_config(), log_id=LOG_ID, overwrite=True)
     wall = time.perf_counter() - t0
     after = peak_rss_mb()
     rec = ws.manifest(LOG_ID).read()["stages"]["label"]

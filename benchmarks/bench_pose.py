@@ -15,7 +15,8 @@ from pathlib import Path
 from toolkit.config import default_config
 from toolkit.sim.simulate import simulate
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.pose import run_pose
+from toolkit.stages.pose import SPEC as POSE
+from toolkit.stages.runner import run_stage
 from toolkit.workspace import Workspace
 
 
@@ -36,7 +37,7 @@ def main() -> None:
     cfg = default_config()
     log_id = ingest_log(log, ws, cfg).log_id
     t0 = time.perf_counter()
-    result = run_pose(ws, log_id, cfg, overwrite=True)
+    result = run_stage(POSE, ws, cfg, log_id=log_id, overwrite=True)
     wall = time.perf_counter() - t0
     man = ws.manifest(log_id).read()
     rec = man["stages"]["pose"] if "stages" in man else {}

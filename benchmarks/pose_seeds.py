@@ -3,7 +3,7 @@
     python benchmarks/pose_seeds.py [--seeds 101-108] [--distance-m 3000] [--keep DIR]
 
 For each seed: ``terrain sim --profile race`` (skipped when ``DIR/sSEED.mcap`` exists and
-``--keep`` is given), ingest afresh into ``DIR/wSEED``, then ``run_pose`` (always recomputed). Prints
+``--keep`` is given), ingest afresh into ``DIR/wSEED``, then pose (always recomputed). Prints
 one row per seed: horizontal, roll, pitch and yaw RMSE against the simulator's truth, the
 worst position error at the end of a GPS dropout up to 10 s, and the filter's speed as a
 multiple of real time, then whether every row meets the targets (horizontal <= 0.3 m, roll and
@@ -23,7 +23,8 @@ from pathlib import Path
 from toolkit.config import default_config
 from toolkit.sim.simulate import simulate
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.pose import run_pose
+from toolkit.stages.pose import SPEC as POSE
+from toolkit.stages.runner import run_stage
 from toolkit.workspace import Workspace
 
 #: The targets of the issue "Pose that holds on every log".
@@ -62,7 +63,7 @@ def main(argv: list[str] | None = None) -> int:
         shutil.rmtree(root / f"w{seed}", ignore_errors=True)  # ingest afresh: same config
         ws = Workspace(root / f"w{seed}")
         log_id = ingest_log(log, ws, config).log_id
-        result = run_pose(ws, log_id, config, overwrite=True)
+        result = run_stage(POSE, ws, config, log_id=log_id, overwrite=True)
         acc = result.accuracy
         if acc is None:
             print(f"{seed:>5} no accuracy (no truth in the log)")

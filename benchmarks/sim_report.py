@@ -44,15 +44,16 @@ from toolkit.config import default_config  # noqa: E402
 from toolkit.geometry.mounts import frame_mounts, sensor_mounts  # noqa: E402
 from toolkit.model.projection import Counts  # noqa: E402
 from toolkit.stages.ingest import ingest_log  # noqa: E402
-from toolkit.stages.label import run_label  # noqa: E402
-from toolkit.stages.pose import run_pose  # noqa: E402
-from toolkit.stages.project import run_project  # noqa: E402
+from toolkit.stages.label import SPEC as LABEL  # noqa: E402
+from toolkit.stages.pose import SPEC as POSE  # noqa: E402
+from toolkit.stages.project import SPEC as PROJECT  # noqa: E402
 from toolkit.stages.project_scans import (  # noqa: E402
     LASER_COLUMNS,
     PoseStream,
     ScanBatch,
     project_batch,
 )
+from toolkit.stages.runner import run_stage  # noqa: E402
 from toolkit.tableio import iter_table_batches, read_table  # noqa: E402
 from toolkit.workspace import Workspace  # noqa: E402
 
@@ -94,7 +95,9 @@ def band_edge_rates(ws: Workspace, log_id: str, out: Path) -> list[tuple[float, 
     rows = []
     for stop in BAND_EDGES_HZ:
         label = dataclasses.replace(base.label, fir_stop_hz=stop, fir_pass_hz=stop + 5.0)
-        result = run_label(ws, log_id, dataclasses.replace(base, label=label), overwrite=True)
+        result = run_stage(
+            LABEL, ws, dataclasses.replace(base, label=label), log_id=log_id, overwrite=True
+        )
         rows.append((stop, result.events, result.rough))
     with (out / "band_edge.csv").open("w", newline="") as f:
         w = csv.writer(f)
@@ -111,7 +114,7 @@ def band_edge_rates(ws: Workspace, log_id: str, out: Path) -> list[tuple[float, 
     fig.savefig(out / "band_edge.png", dpi=110)
     plt.close(fig)
     # Leave the log labelled with the configured filter.
-    run_label(ws, log_id, base, overwrite=True)
+    run_stage(LABEL, ws, base, log_id=log_id, overwrite=True)
     return rows
 
 
@@ -174,9 +177,9 @@ def main() -> None:
         ws = Workspace(Path(tmp) / "ws")
         cfg = default_config()
         log_id = ingest_log(args.log, ws, cfg).log_id
-        run_pose(ws, log_id, cfg)
-        estimated = run_project(ws, log_id, cfg)
-        labelled = run_label(ws, log_id, cfg)
+        run_stage(POSE, ws, cfg, log_id=log_id)
+        estimated = run_stage(PROJECT, ws, cfg, log_id=log_id)
+        labelled = run_stage(LABEL, ws, cfg, log_id=log_id)
         log_dir = ws.log_dir(log_id)
         imu_spectrum(log_dir, args.out, cfg.label.fir_stop_hz, cfg.label.fir_pass_hz)
         rows = band_edge_rates(ws, log_id, args.out)
@@ -189,8 +192,8 @@ def main() -> None:
         fig5 = labelled.fig5
         if args.calibration is not None:
             cal_id = ingest_log(args.calibration, ws, cfg).log_id
-            run_pose(ws, cal_id, cfg)
-            fig5 = run_label(ws, cal_id, cfg).fig5
+            run_stage(POSE, ws, cfg, log_id=cal_id)
+            fig5 = run_stage(LABEL, ws, cfg, log_id=cal_id).fig5
             for name in ("fig5_shock_speed.png", "fig5_shock_speed.csv"):
                 shutil.copy(ws.log_dir(cal_id) / name, args.out / name)
     summary = {

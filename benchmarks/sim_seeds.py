@@ -35,8 +35,9 @@ import polars as pl
 
 from toolkit.config import default_config
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.label import run_label
-from toolkit.stages.pose import run_pose
+from toolkit.stages.label import SPEC as LABEL
+from toolkit.stages.pose import SPEC as POSE
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import read_table
 from toolkit.workspace import Workspace
 
@@ -49,13 +50,15 @@ def label_rates(log: Path) -> dict[str, object]:
     with tempfile.TemporaryDirectory(prefix="sim_seeds_") as tmp:
         ws = Workspace(Path(tmp) / "ws")
         log_id = ingest_log(log, ws, cfg).log_id
-        run_pose(ws, log_id, cfg)
+        run_stage(POSE, ws, cfg, log_id=log_id)
         by_edge: dict[str, float] = {}
         kinds_by_edge: dict[str, dict[str, int]] = {}
         ruggedness_by_edge: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         for stop in STOP_EDGES_HZ:
             label = dataclasses.replace(cfg.label, fir_stop_hz=stop, fir_pass_hz=stop + 5.0)
-            r = run_label(ws, log_id, dataclasses.replace(cfg, label=label), overwrite=True)
+            r = run_stage(
+                LABEL, ws, dataclasses.replace(cfg, label=label), log_id=log_id, overwrite=True
+            )
             by_edge[f"{stop:g}"] = round(100.0 * r.rough / max(r.events, 1), 4)
             edge_events = read_table(ws.log_dir(log_id) / "events.parquet", "events")
             # By event id: the same events at every edge (the edge changes the filter, not
@@ -74,7 +77,7 @@ def label_rates(log: Path) -> dict[str, object]:
         edge_sensitivity = _edge_sensitivity(
             ruggedness_by_edge, cfg.label.rough_threshold_g_per_mph
         )
-        result = run_label(ws, log_id, cfg, overwrite=True)
+        result = run_stage(LABEL, ws, cfg, log_id=log_id, overwrite=True)
         events = read_table(ws.log_dir(log_id) / "events.parquet", "events")
         rough = events.filter(events.column("rough")).to_pylist()
         kinds = Counter(str(row.get("truth_feature_kind") or "background") for row in rough)

@@ -45,12 +45,13 @@ def sample_projected(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, st
     (``shutil.copytree(root, dst, symlinks=True)``)."""
     from toolkit.config import default_config
     from toolkit.stages.ingest import ingest_log
-    from toolkit.stages.pose import run_pose
-    from toolkit.stages.project import run_project
+    from toolkit.stages.pose import SPEC as POSE
+    from toolkit.stages.project import SPEC as PROJECT
+    from toolkit.stages.runner import run_stage
     from toolkit.workspace import Workspace
 
     ws = Workspace(tmp_path_factory.mktemp("sample_projected") / "ws")
     log_id = ingest_log(SAMPLE_LOG, ws, default_config()).log_id
-    run_pose(ws, log_id, default_config())
-    run_project(ws, log_id, default_config())
+    run_stage(POSE, ws, default_config(), log_id=log_id)
+    run_stage(PROJECT, ws, default_config(), log_id=log_id)
     return ws.root, log_id

@@ -34,9 +34,10 @@ from toolkit.sim import simulate as simulate_module
 from toolkit.sim.profiles import SimProfile, make_profile
 from toolkit.sim.sensors import ideal_lasers
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.pose import run_pose
-from toolkit.stages.project import run_project
+from toolkit.stages.pose import SPEC as POSE
+from toolkit.stages.project import SPEC as PROJECT
 from toolkit.stages.project_scans import LASER_COLUMNS, PoseStream, ScanBatch, project_batch
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import iter_table_batches
 from toolkit.workspace import Workspace
 
@@ -138,8 +139,8 @@ def ideal_projected(tmp_path_factory: pytest.TempPathFactory) -> Path:
         simulate_module.simulate(log, profile="sample", distance_m=300.0, seed=3)
     ws, config = Workspace(root / "ws"), default_config()
     log_id = ingest_log(log, ws, config).log_id
-    run_pose(ws, log_id, config)
-    run_project(ws, log_id, config)
+    run_stage(POSE, ws, config, log_id=log_id)
+    run_stage(PROJECT, ws, config, log_id=log_id)
     return ws.log_dir(log_id)
 
 

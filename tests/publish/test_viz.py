@@ -30,7 +30,8 @@ from tests.stages.test_learn import build_pipeline
 from toolkit.config import default_config
 from toolkit.errors import StageError, WorkspaceError
 from toolkit.publish.viz import VizResult, run_viz
-from toolkit.stages.label import run_label
+from toolkit.stages.label import SPEC as LABEL
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import read_table
 from toolkit.workspace import Workspace
 
@@ -224,7 +225,7 @@ def labelled(sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPa
     root, log_id = sample_projected
     ws = Workspace(tmp_path_factory.mktemp("viz_labelled") / "ws")
     shutil.copytree(root, ws.root, symlinks=True)
-    run_label(ws, log_id, CFG)
+    run_stage(LABEL, ws, CFG, log_id=log_id)
     return make_view(ws, log_id, ws.root.parent / "out" / "view.mcap")
 
 

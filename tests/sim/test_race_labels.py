@@ -21,8 +21,9 @@ from toolkit.config import default_config
 from toolkit.sim.profiles import make_profile
 from toolkit.sim.simulate import SimResult
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.label import run_label
-from toolkit.stages.pose import run_pose
+from toolkit.stages.label import SPEC as LABEL
+from toolkit.stages.pose import SPEC as POSE
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import read_table
 from toolkit.workspace import Workspace
 
@@ -72,11 +73,11 @@ def stage_labels(race_result: SimResult, tmp_path_factory: pytest.TempPathFactor
     cfg = default_config()
     ws = Workspace(tmp_path_factory.mktemp("race_ws") / "ws")
     log_id = ingest_log(Path(race_result.path), ws, cfg).log_id
-    run_pose(ws, log_id, cfg)
+    run_stage(POSE, ws, cfg, log_id=log_id)
     kinds: dict[float, list[str]] = {}
     for stop in (9.0, 11.0, cfg.label.fir_stop_hz):
         label = dataclasses.replace(cfg.label, fir_stop_hz=stop, fir_pass_hz=stop + 5.0)
-        run_label(ws, log_id, dataclasses.replace(cfg, label=label), overwrite=True)
+        run_stage(LABEL, ws, dataclasses.replace(cfg, label=label), log_id=log_id, overwrite=True)
         events = read_table(ws.log_dir(log_id) / "events.parquet", "events")
         rough = events.filter(events.column("rough")).column("truth_feature_kind").to_pylist()
         kinds[stop] = [kind or "background" for kind in rough]

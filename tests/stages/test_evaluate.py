@@ -35,7 +35,8 @@ from toolkit.errors import StageError, ToolkitError
 from toolkit.manifest import file_sha256
 from toolkit.model.roc import MIN_ROUGH_EVENTS
 from toolkit.model.roughness import signed_power
-from toolkit.stages.evaluate import run_evaluate
+from toolkit.stages.evaluate import SPEC as EVALUATE
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import load_table_schema, read_table
 
 #: summary.json's methods with an ROC entry (the contract's, ablations apart).
@@ -274,7 +275,7 @@ def test_evaluating_again_is_up_to_date_and_rewrites_nothing(pipeline: Pipeline)
     """Same tables, model and configuration: the stage says up to date and touches none of
     its outputs; its record names the model it evaluated."""
     before = report_mtimes(pipeline)
-    again = run_evaluate(pipeline.ws, default_config())
+    again = run_stage(EVALUATE, pipeline.ws, default_config())
     assert again.status == "up_to_date"
     assert report_mtimes(pipeline) == before
     record = pipeline.ws.manifest().stage("evaluate")
@@ -294,7 +295,7 @@ def test_a_changed_model_is_refused_not_silently_used(pipeline: Pipeline, tmp_pa
     report = {n: file_sha256(ws.report_dir / n) for n in REPORT_FILES}
     for overwrite in (False, True):
         with pytest.raises(ToolkitError, match="run `terrain learn`") as err:
-            run_evaluate(ws, default_config(), overwrite=overwrite)
+            run_stage(EVALUATE, ws, default_config(), overwrite=overwrite)
         assert err.value.path == ws.model_path
     assert {n: file_sha256(ws.report_dir / n) for n in REPORT_FILES} == report
 
@@ -325,7 +326,7 @@ def test_a_model_learned_from_earlier_tables_is_refused(
         ws.events_table
     )
     with pytest.raises(ToolkitError, match="terrain learn"):
-        run_evaluate(ws, default_config())
+        run_stage(EVALUATE, ws, default_config())
 
 
 def test_evaluate_has_help() -> None:
@@ -341,7 +342,7 @@ def test_without_a_model_evaluate_refuses_in_one_line(pipeline: Pipeline, tmp_pa
     ws.model_path.unlink()
     report = {n: file_sha256(ws.report_dir / n) for n in REPORT_FILES}
     with pytest.raises(StageError, match="run `terrain learn` first") as err:
-        run_evaluate(ws, default_config(), overwrite=True)
+        run_stage(EVALUATE, ws, default_config(), overwrite=True)
     assert err.value.path == ws.model_path
 
     result = CliRunner().invoke(main, ["evaluate", "-w", str(ws.root)])
@@ -405,11 +406,11 @@ def test_a_report_killed_mid_write_is_the_old_one(
 
     monkeypatch.setattr(evaluate_stage, "write_index_html", killed)
     with pytest.raises(KeyboardInterrupt):
-        run_evaluate(ws, default_config(), overwrite=True)
+        run_stage(EVALUATE, ws, default_config(), overwrite=True)
     assert {p.name: file_sha256(p) for p in ws.report_dir.iterdir()} == before
     monkeypatch.undo()
     (ws.report_dir / "old_figure.png").write_bytes(b"a figure no run draws any more")
-    run_evaluate(ws, default_config(), overwrite=True)
+    run_stage(EVALUATE, ws, default_config(), overwrite=True)
     # Made from nothing: the stale figure is gone, every file of a run is there.
     assert sorted(p.name for p in ws.report_dir.iterdir()) == sorted(before)
     gens = [p for p in ws.root.iterdir() if p.name.startswith(".report.") and p.suffix == ".gen"]

@@ -18,7 +18,8 @@ import pytest
 from toolkit.config import PipelineConfig, default_config
 from toolkit.errors import WorkspaceError
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.pose import run_pose
+from toolkit.stages.pose import SPEC as POSE
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import TableWriter
 from toolkit.workspace import Workspace
 
@@ -32,7 +33,7 @@ def _ingest(ws: Workspace, log_id: str, config: PipelineConfig) -> object:
 
 
 def _pose(ws: Workspace, log_id: str, config: PipelineConfig) -> object:
-    return run_pose(ws, log_id, config, overwrite=True)
+    return run_stage(POSE, ws, config, log_id=log_id, overwrite=True)
 
 
 STAGES: dict[str, Stage] = {"ingest": _ingest, "pose": _pose}
@@ -47,7 +48,7 @@ FAULTS: dict[str, tuple[type[BaseException], BaseException]] = {
 def posed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, str]:
     ws = Workspace(tmp_path_factory.mktemp("interrupted") / "ws")
     result = ingest_log(SAMPLE_LOG, ws, default_config())
-    run_pose(ws, result.log_id, default_config())
+    run_stage(POSE, ws, default_config(), log_id=result.log_id)
     return ws, result.log_id
 
 

@@ -16,13 +16,10 @@ from toolkit.errors import ConfigError, StageError
 from toolkit.manifest import Manifest, StageRecord, digest_files, file_sha256
 from toolkit.model.shock import design_shock_fir, event_shock, filter_stream
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.label import (
-    FIG5_CSV,
-    FIG5_PNG,
-    LabelResult,
-    run_label,
-)
-from toolkit.stages.pose import run_pose
+from toolkit.stages.label import FIG5_CSV, FIG5_PNG, LabelResult
+from toolkit.stages.label import SPEC as LABEL
+from toolkit.stages.pose import SPEC as POSE
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import read_table, write_table
 from toolkit.workspace import Workspace
 
@@ -144,7 +141,7 @@ def bump_log(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, Label
     accel = np.stack([np.zeros(t.size), np.zeros(t.size), az], axis=1)
     x = SPEED_MPS * (t - T0_NS) * 1e-9
     ws = crafted_log(tmp_path_factory.mktemp("bump"), t, accel, t, x, np.full(t.size, SPEED_MPS))
-    return ws, run_label(ws, LOG_ID, default_config())
+    return ws, run_stage(LABEL, ws, default_config(), log_id=LOG_ID)
 
 
 def test_bump_lands_in_its_event(bump_log: tuple[Workspace, LabelResult]) -> None:
@@ -190,12 +187,12 @@ def test_rerun_is_up_to_date_and_overwrite_is_deterministic(
     sha = file_sha256(path)
     record = ws.manifest(LOG_ID).stage("label")
     assert record is not None
-    again = run_label(ws, LOG_ID, default_config())
+    again = run_stage(LABEL, ws, default_config(), log_id=LOG_ID)
     assert again.status == "up_to_date"
     assert (again.events, again.rough, again.rejects) == (first.events, first.rough, first.rejects)
     assert ws.manifest(LOG_ID).stage("label") == record  # nothing rewritten
     assert file_sha256(path) == sha
-    redone = run_label(ws, LOG_ID, default_config(), overwrite=True)
+    redone = run_stage(LABEL, ws, default_config(), log_id=LOG_ID, overwrite=True)
     assert redone.status == "labelled"
     assert file_sha256(ws.log_table(LOG_ID, "events")) == sha  # same bytes
 
@@ -214,7 +211,7 @@ def test_a_rotated_imu_is_read_through_its_mount(
     ws = crafted_log(
         tmp_path, t, accel, t, x, np.full(t.size, SPEED_MPS), imu_rpy=(np.pi / 2, 0.0, 0.0)
     )
-    result = run_label(ws, LOG_ID, default_config())
+    result = run_stage(LABEL, ws, default_config(), log_id=LOG_ID)
     assert not result.warnings
     a = read_table(ws0.log_table(LOG_ID, "events"), "events").to_pydict()
     b = read_table(ws.log_table(LOG_ID, "events"), "events").to_pydict()
@@ -267,7 +264,7 @@ def attribution_runs(
     for rule in ("impact", "span_peak"):
         root = tmp_path_factory.mktemp(f"attribution_{rule}")
         ws = crafted_log(root, t, accel, t, x, np.full(t.size, SPEED_MPS))
-        result = run_label(ws, LOG_ID, with_attribution(rule))
+        result = run_stage(LABEL, ws, with_attribution(rule), log_id=LOG_ID)
         table = read_table(ws.log_table(LOG_ID, "events"), "events").to_pydict()
         runs[rule] = (ws, result, {k: np.array(v) for k, v in table.items()})
     return t, az, runs
@@ -309,7 +306,8 @@ def test_one_impact_labels_one_event(
     assert "impact attribution: 1 of span_peak's 4 rough events" in result.summary()
     assert "attribution" not in old_result.summary()
     assert ws.manifest(LOG_ID).stage("label") is not None
-    assert run_label(ws, LOG_ID, default_config()).attribution == changed  # up to date
+    up_to_date = run_stage(LABEL, ws, default_config(), log_id=LOG_ID)
+    assert up_to_date.status == "up_to_date" and up_to_date.attribution == changed
 
 
 def test_two_impacts_keep_their_own(
@@ -397,7 +395,7 @@ def test_a_stop_makes_no_event_and_divides_by_nothing(tmp_path: Path) -> None:
     az = G + 0.05 * rng.standard_normal(n)  # road noise, quiet
     accel = np.stack([np.zeros(n), np.zeros(n), az], axis=1)
     ws = crafted_log(tmp_path, t, accel, t, x, speed)
-    result = run_label(ws, LOG_ID, default_config())
+    result = run_stage(LABEL, ws, default_config(), log_id=LOG_ID)
     ev = read_table(ws.log_table(LOG_ID, "events"), "events").to_pydict()
     t0, t1 = np.array(ev["t_start_ns"]), np.array(ev["t_end_ns"])
     stop_lo, stop_hi = T0_NS + 7_000_000_000, T0_NS + 12_000_000_000
@@ -423,7 +421,7 @@ def test_an_imu_too_slow_for_the_band_fails_with_one_line(tmp_path: Path) -> Non
     x = SPEED_MPS * (t - T0_NS) * 1e-9
     ws = crafted_log(tmp_path, t, accel, t, x, np.full(500, SPEED_MPS))
     with pytest.raises(StageError) as info:
-        run_label(ws, LOG_ID, default_config())
+        run_stage(LABEL, ws, default_config(), log_id=LOG_ID)
     text = str(info.value)
     assert "\n" not in text and "IMU rate 25 Hz" in text and "imu.parquet" in text
     assert ".gen" not in text  # named by the log's public directory
@@ -437,7 +435,7 @@ def test_label_needs_a_finished_pose(tmp_path: Path) -> None:
     ws = crafted_log(tmp_path, t, accel, t, np.zeros(300), np.zeros(300))
     (ws.log_dir(LOG_ID) / "pose.parquet").unlink()
     with pytest.raises(StageError, match="run `terrain pose` first"):
-        run_label(ws, LOG_ID, default_config())
+        run_stage(LABEL, ws, default_config(), log_id=LOG_ID)
 
 
 # --------------------------------------------------------------------------------------
@@ -448,8 +446,8 @@ def test_label_needs_a_finished_pose(tmp_path: Path) -> None:
 def sample_label(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, LabelResult]:
     ws = Workspace(tmp_path_factory.mktemp("label_sample") / "ws")
     ingested = ingest_log(SAMPLE_LOG, ws, default_config())
-    run_pose(ws, ingested.log_id, default_config())
-    return ws, run_label(ws, ingested.log_id, default_config())
+    run_stage(POSE, ws, default_config(), log_id=ingested.log_id)
+    return ws, run_stage(LABEL, ws, default_config(), log_id=ingested.log_id)
 
 
 def test_sample_rough_events_are_true_features(
@@ -507,8 +505,8 @@ def calibration_label(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspa
     simulate(log, profile="calibration", distance_m=800.0, seed=1)
     ws = Workspace(root / "ws")
     ingested = ingest_log(log, ws, default_config())
-    run_pose(ws, ingested.log_id, default_config())
-    return ws, run_label(ws, ingested.log_id, default_config())
+    run_stage(POSE, ws, default_config(), log_id=ingested.log_id)
+    return ws, run_stage(LABEL, ws, default_config(), log_id=ingested.log_id)
 
 
 def test_calibration_log_gives_fig5(calibration_label: tuple[Workspace, LabelResult]) -> None:

@@ -31,10 +31,11 @@ from toolkit.errors import StageError, WorkspaceError
 from toolkit.manifest import Manifest, digest_files, file_sha256
 from toolkit.model.patches import build_patches
 from toolkit.model.roughness import EXPONENTS, PairTable, RoughnessParams, score_events
-from toolkit.stages.evaluate import run_evaluate
-from toolkit.stages.label import run_label
-from toolkit.stages.learn import run_learn
-from toolkit.stages.tables import run_tables
+from toolkit.stages.evaluate import SPEC as EVALUATE
+from toolkit.stages.label import SPEC as LABEL
+from toolkit.stages.learn import SPEC as LEARN
+from toolkit.stages.runner import run_stage
+from toolkit.stages.tables import SPEC as TABLES
 from toolkit.tableio import read_table, read_table_metadata, write_table
 from toolkit.workspace import Workspace
 
@@ -83,10 +84,10 @@ def build_pipeline(
         ws = Workspace(base / "ws")
         shutil.copytree(root, ws.root, symlinks=True)
         cfg = default_config()
-        run_label(ws, log_id, cfg)
-        run_tables(ws, cfg)
-        learned = run_learn(ws, cfg)
-        evaluated = run_evaluate(ws, cfg)
+        run_stage(LABEL, ws, cfg, log_id=log_id)
+        run_stage(TABLES, ws, cfg)
+        learned = run_stage(LEARN, ws, cfg)
+        evaluated = run_stage(EVALUATE, ws, cfg)
         done.write_text(
             json.dumps(
                 {
@@ -322,14 +323,14 @@ def test_learning_again_gives_the_same_bytes_and_a_current_model_is_left_alone(
     (and the manifest's record of it) untouched."""
     ws = copy_workspace(pipeline.ws, tmp_path / "ws")
     before = ws.model_path.read_bytes()
-    again = run_learn(ws, default_config(), overwrite=True)
+    again = run_stage(LEARN, ws, default_config(), overwrite=True)
     assert again.status == "written"
     assert ws.model_path.read_bytes() == before
     assert again.model == json.loads(before)
 
     mtime = ws.model_path.stat().st_mtime_ns
     record = ws.manifest().stage("learn")
-    third = run_learn(ws, default_config())
+    third = run_stage(LEARN, ws, default_config())
     assert third.status == "up_to_date"
     assert third.model == json.loads(before)
     assert ws.model_path.stat().st_mtime_ns == mtime
@@ -354,7 +355,7 @@ def test_without_tables_learn_refuses_in_one_line_naming_the_file(
     root, _ = sample_projected
     ws = copy_workspace(Workspace(root), tmp_path / "ws")
     with pytest.raises(StageError, match="run `terrain tables` first") as err:
-        run_learn(ws, default_config())
+        run_stage(LEARN, ws, default_config())
     assert err.value.path == ws.events_table
     assert not ws.model_path.exists()
 
@@ -386,7 +387,7 @@ def test_a_training_split_of_one_class_is_refused_and_the_model_kept(
     np.testing.assert_array_equal(split_and_rough(ws)[1][split == "test"], rough[split == "test"])
 
     with pytest.raises(StageError, match=f"training split has .* no {missing} one") as err:
-        run_learn(ws, default_config())
+        run_stage(LEARN, ws, default_config())
     assert err.value.path == ws.events_table
     assert ws.model_path.read_bytes() == before
 
@@ -416,7 +417,7 @@ def test_tables_changed_after_the_tables_stage_are_refused(
         config_hash=meta["config_hash"],
     )
     with pytest.raises(WorkspaceError, match="run `terrain tables` again") as err:
-        run_learn(ws, default_config(), overwrite=True)
+        run_stage(LEARN, ws, default_config(), overwrite=True)
     assert err.value.path == ws.events_table
     assert ws.model_path.read_bytes() == before
 
@@ -438,7 +439,7 @@ def test_an_event_listed_twice_is_blamed_on_the_events_table(
     events = read_table(ws.events_table, "tables_events")
     rewrite_events_table(ws, pa.concat_tables([events, events.slice(3, 1)]))
     with pytest.raises(StageError, match="lists event .* 2 times") as err:
-        run_learn(ws, default_config(), overwrite=True)
+        run_stage(LEARN, ws, default_config(), overwrite=True)
     assert err.value.path == ws.events_table
     with pytest.raises(StageError, match="lists event .* 2 times"):
         split_events(ws, "test")
@@ -450,16 +451,14 @@ def test_tables_of_another_configuration_are_refused_by_learn_and_evaluate(
     """``run -c B --from tables`` whose learn fails leaves B's tables under A's config.toml:
     learn and evaluate under A refuse them in one line (export already did) instead of
     reporting on B's split as A's."""
-    from toolkit.stages.evaluate import run_evaluate
-
     ws = copy_workspace(pipeline.ws, tmp_path / "ws")
     other = default_config()
     other = dataclasses.replace(other, tables=dataclasses.replace(other.tables, train_fraction=0.4))
-    for stage in (run_learn, run_evaluate):
+    for stage in (LEARN, EVALUATE):
         with pytest.raises(StageError, match="made with another configuration") as err:
-            stage(ws, other, overwrite=True)
+            run_stage(stage, ws, other, overwrite=True)
         assert err.value.path == ws.tables_dir
-    run_learn(ws, default_config())  # the configuration they were made with: up to date
+    run_stage(LEARN, ws, default_config())  # the configuration they were made with: up to date
 
 
 def test_an_initial_guess_that_overflows_is_a_config_error(
@@ -476,6 +475,6 @@ def test_an_initial_guess_that_overflows_is_a_config_error(
         cfg, learn=dataclasses.replace(cfg.learn, initial_upsilon=100.0, initial_omega=10_000)
     )
     with pytest.raises(ConfigError, match="learn.initial_alpha / initial_upsilon") as err:
-        run_learn(ws, huge, overwrite=True)
+        run_stage(LEARN, ws, huge, overwrite=True)
     assert "\n" not in str(err.value) and err.value.path == ws.config_path
     assert ws.model_path.read_bytes() == before

@@ -15,7 +15,9 @@ import pytest
 from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.pose import PoseResult, run_pose
+from toolkit.stages.pose import SPEC as POSE
+from toolkit.stages.pose import PoseResult
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import read_table, read_table_metadata
 from toolkit.workspace import Workspace
 
@@ -28,7 +30,7 @@ SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
 def sample_pose(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, str, PoseResult]:
     ws = Workspace(tmp_path_factory.mktemp("pose") / "ws")
     ingested = ingest_log(SAMPLE_LOG, ws, default_config())
-    return ws, ingested.log_id, run_pose(ws, ingested.log_id, default_config())
+    return ws, ingested.log_id, run_stage(POSE, ws, default_config(), log_id=ingested.log_id)
 
 
 def test_sample_pose_meets_the_accuracy_targets(
@@ -59,7 +61,7 @@ def race_pose(tmp_path_factory: pytest.TempPathFactory) -> PoseResult:
     simulate(log, profile="race", distance_m=3000.0, seed=3, lasers=False)
     ws = Workspace(root / "ws")
     ingested = ingest_log(log, ws, default_config())
-    return run_pose(ws, ingested.log_id, default_config())
+    return run_stage(POSE, ws, default_config(), log_id=ingested.log_id)
 
 
 def assert_race_targets(acc: dict[str, Any] | None, dropouts: Callable[[float], bool]) -> None:
@@ -106,7 +108,7 @@ def test_pose_rerun_is_up_to_date(sample_pose: tuple[Workspace, str, PoseResult]
     ws, log_id, _ = sample_pose
     path = ws.log_table(log_id, "pose")
     before = path.stat().st_mtime_ns
-    again = run_pose(ws, log_id, default_config())
+    again = run_stage(POSE, ws, default_config(), log_id=log_id)
     assert again.status == "up_to_date"
     assert path.stat().st_mtime_ns == before
 
@@ -131,7 +133,7 @@ def test_no_gps_fix_dead_reckons_and_without_wheels_is_a_stage_error(
         gps_path, bad, "gps", source_sha256=meta["source_sha256"], config_hash=meta["config_hash"]
     )
     # Without a fix but with wheel speeds the pose dead-reckons in a local frame.
-    local = run_pose(ws, log_id, default_config())
+    local = run_stage(POSE, ws, default_config(), log_id=log_id)
     meta_pose = read_table_metadata(ws.log_table(log_id, "pose"))
     assert meta_pose["frame_id"] == "local_first_pose" and "enu_origin" not in meta_pose
     assert json.loads(meta_pose["local_origin"])["t_ns"] > 0
@@ -154,7 +156,7 @@ def test_no_gps_fix_dead_reckons_and_without_wheels_is_a_stage_error(
         config_hash=wmeta["config_hash"],
     )
     with pytest.raises(StageError, match="pose needs roles the log lacks: gps .* no fix"):
-        run_pose(ws, log_id, default_config())
+        run_stage(POSE, ws, default_config(), log_id=log_id)
     empty = read_table(ws.log_table(log_id, "imu"), "imu").slice(0, 0)
     meta = read_table_metadata(ws.log_table(log_id, "imu"))
     write_table(
@@ -165,7 +167,7 @@ def test_no_gps_fix_dead_reckons_and_without_wheels_is_a_stage_error(
         config_hash=meta["config_hash"],
     )
     with pytest.raises(StageError) as err:  # every missing role named at once
-        run_pose(ws, log_id, default_config())
+        run_stage(POSE, ws, default_config(), log_id=log_id)
     assert "imu (0 usable rows; accepts sensor_msgs/msg/Imu); gps (" in str(err.value)
 
 
@@ -185,7 +187,7 @@ def test_no_compass_heading_from_gps_track(
         source_sha256=meta["source_sha256"],
         config_hash=meta["config_hash"],
     )
-    result = run_pose(ws, log_id, default_config())
+    result = run_stage(POSE, ws, default_config(), log_id=log_id)
     assert ws.manifest(log_id).read()["pose"]["heading_source"] == "gps_track"
     assert result.accuracy is not None
     assert result.accuracy["horizontal_rmse_m"] <= 1.0
@@ -222,7 +224,7 @@ def test_short_imu_gap_is_bridged(
     _, log_id, _ = sample_pose
     ws = _copy_workspace(sample_pose, tmp_path)
     _drop_imu_span(ws, log_id, 20.0, 0.3)
-    result = run_pose(ws, log_id, default_config())
+    result = run_stage(POSE, ws, default_config(), log_id=log_id)
     assert ws.manifest(log_id).read()["pose"]["imu_gaps"] == {"bridged": 1, "restarted": 0}
     assert result.accuracy is not None
     assert result.accuracy["horizontal_rmse_m"] <= 0.3
@@ -235,7 +237,7 @@ def test_long_imu_gap_restarts_the_filter(
     _, log_id, _ = sample_pose
     ws = _copy_workspace(sample_pose, tmp_path)
     _drop_imu_span(ws, log_id, 20.0, 1.0)
-    result = run_pose(ws, log_id, default_config())
+    result = run_stage(POSE, ws, default_config(), log_id=log_id)
     assert ws.manifest(log_id).read()["pose"]["imu_gaps"] == {"bridged": 0, "restarted": 1}
     assert result.rows > 5900
     assert result.accuracy is not None
@@ -259,7 +261,7 @@ def test_a_paused_recorder_leaves_a_hole_not_made_up_rows(
         t = table.column("t_ns").to_numpy()
         moved = pa.array(np.where(t >= cut, t + shift, t), pa.int64())
         _rewrite(ws, log_id, name, table.set_column(0, "t_ns", moved))
-    result = run_pose(ws, log_id, default_config())
+    result = run_stage(POSE, ws, default_config(), log_id=log_id)
     t = read_table(ws.log_table(log_id, "pose"), "pose", columns=["t_ns"])["t_ns"].to_numpy()
     step_ns = 10_000_000
     assert not np.any((t > cut + step_ns) & (t < cut + shift - step_ns))
@@ -280,7 +282,7 @@ def test_single_vehicle_speed_meets_the_targets(
         i = wheels.schema.get_field_index(name)
         wheels = wheels.set_column(i, name, pa.nulls(wheels.num_rows, pa.float64()))
     _rewrite(ws, log_id, "wheels", wheels)
-    acc = run_pose(ws, log_id, default_config()).accuracy
+    acc = run_stage(POSE, ws, default_config(), log_id=log_id).accuracy
     assert acc is not None
     assert acc["horizontal_rmse_m"] <= 0.3
     assert acc["roll_rmse_deg"] <= 0.3
@@ -303,7 +305,7 @@ def test_other_imu_and_gps_rates(
     ws = _copy_workspace(sample_pose, tmp_path)
     _decimate(ws, log_id, "imu", 50.0)
     _decimate(ws, log_id, "gps", 5.0)
-    result = run_pose(ws, log_id, default_config())
+    result = run_stage(POSE, ws, default_config(), log_id=log_id)
     assert result.rows > 5900  # still 100 Hz out
     acc = result.accuracy
     assert acc is not None
@@ -389,7 +391,9 @@ def unseen_race_pose(
     log = root / "race.mcap"
     simulate(log, profile="race", distance_m=2000.0, seed=seed, lasers=False)  # as above
     ws = Workspace(root / "ws")
-    return run_pose(ws, ingest_log(log, ws, default_config()).log_id, default_config())
+    return run_stage(
+        POSE, ws, default_config(), log_id=ingest_log(log, ws, default_config()).log_id
+    )
 
 
 def test_unseen_race_seeds_meet_the_targets(unseen_race_pose: PoseResult) -> None:
@@ -418,7 +422,7 @@ def test_a_filter_locked_out_by_its_gate_reinitialises(
     _rewrite(ws, log_id, "gps", _shift_fixes(gps, late, 300.0))
     config = default_config()
     with caplog.at_level("WARNING"):
-        result = run_pose(ws, log_id, config)
+        result = run_stage(POSE, ws, config, log_id=log_id)
     detail = ws.manifest(log_id).read()["pose"]
     assert detail["reinitialised"] == 1
     assert any("re-initialised from the GPS" in r.getMessage() for r in caplog.records)
@@ -463,7 +467,7 @@ def test_reinitialisation_off_leaves_the_filter_locked_out(
     config = dataclasses.replace(
         config, pose=dataclasses.replace(config.pose, reinit_after_gated_fixes=0)
     )
-    result = run_pose(ws, log_id, config)
+    result = run_stage(POSE, ws, config, log_id=log_id)
     assert ws.manifest(log_id).read()["pose"]["reinitialised"] == 0
     assert result.gated.get("gps", 0) > 100
 
@@ -478,7 +482,7 @@ def test_a_wild_first_fix_does_not_move_the_map(
     gps = read_table(ws.log_table(log_id, "gps"), "gps")
     valid = np.flatnonzero(gps.column("status").to_numpy() >= 0)
     _rewrite(ws, log_id, "gps", _shift_fixes(gps, valid[:1], 2000.0))
-    result = run_pose(ws, log_id, default_config())
+    result = run_stage(POSE, ws, default_config(), log_id=log_id)
     origin = json.loads(read_table_metadata(ws.log_table(log_id, "pose"))["enu_origin"])
     second = gps.slice(int(valid[1]), 1).to_pylist()[0]
     assert origin["latitude_deg"] == second["latitude"]

@@ -16,7 +16,9 @@ import pytest
 from toolkit.config import PipelineConfig, load_config
 from toolkit.geometry.geodesy import GeodeticOrigin, geodetic_to_enu
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.pose import PoseResult, run_pose
+from toolkit.stages.pose import SPEC as POSE
+from toolkit.stages.pose import PoseResult
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import read_table, read_table_metadata
 from toolkit.workspace import Workspace
 
@@ -30,7 +32,7 @@ def husky(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, str, Pos
     config: PipelineConfig = load_config(HUSKY_CONFIG)
     ws = Workspace(tmp_path_factory.mktemp("husky") / "ws")
     log_id = ingest_log(HUSKY_LOG, ws, config).log_id
-    return ws, log_id, run_pose(ws, log_id, config)
+    return ws, log_id, run_stage(POSE, ws, config, log_id=log_id)
 
 
 def _fixes_enu(ws: Workspace, log_id: str) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +134,7 @@ def husky_without_gps(
     config = dataclasses.replace(config, topics=dataclasses.replace(config.topics, gps=None))
     ws = Workspace(tmp_path_factory.mktemp("husky-dr") / "ws")
     log_id = ingest_log(HUSKY_LOG, ws, config).log_id
-    return ws, log_id, run_pose(ws, log_id, config)
+    return ws, log_id, run_stage(POSE, ws, config, log_id=log_id)
 
 
 def _odometry_and_gyro(ws: Workspace, log_id: str, t0_ns: int) -> tuple[np.ndarray, ...]:

@@ -11,7 +11,8 @@ from tests.stages.crafted import adopt_edits
 from toolkit.config import default_config
 from toolkit.errors import StageError, WorkspaceError
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.pose import run_pose
+from toolkit.stages.pose import SPEC as POSE
+from toolkit.stages.runner import run_stage
 from toolkit.workspace import Workspace
 
 SAMPLE_LOG = Path(__file__).resolve().parents[2] / "sample_logs" / "sample.mcap"
@@ -39,12 +40,12 @@ def test_edited_simulator_metadata_is_refused(
     path = ws.log_dir(log_id) / "mcap_metadata.json"
     path.write_text(text)
     with pytest.raises(WorkspaceError, match="not the file the last finished ingest wrote") as e:
-        run_pose(ws, log_id, default_config())
+        run_stage(POSE, ws, default_config(), log_id=log_id)
     assert str(path) in str(e.value)
     # Even recorded as ingest's own output (as if ingest had written it), it is a StageError
     # naming the file, never an internal error.
     adopt_edits(ws.log_dir(log_id))
     with pytest.raises(StageError, match="not the simulator metadata ingest writes") as e2:
-        run_pose(ws, log_id, default_config())
+        run_stage(POSE, ws, default_config(), log_id=log_id)
     assert "mcap_metadata.json" in str(e2.value)
     assert not (ws.log_dir(log_id) / "pose.parquet").exists()

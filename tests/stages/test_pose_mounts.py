@@ -21,7 +21,8 @@ from scipy.spatial.transform import Rotation
 from toolkit.config import PipelineConfig, default_config
 from toolkit.errors import StageError
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.pose import run_pose
+from toolkit.stages.pose import SPEC as POSE
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import read_table, read_table_metadata
 from toolkit.workspace import Workspace
 
@@ -37,7 +38,7 @@ TURNED_RPY = (np.pi / 2, 0.0, -np.pi / 2)
 def posed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspace, str, pa.Table]:
     ws = Workspace(tmp_path_factory.mktemp("mounts") / "ws")
     log_id = ingest_log(SAMPLE_LOG, ws, default_config()).log_id
-    run_pose(ws, log_id, default_config())
+    run_stage(POSE, ws, default_config(), log_id=log_id)
     return ws, log_id, read_table(ws.log_table(log_id, "pose"), "pose")
 
 
@@ -97,7 +98,7 @@ def test_turned_imu_declared_in_tf_static_gives_the_same_pose(
     base_from_imu = Rotation.from_euler("ZYX", TURNED_RPY[::-1]).as_matrix()
     _turn_imu(copy, log_id, base_from_imu)
     _set_imu_mount(copy, log_id, TURNED_RPY)
-    result = run_pose(copy, log_id, default_config())
+    result = run_stage(POSE, copy, default_config(), log_id=log_id)
     assert result.warnings == ()
     pos, att = _max_difference(read_table(copy.log_table(log_id, "pose"), "pose"), reference)
     assert pos < 1e-3 and att < 1e-5, (pos, att)
@@ -125,7 +126,7 @@ def test_turned_imu_without_tf_static_uses_the_config_and_warns(
         ),
     )
     with caplog.at_level(logging.WARNING, logger="toolkit"):
-        result = run_pose(copy, log_id, config)
+        result = run_stage(POSE, copy, config, log_id=log_id)
     assert len(result.warnings) == 2 and all("no /tf_static" in w for w in result.warnings)
     said = [r.getMessage() for r in caplog.records]
     assert all(any(w in line for line in said) for w in result.warnings)
@@ -141,7 +142,7 @@ def test_a_wrongly_declared_mount_changes_the_pose(
     copy = _copy(ws, log_id, tmp_path / "ws")
     _turn_imu(copy, log_id, Rotation.from_euler("ZYX", TURNED_RPY[::-1]).as_matrix())
     try:
-        run_pose(copy, log_id, default_config())
+        run_stage(POSE, copy, default_config(), log_id=log_id)
     except StageError:  # a filter that diverges also shows the mount matters
         return
     pos, _ = _max_difference(read_table(copy.log_table(log_id, "pose"), "pose"), reference)
@@ -191,4 +192,4 @@ def test_pose_refuses_inputs_no_finished_ingest_wrote(
         config_hash=meta["config_hash"],
     )
     with pytest.raises(WorkspaceError, match="wheels.parquet: not the file the last finished"):
-        run_pose(copy, log_id, default_config())
+        run_stage(POSE, copy, default_config(), log_id=log_id)

@@ -21,8 +21,9 @@ from toolkit.geometry.rotations import euler_to_rot
 from toolkit.manifest import file_sha256
 from toolkit.model.projection import Counts, PreparedBatch
 from toolkit.stages import project as project_module
-from toolkit.stages.project import run_project
+from toolkit.stages.project import SPEC as PROJECT
 from toolkit.stages.project_scans import LASER_COLUMNS, PoseStream, ScanBatch, project_batch
+from toolkit.stages.runner import run_stage
 from toolkit.tableio import (
     from_storage,
     iter_table_batches,
@@ -51,7 +52,7 @@ def projected(sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempP
     copy = tmp_path_factory.mktemp("projected") / "ws"
     shutil.copytree(root, copy, symlinks=True)
     ws = Workspace(copy)
-    return ws, log_id, run_project(ws, log_id, default_config(), overwrite=True)
+    return ws, log_id, run_stage(PROJECT, ws, default_config(), log_id=log_id, overwrite=True)
 
 
 def test_every_return_is_a_point_or_a_counted_reject(projected) -> None:  # type: ignore[no-untyped-def]
@@ -75,7 +76,7 @@ def test_every_return_is_a_point_or_a_counted_reject(projected) -> None:  # type
     assert np.isnan(scan_dt).sum() <= 181 * 5  # each laser's first scan only
     assert np.nanmedian(scan_dt) == pytest.approx(1 / 75, rel=1e-3)
     # A second run finds everything up to date and does nothing.
-    again = run_project(ws, log_id, default_config())
+    again = run_stage(PROJECT, ws, default_config(), log_id=log_id)
     assert again.status == "up_to_date" and again.points == result.points
 
 
@@ -126,7 +127,7 @@ def test_bad_returns_are_dropped_and_counted_by_reason(posed_copy: tuple[Workspa
         laser.schema.get_field_index("ranges"), "ranges", pa.array(ranges, pa.list_(pa.float32()))
     )
     write_table(path, laser, "laser", **_laser_meta(ws, log_id))
-    result = run_project(ws, log_id, default_config())
+    result = run_stage(PROJECT, ws, default_config(), log_id=log_id)
     total = 500 * 181
     assert result.points + sum(result.rejects.values()) == total
     assert result.rejects["out_of_range"] == 2 * 500
@@ -175,7 +176,7 @@ def test_a_laser_that_is_not_stanleys(posed_copy: tuple[Workspace, str]) -> None
     # Edited as a re-ingest of such a log would have written it.
     (log_dir / "tf_static.json").write_text(json.dumps(tf))
     write_table(ws.log_table(log_id, "laser"), table, "laser", **_laser_meta(ws, log_id))
-    result = run_project(ws, log_id, default_config())
+    result = run_stage(PROJECT, ws, default_config(), log_id=log_id)
     assert result.points == n_scans * beams and not any(result.rejects.values())
     points = read_table(ws.log_table(log_id, "points"), "points")
     t = points.column("t_ns").to_numpy()
@@ -208,7 +209,7 @@ def test_a_laser_nobody_mounted_is_dropped_with_a_warning(
     frames = ["laser_9"] * 50 + laser.column("frame_id").to_pylist()[50:]
     laser = laser.set_column(laser.schema.get_field_index("frame_id"), "frame_id", pa.array(frames))
     write_table(path, laser, "laser", **_laser_meta(ws, log_id))
-    result = run_project(ws, log_id, default_config())
+    result = run_stage(PROJECT, ws, default_config(), log_id=log_id)
     # Reasons are checked in order: a no-return of that laser counts as no_return.
     first = np.array(laser.column("ranges").to_pylist()[:50], dtype=np.float32)
     assert result.rejects["no_mount"] == int(np.isfinite(first).sum()) > 40 * 181
@@ -220,7 +221,7 @@ def test_projection_needs_a_pose(posed_copy: tuple[Workspace, str]) -> None:
     points = file_sha256(ws.log_table(log_id, "points"))
     ws.log_table(log_id, "pose").unlink()
     with pytest.raises(StageError, match="run `terrain pose` first"):
-        run_project(ws, log_id, default_config())
+        run_stage(PROJECT, ws, default_config(), log_id=log_id)
     assert file_sha256(ws.log_table(log_id, "points")) == points  # nothing changed
 
 
@@ -265,7 +266,7 @@ def test_a_scan_with_nan_geometry_places_nothing(posed_copy: tuple[Workspace, st
         values[10 * k : 10 * k + 3] = np.nan
         laser = laser.set_column(laser.schema.get_field_index(column), column, pa.array(values))
     write_table(path, laser, "laser", **_laser_meta(ws, log_id))
-    result = run_project(ws, log_id, default_config())
+    result = run_stage(PROJECT, ws, default_config(), log_id=log_id)
     assert result.rejects["bad_scan"] == 9 * 181
     points = read_table(ws.log_table(log_id, "points"), "points")
     assert np.isfinite(np.stack([points.column(c).to_numpy() for c in "xyz"])).all()
@@ -280,7 +281,7 @@ def test_threads_write_what_one_batch_after_another_would(
     so many are in flight at once; the scan_dt_s carried across batches included)."""
     ws, log_id = posed_copy
     monkeypatch.setattr(project_module, "SCAN_BATCH", 150)
-    run_project(ws, log_id, default_config(), overwrite=True)
+    run_stage(PROJECT, ws, default_config(), log_id=log_id, overwrite=True)
     log_dir = ws.log_dir(log_id)
     got = read_table(log_dir / "points.parquet", "points")
     frames = sorted(set(read_table(log_dir / "laser.parquet", "laser")["frame_id"].to_pylist()))
@@ -310,7 +311,7 @@ def test_a_failing_worker_leaves_the_last_cloud_as_it_was(
     """An error while a thread projects a batch reaches the caller as itself, and neither
     a partial points.parquet nor a scratch file is left: the last finished cloud stays."""
     ws, log_id = posed_copy
-    run_project(ws, log_id, default_config())
+    run_stage(PROJECT, ws, default_config(), log_id=log_id)
     points = ws.log_dir(log_id) / "points.parquet"
     before = file_sha256(points)
     monkeypatch.setattr(project_module, "SCAN_BATCH", 500)
@@ -325,7 +326,7 @@ def test_a_failing_worker_leaves_the_last_cloud_as_it_was(
 
     monkeypatch.setattr(project_module, "project_prepared", fails_on_the_fourth)
     with pytest.raises(StageError, match="injected"):
-        run_project(ws, log_id, default_config(), overwrite=True)
+        run_stage(PROJECT, ws, default_config(), log_id=log_id, overwrite=True)
     assert file_sha256(points) == before
     leftovers = [p.name for p in ws.log_dir(log_id).iterdir() if p.name.startswith(".")]
     assert leftovers == []
@@ -347,11 +348,11 @@ def test_a_disk_too_small_for_the_cloud_is_said_before_anything_is_written(
     )
     points_path.unlink()  # a first projection (an old cloud's room counts as free)
     with pytest.raises(StageError, match=r"needs about 0\.0[34] GB.*keep = \"near_path\""):
-        run_project(ws, log_id, default_config(), overwrite=True)
+        run_stage(PROJECT, ws, default_config(), log_id=log_id, overwrite=True)
     assert not points_path.exists()
     assert not [p.name for p in points_path.parent.iterdir() if p.name.startswith(".points")]
     monkeypatch.undo()
-    run_project(ws, log_id, default_config(), overwrite=True)
+    run_stage(PROJECT, ws, default_config(), log_id=log_id, overwrite=True)
     laser = pq.ParquetFile(ws.log_table(log_id, "laser")).metadata
     leaf = next(
         j for j in range(laser.num_columns) if laser.schema.column(j).path.startswith("ranges")

@@ -18,7 +18,9 @@ from toolkit.config import default_config
 from toolkit.errors import StageError
 from toolkit.manifest import file_sha256
 from toolkit.stages.ingest import ingest_log
-from toolkit.stages.tables import TablesResult, run_tables
+from toolkit.stages.runner import run_stage
+from toolkit.stages.tables import SPEC as TABLES
+from toolkit.stages.tables import TablesResult
 from toolkit.tableio import read_table, write_table
 from toolkit.tyre_paths import tyre_paths
 from toolkit.workspace import Workspace
@@ -81,7 +83,7 @@ def tabled(
     ws = Workspace(tmp_path_factory.mktemp("tables") / "ws")
     shutil.copytree(root, ws.root, symlinks=True)
     events = craft_events(ws, log_id)
-    return ws, log_id, events, run_tables(ws, default_config())
+    return ws, log_id, events, run_stage(TABLES, ws, default_config())
 
 
 def _polyline_distance(p: np.ndarray, line: np.ndarray) -> np.ndarray:
@@ -192,7 +194,7 @@ def test_totals_agree_with_the_events_and_the_split_is_by_distance(tabled) -> No
 
 def test_a_second_run_is_up_to_date(tabled) -> None:  # type: ignore[no-untyped-def]
     ws, _, _, result = tabled
-    again = run_tables(ws, default_config())
+    again = run_stage(TABLES, ws, default_config())
     assert again.status == "up_to_date"
     assert again.splits == result.splits
 
@@ -224,7 +226,7 @@ def test_events_and_points_of_an_earlier_pose_are_refused(tabled, tmp_path: Path
     )
     record_stage_outputs(log_dir, "pose", ["pose.parquet"])
     with pytest.raises(StageError, match="made from an earlier pose; run `terrain label"):
-        run_tables(copy, default_config(), overwrite=True)
+        run_stage(TABLES, copy, default_config(), overwrite=True)
 
 
 def test_tyre_paths_are_dense_and_beside_the_axle() -> None:
@@ -252,7 +254,7 @@ def test_without_labelled_logs_tables_refuses_in_one_line(tmp_path: Path) -> Non
     ws = Workspace(tmp_path / "ws")
     ingest_log(SAMPLE_LOG, ws, default_config())
     with pytest.raises(StageError, match="run `terrain label`"):
-        run_tables(ws, default_config())
+        run_stage(TABLES, ws, default_config())
     assert not ws.events_table.exists()
 
 
@@ -277,7 +279,7 @@ def test_a_failing_matcher_leaves_the_last_tables_as_they_were(
 
     monkeypatch.setattr(tables, "_match_batch", fails_on_the_third)
     with pytest.raises(StageError, match="injected"):
-        run_tables(ws, default_config(), overwrite=True)
+        run_stage(TABLES, ws, default_config(), overwrite=True)
     assert {p.name: file_sha256(p) for p in ws.tables_dir.iterdir()} == before
 
 
@@ -294,7 +296,7 @@ def test_a_pose_read_in_small_batches_gives_the_same_tables(
     shutil.copytree(ws.root, copy.root, symlinks=True)
     monkeypatch.setattr(tables, "POSE_BATCH", 7)
     monkeypatch.setattr(tables, "POINT_BATCH", 30_000)
-    run_tables(copy, default_config(), overwrite=True)
+    run_stage(TABLES, copy, default_config(), overwrite=True)
     for name, schema in (("events", "tables_events"), ("event_points", "event_points")):
         mine = read_table(copy.tables_dir / f"{name}.parquet", schema)
         theirs = read_table(ws.tables_dir / f"{name}.parquet", schema)
@@ -323,7 +325,7 @@ def test_points_out_of_time_order_are_refused(tabled, tmp_path: Path) -> None:  
         manifest.stage("project").inputs,  # type: ignore[union-attr]
     )
     with pytest.raises(StageError, match=r"not in time order.*terrain project --overwrite"):
-        run_tables(copy, default_config(), overwrite=True)
+        run_stage(TABLES, copy, default_config(), overwrite=True)
 
 
 def _config_keeping(keep: str, radius_m: float = 0.3):  # type: ignore[no-untyped-def]
@@ -340,14 +342,14 @@ def _config_keeping(keep: str, radius_m: float = 0.3):  # type: ignore[no-untype
 def test_a_cloud_kept_near_the_tyre_paths_makes_the_same_tables_to_the_bit(tabled) -> None:  # type: ignore[no-untyped-def]
     """``[project] keep = "near_path"`` leaves out most of the cloud, and the tables made from
     what it keeps are those made from every point, row for row and bit for bit."""
-    from toolkit.stages.project import run_project
+    from toolkit.stages.project import SPEC as PROJECT
 
     ws, log_id, _, _ = tabled
     names = {"events": "tables_events", "event_points": "event_points"}
     every = {n: read_table(ws.root / "tables" / f"{n}.parquet", s) for n, s in names.items()}
     all_points = read_table(ws.log_table(log_id, "points"), "points")
     near = _config_keeping("near_path")
-    result = run_project(ws, log_id, near, overwrite=True)
+    result = run_stage(PROJECT, ws, near, log_id=log_id, overwrite=True)
     kept = read_table(ws.log_table(log_id, "points"), "points")
     assert result.points == kept.num_rows
     assert result.far_from_path == all_points.num_rows - kept.num_rows
@@ -367,11 +369,11 @@ def test_a_cloud_kept_near_the_tyre_paths_makes_the_same_tables_to_the_bit(table
     assert kept.num_rows > 0
     in_kept = np.isin(key(all_points), key(kept))
     assert plain(all_points).filter(pa.array(in_kept)).equals(plain(kept))
-    run_tables(ws, near, overwrite=True)
+    run_stage(TABLES, ws, near, overwrite=True)
     for name, table in every.items():
         again = read_table(ws.root / "tables" / f"{name}.parquet", names[name])
         assert again.equals(table), name
     # A wider radius than the cloud was cut for: tables refuse, naming the log's points.
     with pytest.raises(StageError, match="kept only within 0.5 m") as err:
-        run_tables(ws, _config_keeping("near_path", radius_m=0.6), overwrite=True)
+        run_stage(TABLES, ws, _config_keeping("near_path", radius_m=0.6), overwrite=True)
     assert "points.parquet" in str(err.value)

@@ -95,7 +95,12 @@ def each_log(
 
 
 def _one_log(
-    spec: Stage[Any], ws: Workspace, cfg: PipelineConfig, log_id: str, overwrite: bool, as_json: bool
+    spec: Stage[Any],
+    ws: Workspace,
+    cfg: PipelineConfig,
+    log_id: str,
+    overwrite: bool,
+    as_json: bool,
 ) -> dict[str, Any]:
     """Run the stage on one log and say it (its summary line, or an error line when it
     fails: one log's failure never stops the others); its entry of the JSON document."""

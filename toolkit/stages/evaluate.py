@@ -74,7 +74,6 @@ from toolkit.model.roughness import Blockwise, RoughnessParams, model_pairs, sco
 from toolkit.stages import learn as learn_stage
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.label import FIG5_PNG
-from toolkit.stages.runner import run_stage
 from toolkit.stages.training_data import (
     closest_laser,
     laser_order,
@@ -135,18 +134,6 @@ class EvaluateSettings:
     model: ModelConfig
     learn: LearnConfig
     evaluate: EvaluateConfig
-
-
-def run_evaluate(
-    workspace: Workspace,
-    config: PipelineConfig,
-    *,
-    overwrite: bool = False,
-    step: Callable[[str], None] | None = None,
-) -> EvaluateResult:
-    """Score every event by every method, compare them on the test split, write the report
-    (module docstring)."""
-    return run_stage(SPEC, workspace, config, overwrite=overwrite, step=step)
 
 
 def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str], None]:
@@ -567,4 +554,4 @@ SPEC = Stage(
 )
 
 
-__all__ = ["SPEC", "STAGE", "EvaluateResult", "closest_laser", "oracle_patches", "run_evaluate"]
+__all__ = ["SPEC", "STAGE", "EvaluateResult", "closest_laser", "oracle_patches"]

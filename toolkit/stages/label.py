@@ -63,7 +63,7 @@ from numpy.typing import NDArray
 
 from toolkit.analysis.fig5 import LineFit, fit_line, obstacle_passes, write_fig5
 from toolkit.arrays import FloatArray, IntArray
-from toolkit.config import LabelConfig, PipelineConfig, VehicleConfig
+from toolkit.config import LabelConfig, VehicleConfig
 from toolkit.errors import StageError
 from toolkit.geometry.mounts import sensor_mounts
 from toolkit.layout import LogFiles, log_file_name
@@ -87,9 +87,7 @@ from toolkit.stages.label_inputs import (
     streamed_path_events,
 )
 from toolkit.stages.label_truth import TruthUnder, truth_under_events
-from toolkit.stages.runner import run_stage
 from toolkit.tableio import TableWriter
-from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 
@@ -105,7 +103,7 @@ REJECT_REASONS = ("too_slow", "no_imu")
 
 @dataclass(frozen=True)
 class LabelResult:
-    """What :func:`run_label` did for one log."""
+    """What the label stage did for one log."""
 
     log_id: str
     status: str  # "labelled" or "up_to_date"
@@ -179,13 +177,6 @@ class LabelSettings:
 
     label: LabelConfig
     vehicle: VehicleConfig
-
-
-def run_label(
-    workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
-) -> LabelResult:
-    """Label one posed log (see the module docstring)."""
-    return run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
 
 
 def _recall(last: Recalled) -> LabelResult:
@@ -497,5 +488,4 @@ __all__ = [
     "attribution_summary",
     "path_events",
     "path_events_step",
-    "run_label",
 ]

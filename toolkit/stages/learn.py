@@ -20,7 +20,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -35,7 +35,6 @@ from toolkit.layout import workspace_file_name
 from toolkit.model.ascent import AscentConfig, AscentResult, b_names, coordinate_ascent
 from toolkit.model.search import ascent_config
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
-from toolkit.stages.runner import run_stage
 from toolkit.stages.training_data import (
     laser_order,
     pair_table,
@@ -153,19 +152,6 @@ class LearnSettings:
     learn: LearnConfig
 
 
-def run_learn(
-    workspace: Workspace,
-    config: PipelineConfig,
-    *,
-    overwrite: bool = False,
-    progress: Callable[[int], None] | None = None,
-) -> LearnResult:
-    """Learn the model from the training split and write ``model.json`` (module docstring);
-    ``progress`` is told each rotation of the search."""
-    step = (lambda _: progress(1)) if progress is not None else None
-    return run_stage(SPEC, workspace, config, overwrite=overwrite, step=step)
-
-
 def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str], None]:
     """The tables' hashes (:func:`table_inputs`)."""
     return table_inputs(workspace, config), None
@@ -241,4 +227,4 @@ SPEC = Stage(
 )
 
 
-__all__ = ["SPEC", "STAGE", "LearnResult", "require_both_classes", "run_learn"]
+__all__ = ["SPEC", "STAGE", "LearnResult", "require_both_classes"]

@@ -33,7 +33,6 @@ import pyarrow as pa
 from toolkit.analysis.pose_accuracy import TruthAccuracy, truth_accuracy
 from toolkit.arrays import FloatArray
 from toolkit.config import (
-    PipelineConfig,
     PoseConfig,
     TimeConfig,
     TopicsConfig,
@@ -53,9 +52,7 @@ from toolkit.geometry.mounts import sensor_mounts
 from toolkit.layout import log_file_name
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.pose_inputs import PoseInputs, sensor_data
-from toolkit.stages.runner import run_stage
 from toolkit.tableio import TableWriter
-from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 
@@ -70,7 +67,7 @@ OUTPUT = log_file_name("pose")
 
 @dataclass(frozen=True)
 class PoseResult:
-    """What :func:`run_pose` did for one log."""
+    """What the pose stage did for one log."""
 
     log_id: str
     status: str  # "estimated" or "up_to_date"
@@ -166,13 +163,6 @@ class PoseSettings:
     time: TimeConfig
     vehicle: VehicleConfig
     topics: TopicsConfig
-
-
-def run_pose(
-    workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
-) -> PoseResult:
-    """Estimate the pose of one ingested log (see the module docstring)."""
-    return run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
 
 
 def _recall(last: Recalled) -> PoseResult:
@@ -429,5 +419,4 @@ __all__ = [
     "PoseResult",
     "PoseSettings",
     "TruthAccuracy",
-    "run_pose",
 ]

@@ -62,10 +62,8 @@ from toolkit.stages.project_scans import (
     project_batch,
     project_prepared,
 )
-from toolkit.stages.runner import run_stage
 from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
 from toolkit.tyre_paths import META_KEPT_WITHIN_M, NearPath
-from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 
@@ -88,7 +86,7 @@ WORKERS = 2
 
 @dataclass(frozen=True)
 class ProjectResult:
-    """What :func:`run_project` did for one log."""
+    """What the project stage did for one log."""
 
     log_id: str
     status: str  # "projected" or "up_to_date"
@@ -142,13 +140,6 @@ class ProjectSettings:
     vehicle: VehicleConfig
     topics: TopicsConfig
     model: ModelConfig
-
-
-def run_project(
-    workspace: Workspace, log_id: str, config: PipelineConfig, *, overwrite: bool = False
-) -> ProjectResult:
-    """Project one log's scans into the world (see the module docstring)."""
-    return run_stage(SPEC, workspace, config, log_id=log_id, overwrite=overwrite)
 
 
 def _require_lasers(files: LogFiles, config: ProjectSettings) -> None:
@@ -479,5 +470,4 @@ __all__ = [
     "prepare_batch",
     "project_batch",
     "project_prepared",
-    "run_project",
 ]

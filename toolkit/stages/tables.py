@@ -61,7 +61,6 @@ from toolkit.manifest import (
 )
 from toolkit.model.tyre_match import PathSource
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
-from toolkit.stages.runner import run_stage
 from toolkit.stages.tables_points import (
     EVENT_COLUMNS,
     FINAL_MARGIN_NS,
@@ -95,7 +94,7 @@ class SplitTotals:
 
 @dataclass(frozen=True)
 class TablesResult:
-    """What :func:`run_tables` did."""
+    """What the tables stage did."""
 
     status: str  # "written" or "up_to_date"
     logs: int
@@ -210,14 +209,6 @@ class TablesSettings:
     tables: TablesConfig
     vehicle: VehicleConfig
     model: ModelConfig
-
-
-def run_tables(
-    workspace: Workspace, config: PipelineConfig, *, overwrite: bool = False
-) -> TablesResult:
-    """Build ``tables/events.parquet`` and ``tables/event_points.parquet`` from every log
-    (see the module docstring)."""
-    return run_stage(SPEC, workspace, config, overwrite=overwrite)
 
 
 def _gather(
@@ -466,6 +457,5 @@ __all__ = [
     "SplitTotals",
     "TablesResult",
     "TyrePaths",
-    "run_tables",
     "tyre_paths",
 ]
