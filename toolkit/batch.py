@@ -537,6 +537,44 @@ class Executors:
 LOCAL = Executors()
 
 
+@dataclass(frozen=True)
+class _Begun:
+    """What a batch command settles before any log runs (:func:`_begin`)."""
+
+    workspace: Workspace
+    config: PipelineConfig
+    adopt_config: bool  # record ``config`` as the workspace's once it has worked
+    unique: dict[str, Path]  # the logs once each
+    mine: list[Path]  # this shard's share
+
+
+@contextlib.contextmanager
+def _begin(
+    logs: Sequence[Path],
+    workspace_root: Path,
+    config_path: Path | None,
+    *,
+    overwrite: bool,
+    executors: Executors,
+) -> Iterator[_Begun]:
+    """How ``terrain ingest`` and ``terrain run`` both begin: this shard's logs
+    (:meth:`Executors.mine`), the configuration in force (:func:`_config_in_force`), and
+    the workspace, created for the ``with`` (:meth:`Workspace.created`), with that
+    configuration checked against its own once (:meth:`Workspace.check_config`).
+
+    The configuration is validated before anything is made: a bad one leaves no workspace.
+    A first run that ingests no log leaves no workspace either. ingest_log's own rule
+    (refuse another configuration unless ``overwrite``) is checked once here, so a mismatch
+    fails the command once, not once per log.
+    """
+    unique, mine = executors.mine(logs)
+    workspace = Workspace(workspace_root)
+    config = _config_in_force(workspace, config_path)
+    with workspace.created():
+        adopt_config = workspace.check_config(config, overwrite=overwrite)
+        yield _Begun(workspace, config, adopt_config, unique, mine)
+
+
 def run_ingest_batch(
     logs: Sequence[Path],
     workspace_root: Path,
@@ -560,17 +598,12 @@ def run_ingest_batch(
     The workspace lock is taken shared: the jobs of an array share one workspace (each log's
     files and manifest are its own), while a stage holding it exclusively refuses them.
     """
-    unique, mine = executors.mine(logs)
     shard_index, num_shards = executors.shard_index, executors.num_shards
-
-    workspace = Workspace(workspace_root)
-    # Validated before anything is made: a bad configuration leaves no workspace.
-    config = _config_in_force(workspace, config_path)
-    with workspace.created():  # a first run that ingests no log leaves no workspace
-        # ingest_log's own rule (refuse another config unless overwrite), checked once here so
-        # a mismatch fails the command once, not once per log; each ingest_log records the
-        # config only when it succeeds with it.
-        adopt_config = workspace.check_config(config, overwrite=overwrite)
+    # Each ingest_log records the config only when it succeeds with it.
+    with _begin(
+        logs, workspace_root, config_path, overwrite=overwrite, executors=executors
+    ) as begun:
+        workspace, config, mine = begun.workspace, begun.config, begun.mine
         task = functools.partial(
             stage_task,
             stage="ingest",
@@ -587,9 +620,9 @@ def run_ingest_batch(
             else:
                 with executors.open() as opened:
                     summary = run_batch(task, mine, opened, desc="ingest", unit="log")
-        if adopt_config and (summary.done or summary.up_to_date):
+        if begun.adopt_config and (summary.done or summary.up_to_date):
             workspace.write_config(config)  # a config becomes the workspace's once it has worked
         if num_shards > 1:
-            note = f"shard {shard_index} of {num_shards}: {len(mine)} of {len(unique)} logs"
+            note = f"shard {shard_index} of {num_shards}: {len(mine)} of {len(begun.unique)} logs"
             summary = dataclasses.replace(summary, notes=(note,))
     return summary

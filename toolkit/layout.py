@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import ClassVar
+from typing import ClassVar, overload
 
 from toolkit.errors import WorkspaceError
 
@@ -136,6 +136,25 @@ def workspace_file_name(name: str) -> str:
     return Path(_WORKSPACE_FILES[name]).name
 
 
+class _File:
+    """A workspace-level file as a read-only attribute: ``ws.<attr>`` is
+    ``ws.path(name)`` (:meth:`WorkspaceLayout.path`); ``doc`` is the attribute's docstring."""
+
+    def __init__(self, name: str, doc: str) -> None:
+        self.name = name
+        self.__doc__ = doc
+
+    @overload
+    def __get__(self, layout: None, owner: type[WorkspaceLayout]) -> _File: ...
+    @overload
+    def __get__(self, layout: WorkspaceLayout, owner: type[WorkspaceLayout]) -> Path: ...
+    def __get__(self, layout: WorkspaceLayout | None, owner: type[WorkspaceLayout]) -> _File | Path:
+        return self if layout is None else layout.path(self.name)
+
+    def __set__(self, layout: WorkspaceLayout, value: object) -> None:
+        raise AttributeError(f"{self.name}: a workspace's paths are not set")
+
+
 class WorkspaceLayout:
     """The paths of a workspace rooted at ``root`` (nothing is read or made here)."""
 
@@ -150,20 +169,9 @@ class WorkspaceLayout:
         """The workspace-level file of layout name ``name`` (``model``, ``events_table``...)."""
         return self.root / _WORKSPACE_FILES[name]
 
-    @property
-    def config_path(self) -> Path:
-        """``WS/config.toml``: the configuration in force."""
-        return self.path("config")
-
-    @property
-    def manifest_path(self) -> Path:
-        """``WS/manifest.json``: records of the stages that span logs."""
-        return self.path("manifest")
-
-    @property
-    def lock_path(self) -> Path:
-        """``WS/.lock``."""
-        return self.path("lock")
+    config_path = _File("config", "``WS/config.toml``: the configuration in force.")
+    manifest_path = _File("manifest", "``WS/manifest.json``: records of the stages that span logs.")
+    lock_path = _File("lock", "``WS/.lock``.")
 
     @property
     def logs_dir(self) -> Path:
@@ -195,40 +203,18 @@ class WorkspaceLayout:
         """``WS/tables``."""
         return self.events_table.parent
 
-    @property
-    def events_table(self) -> Path:
-        """``WS/tables/events.parquet`` (schema ``tables_events``)."""
-        return self.path("events_table")
-
-    @property
-    def event_points_table(self) -> Path:
-        """``WS/tables/event_points.parquet``."""
-        return self.path("event_points_table")
-
-    @property
-    def model_path(self) -> Path:
-        """``WS/model.json``."""
-        return self.path("model")
+    events_table = _File("events_table", "``WS/tables/events.parquet`` (schema ``tables_events``).")
+    event_points_table = _File("event_points_table", "``WS/tables/event_points.parquet``.")
+    model_path = _File("model", "``WS/model.json``.")
 
     @property
     def report_dir(self) -> Path:
         """``WS/report``."""
         return self.scores_table.parent
 
-    @property
-    def scores_table(self) -> Path:
-        """``WS/report/scores.parquet``."""
-        return self.path("scores")
-
-    @property
-    def summary_path(self) -> Path:
-        """``WS/report/summary.json``."""
-        return self.path("summary")
-
-    @property
-    def index_path(self) -> Path:
-        """``WS/report/index.html``: the report's page."""
-        return self.path("index")
+    scores_table = _File("scores", "``WS/report/scores.parquet``.")
+    summary_path = _File("summary", "``WS/report/summary.json``.")
+    index_path = _File("index", "``WS/report/index.html``: the report's page.")
 
 
 __all__ = ["LogFiles", "WorkspaceLayout", "log_file_name", "workspace_file_name"]

@@ -53,7 +53,7 @@ from toolkit.batch import (
     LOCAL,
     BatchSummary,
     Executors,
-    _config_in_force,
+    _begin,
     run_batch,
     stage_task,
 )
@@ -350,19 +350,17 @@ def run_pipeline(
     """``terrain run`` (module docstring). ``echo`` receives each stage's line as it ends."""
     start = time.perf_counter()
     stages = stage_range(first, last)
-    unique, mine = executors.mine(logs)
     shard_index, num_shards = executors.shard_index, executors.num_shards
-    ws = Workspace(workspace_root)
-    # Validated before anything is made: a bad configuration leaves no workspace.
-    config = _config_in_force(ws, config_path)
-    with ws.created():  # a first run that ingests no log leaves no workspace
-        adopt_config = ws.check_config(config, overwrite=overwrite)
+    with _begin(
+        logs, workspace_root, config_path, overwrite=overwrite, executors=executors
+    ) as begun:
+        ws, unique, mine = begun.workspace, begun.unique, begun.mine
         # Each stage's line as it ends: off a terminal by default.
         run = _Run(
             ws,
-            config,
+            begun.config,
             overwrite,
-            adopt_config,
+            begun.adopt_config,
             echo or note,
             root=os.path.abspath(workspace_root),
             cwd=os.getcwd(),

@@ -160,7 +160,7 @@ def test_totals_agree_with_the_events_and_the_split_is_by_distance(tabled) -> No
     for name in ("train", "test"):
         mine = split == name
         assert result.splits[name].events == int(mine.sum()) > 50
-        assert result.splits[name].positives == int(
+        assert result.splits[name].rough == int(
             kept.column("rough").to_numpy(zero_copy_only=False)[mine].sum()
         )
         n_points = int(

@@ -21,10 +21,10 @@ from toolkit.publish.dataset import (
     SPLITS,
     TYPES,
     DatasetFacts,
-    SplitCounts,
     data_file,
     export_config_hash,
 )
+from toolkit.stages.tables import SplitTotals
 from toolkit.tableio import ColumnSpec
 
 LICENSE = "cc-by-4.0"
@@ -214,7 +214,7 @@ def _per_tyre(events: pa.Table) -> NDArray[np.int64]:
 def dataset_card(facts: DatasetFacts) -> str:
     """The dataset card (``README.md``): YAML metadata, then what a reader must know."""
     counts = facts.counts()
-    total = SplitCounts(
+    total = SplitTotals(
         sum(c.events for c in counts.values()),
         sum(c.rough for c in counts.values()),
         sum(c.points for c in counts.values()),
@@ -238,7 +238,7 @@ def dataset_card(facts: DatasetFacts) -> str:
     return "\n".join(lines)
 
 
-def _introduction(facts: DatasetFacts, total: SplitCounts) -> list[str]:
+def _introduction(facts: DatasetFacts, total: SplitTotals) -> list[str]:
     """The title and what the data is, how much, and from how many (simulated) logs."""
     sims = [s for s in facts.sources if s.sim is not None]
     return [
@@ -372,7 +372,7 @@ def _frames_and_units(facts: DatasetFacts) -> list[str]:
     return lines
 
 
-def _split(facts: DatasetFacts, counts: Mapping[str, SplitCounts]) -> list[str]:
+def _split(facts: DatasetFacts, counts: Mapping[str, SplitTotals]) -> list[str]:
     """How the split is made, the stretches each covers, and per split the counts."""
     cfg = facts.config
     scope = (
@@ -469,7 +469,7 @@ def _citation_and_license() -> list[str]:
 
 
 def _limitations(
-    facts: DatasetFacts, counts: Mapping[str, SplitCounts], total: SplitCounts
+    facts: DatasetFacts, counts: Mapping[str, SplitTotals], total: SplitTotals
 ) -> list[str]:
     """What a user of the data must keep in mind, with this data's numbers: one bullet each,
     those that do not apply to this data left out."""
@@ -489,7 +489,7 @@ def _limitations(
     return [b for b in bullets if b]
 
 
-def _rare_positives(counts: Mapping[str, SplitCounts]) -> str:
+def _rare_positives(counts: Mapping[str, SplitTotals]) -> str:
     """The rough share of each split, against the paper's."""
     paper = " and ".join(f"{k} of {n:,}, {_pct(k, n)}" for k, n in PAPER_ROUGH)
     return (
@@ -529,7 +529,7 @@ def _simulated_data(facts: DatasetFacts) -> str:
     )
 
 
-def _point_density(facts: DatasetFacts, counts: Mapping[str, SplitCounts]) -> str:
+def _point_density(facts: DatasetFacts, counts: Mapping[str, SplitTotals]) -> str:
     """Point rows per tyre and event here, against the paper's training set."""
     train = counts["train"]
     paper_tyre = PAPER_TRAIN_POINTS / PAPER_TRAIN_EVENTS / 2
@@ -546,7 +546,7 @@ def _point_density(facts: DatasetFacts, counts: Mapping[str, SplitCounts]) -> st
     )
 
 
-def _rows_not_distinct(facts: DatasetFacts, total: SplitCounts) -> str:
+def _rows_not_distinct(facts: DatasetFacts, total: SplitTotals) -> str:
     """Points listed under two events; "" when the tables stage did not count them."""
     distinct = facts.tables_counts.get("distinct_points")
     if not distinct:

@@ -15,6 +15,7 @@ import pyarrow as pa
 from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import StageError
 from toolkit.model.patches import POINT_COLUMNS as EVENT_POINT_COLUMNS
+from toolkit.stages.tables import SplitTotals
 from toolkit.tableio import ColumnSpec, load_table_schema
 
 #: The configuration sections the dataset's contents and card depend on: the label's
@@ -52,15 +53,6 @@ def export_config_hash(config: PipelineConfig) -> str:
     """The hash of the configuration sections the export depends on (in every file's
     metadata)."""
     return config_hash(config, sections=CONFIG_SECTIONS)
-
-
-@dataclass(frozen=True)
-class SplitCounts:
-    """What one split of the export holds."""
-
-    events: int
-    rough: int
-    points: int
 
 
 @dataclass(frozen=True)
@@ -116,10 +108,10 @@ class DatasetFacts:
     #: When the tables were made (their record's ``finished_utc``, ISO 8601), "" if unknown.
     tables_finished_utc: str = ""
 
-    def counts(self) -> dict[str, SplitCounts]:
+    def counts(self) -> dict[str, SplitTotals]:
         """Events, rough events and point rows per split."""
         return {
-            split: SplitCounts(
+            split: SplitTotals(
                 self.events[split].num_rows,
                 int(
                     np.count_nonzero(
@@ -163,7 +155,6 @@ __all__ = [
     "DatasetFacts",
     "LogSource",
     "Scores",
-    "SplitCounts",
     "data_file",
     "dataset_columns",
     "export_config_hash",

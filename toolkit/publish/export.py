@@ -37,7 +37,6 @@ from toolkit.publish.dataset import (
     DatasetFacts,
     LogSource,
     Scores,
-    SplitCounts,
     data_file,
     dataset_columns,
     export_config_hash,
@@ -46,6 +45,7 @@ from toolkit.publish.destination import check_destination, publish, remove_dead_
 from toolkit.sim.record import SIM_RECORD
 from toolkit.stages import label as label_stage
 from toolkit.stages import tables as tables_stage
+from toolkit.stages.tables import SplitTotals
 from toolkit.stages.training_data import table_inputs
 from toolkit.tableio import TableWriter, iter_table_batches, load_table_schema, read_table
 from toolkit.workspace import Workspace
@@ -63,7 +63,7 @@ class ExportResult:
     """What :func:`run_export` wrote."""
 
     out_dir: Path
-    splits: dict[str, SplitCounts]
+    splits: dict[str, SplitTotals]
     logs: tuple[str, ...]
     #: Whether the events carry the model's ``r_combined`` and ``predicted``.
     scores: bool

@@ -162,6 +162,22 @@ class SensorSuite:
         period_ns = int(round(1e9 / rate_hz))
         return np.flatnonzero((t_ns - self.start_ns) % period_ns == 0)
 
+    def _publish(
+        self,
+        out: Outbox,
+        topic: str,
+        t_true: NDArray[np.int64],
+        frame_id: str,
+        schema: str,
+        fields: dict[str, Column],
+    ) -> None:
+        """Messages of ``schema`` on ``topic``, one per true time ``t_true`` (ns): a header
+        stamped by the topic's clock (in ``frame_id``), then ``fields``; logged when that
+        clock says they arrive."""
+        clock = self.clocks[topic]
+        cols = {**header_columns(clock.stamps(self.rng, t_true), frame_id), **fields}
+        out.add(topic, clock.log_times(self.rng, t_true), encode_batch(schema, cols))
+
     # -- sensors ----------------------------------------------------------------------------
 
     def sample_imu(self, ext: TrueBlock, first: int) -> ImuSamples | None:
@@ -200,9 +216,7 @@ class SensorSuite:
         if samples is None:
             return
         p = self.p.imu
-        clock = self.clocks[TOPIC_IMU]
-        cols: dict[str, Column] = {
-            **header_columns(clock.stamps(self.rng, samples.t_true_ns), p.mount.frame_id),
+        fields: dict[str, Column] = {
             # No orientation estimate: covariance[0] = -1 by the sensor_msgs/Imu convention.
             "orientation_covariance": np.array([-1.0, 0, 0, 0, 0, 0, 0, 0, 0]),
             **vector_columns("angular_velocity", samples.gyro_radps),
@@ -210,10 +224,8 @@ class SensorSuite:
             **vector_columns("linear_acceleration", samples.accel_mps2),
             "linear_acceleration_covariance": np.diag([p.accel_noise_mps2**2] * 3).ravel(),
         }
-        out.add(
-            TOPIC_IMU,
-            clock.log_times(self.rng, samples.t_true_ns),
-            encode_batch("sensor_msgs/msg/Imu", cols),
+        self._publish(
+            out, TOPIC_IMU, samples.t_true_ns, p.mount.frame_id, "sensor_msgs/msg/Imu", fields
         )
 
     def wheels(self, block: TrueBlock, out: Outbox) -> None:
@@ -224,19 +236,13 @@ class SensorSuite:
         speeds = block.wheel_speed_mps[ticks] * self.wheel_scale
         speeds = speeds + self.rng.normal(0, p.noise_mps, speeds.shape)
         t_true = block.t_ns[ticks]
-        clock = self.clocks[TOPIC_WHEELS]
-        cols: dict[str, Column] = {
-            **header_columns(clock.stamps(self.rng, t_true), BASE_FRAME),
+        fields: dict[str, Column] = {
             "front_left": speeds[:, 0],
             "front_right": speeds[:, 1],
             "rear_left": speeds[:, 2],
             "rear_right": speeds[:, 3],
         }
-        out.add(
-            TOPIC_WHEELS,
-            clock.log_times(self.rng, t_true),
-            encode_batch("terrain_msgs/msg/WheelSpeeds", cols),
-        )
+        self._publish(out, TOPIC_WHEELS, t_true, BASE_FRAME, "terrain_msgs/msg/WheelSpeeds", fields)
 
     def gps(self, block: TrueBlock, out: Outbox) -> None:
         g = self.p.gps
@@ -261,9 +267,7 @@ class SensorSuite:
         var_v = g.vertical_noise_m**2 + g.drift_std_m**2
         cov = np.tile([var_h, 0, 0, 0, var_h, 0, 0, 0, var_v], (n, 1))
         cov[lost] = 0.0
-        clock = self.clocks[TOPIC_GPS]
-        cols: dict[str, Column] = {
-            **header_columns(clock.stamps(self.rng, t_true), g.mount.frame_id),
+        fields: dict[str, Column] = {
             "status.status": np.where(lost, NAVSAT_STATUS_NO_FIX, NAVSAT_STATUS_GBAS_FIX).astype(
                 np.int8
             ),
@@ -276,11 +280,7 @@ class SensorSuite:
                 lost, COVARIANCE_TYPE_UNKNOWN, COVARIANCE_TYPE_DIAGONAL_KNOWN
             ).astype(np.uint8),
         }
-        out.add(
-            TOPIC_GPS,
-            clock.log_times(self.rng, t_true),
-            encode_batch("sensor_msgs/msg/NavSatFix", cols),
-        )
+        self._publish(out, TOPIC_GPS, t_true, g.mount.frame_id, "sensor_msgs/msg/NavSatFix", fields)
 
         ticks_h = self._ticks(block, g.heading_rate_hz)
         t_h = block.t_ns[ticks_h]
@@ -291,17 +291,8 @@ class SensorSuite:
         yaw = wrap_angle(
             block.yaw_rad[ticks_h] + self.rng.normal(0, g.heading_noise_rad, ticks_h.size)
         )
-        clock = self.clocks[TOPIC_HEADING]
-        cols = {
-            **header_columns(clock.stamps(self.rng, t_true), BASE_FRAME),
-            "yaw": yaw,
-            "yaw_std": np.full(ticks_h.size, g.heading_noise_rad),
-        }
-        out.add(
-            TOPIC_HEADING,
-            clock.log_times(self.rng, t_true),
-            encode_batch("terrain_msgs/msg/GpsHeading", cols),
-        )
+        fields = {"yaw": yaw, "yaw_std": np.full(ticks_h.size, g.heading_noise_rad)}
+        self._publish(out, TOPIC_HEADING, t_true, BASE_FRAME, "terrain_msgs/msg/GpsHeading", fields)
 
     def truth(self, block: TrueBlock, out: Outbox) -> None:
         ticks = self._ticks(block, self.p.truth_rate_hz)

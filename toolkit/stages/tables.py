@@ -85,10 +85,12 @@ CONFIG_SECTIONS = ("tables", "vehicle", "model.wheel_window_radius_m")
 
 @dataclass(frozen=True)
 class SplitTotals:
-    """What one split holds (the numbers sect. 7 reports)."""
+    """What one split holds (the numbers sect. 7 reports): its events, the rough ones
+    among them (the positives) and the point rows under their tyres. The export's card and
+    metadata state the same numbers (:meth:`toolkit.publish.dataset.DatasetFacts.counts`)."""
 
     events: int
-    positives: int
+    rough: int
     points: int
 
 
@@ -109,8 +111,8 @@ class TablesResult:
     def summary(self) -> str:
         """The totals per split, as sect. 7 reports them."""
         parts = [
-            f"{name}: {t.events} events ({t.positives} rough, "
-            f"{100.0 * t.positives / max(t.events, 1):.2f} %), {t.points} point rows"
+            f"{name}: {t.events} events ({t.rough} rough, "
+            f"{100.0 * t.rough / max(t.events, 1):.2f} %), {t.points} point rows"
             for name, t in self.splits.items()
         ]
         if self.distinct_points:
@@ -410,7 +412,7 @@ def _compute(call: Call) -> Made[TablesResult]:
     row_counts: dict[str, int] = {}
     for name, t in splits.items():
         row_counts[f"{name}_events"] = t.events
-        row_counts[f"{name}_positives"] = t.positives
+        row_counts[f"{name}_positives"] = t.rough
         row_counts[f"{name}_points"] = t.points
     row_counts["distinct_points"] = distinct_points
     if splits["train"].events + splits["test"].events == 0:
