@@ -446,8 +446,7 @@ SPEC = Stage(
         Need("pose", "pose"),
     ),
     makes=("points",),
-    sections=CONFIG_SECTIONS,
-    hashed=hashed_sections,
+    hashed=hashed_sections,  # what it reads depends on [project] keep
     settings=ProjectSettings,
     check=_require_lasers,
     compute=_compute,
