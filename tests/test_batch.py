@@ -1,4 +1,4 @@
-"""Tests of the Executor seam: shards, batches on a local pool and on Dask, the ingest verb.
+"""Tests of batches: shards, a task per log on a local pool and on Dask, the ingest verb.
 
 Most tests run fake tasks (module-level, so they pickle into pool processes and Dask
 workers); the last ones ingest two simulated logs, one of them broken, with the real stage.
@@ -10,8 +10,6 @@ import dataclasses
 import logging
 import os
 import random
-import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -23,9 +21,7 @@ from toolkit import batch
 from toolkit.batch import (
     BatchSummary,
     Executors,
-    InlineExecutor,
     ItemOutcome,
-    make_executor,
     run_batch,
     run_ingest_batch,
     shard,
@@ -33,6 +29,7 @@ from toolkit.batch import (
 from toolkit.cli import main
 from toolkit.config import PipelineConfig, default_config, load_config
 from toolkit.errors import ConfigError, LogReadError
+from toolkit.executors import InlineExecutor, make_executor
 
 # -- fake tasks -----------------------------------------------------------------------------
 
@@ -183,41 +180,6 @@ def test_a_dead_worker_process_is_a_failed_item_not_a_crash() -> None:
         summary = run_batch(dying_task, ["x"], executor, desc="fake")
     assert list(summary.failed) == ["x"]
     assert summary.failed["x"].startswith("BrokenProcessPool")
-
-
-def test_make_executor_rejects_bad_settings() -> None:
-    with pytest.raises(ConfigError, match="'local', 'dask'"), make_executor("slurm"):
-        pass
-    with pytest.raises(ConfigError, match="--scheduler"), make_executor("dask"):
-        pass
-    with pytest.raises(ConfigError, match="-1"), make_executor("local", workers=-1):
-        pass
-    with (
-        pytest.raises(ConfigError, match="dask executor only"),
-        make_executor("local", scheduler="tcp://x:1"),
-    ):
-        pass
-
-
-def test_missing_distributed_package_says_how_to_install(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setitem(sys.modules, "distributed", None)  # makes 'import distributed' fail
-    with pytest.raises(ConfigError) as err, make_executor("dask", scheduler="tcp://127.0.0.1:1"):
-        pass
-    message = str(err.value)
-    assert "\n" not in message
-    assert "pip install 'terrain[distributed]'" in message
-
-
-def test_unreachable_scheduler_is_a_config_error() -> None:
-    import dask
-    import distributed  # noqa: F401 - the [distributed] extra, installed for the tests
-
-    with (
-        dask.config.set({"distributed.comm.timeouts.connect": "2s"}),
-        pytest.raises(ConfigError, match="cannot connect to the Dask scheduler at tcp://127"),
-        make_executor("dask", scheduler="tcp://127.0.0.1:9"),
-    ):
-        pass
 
 
 # -- the summary ----------------------------------------------------------------------------
@@ -469,42 +431,3 @@ def test_cli_ingest_two_logs_end_to_end(two_logs: tuple[Path, Path], tmp_path: P
     lines = [line for line in result.stderr.splitlines() if "error" in line]
     assert len(lines) == 1 and lines[0].startswith(f"terrain: error: {broken}: "), result.stderr
     assert "1 ingested, 1 failed" in result.stdout
-
-
-def _alive(pid: int) -> bool:
-    """Whether a process runs (a zombie waiting for its reaper has exited)."""
-    try:
-        status = Path(f"/proc/{pid}/status").read_text()
-    except FileNotFoundError:
-        return False
-    return "\nState:\tZ" not in status
-
-
-def test_pool_workers_exit_when_their_parent_is_killed(tmp_path: Path) -> None:
-    """kill -9 of the ingest parent must not leave its pool workers running."""
-    import signal
-    import subprocess
-
-    script = (
-        "import multiprocessing, time\n"
-        "from toolkit.batch import make_executor\n"
-        "with make_executor('local', workers=1) as pool:\n"
-        "    future = pool.submit(time.sleep, 120)\n"
-        "    time.sleep(2)\n"
-        "    print(*[p.pid for p in multiprocessing.active_children()], flush=True)\n"
-        "    future.result()\n"
-    )
-    parent = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE)
-    try:
-        assert parent.stdout is not None
-        children = [int(pid) for pid in parent.stdout.readline().split()]
-        assert children and all(_alive(pid) for pid in children)
-        parent.send_signal(signal.SIGKILL)
-        parent.wait(timeout=30)
-        deadline = time.monotonic() + 15
-        while any(_alive(pid) for pid in children) and time.monotonic() < deadline:
-            time.sleep(0.2)
-        assert not any(_alive(pid) for pid in children)
-    finally:
-        if parent.poll() is None:
-            parent.kill()
