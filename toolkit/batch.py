@@ -365,8 +365,8 @@ LOCAL = Executors()
 
 
 @dataclass(frozen=True)
-class _Begun:
-    """What a batch command settles before any log runs (:func:`_begin`)."""
+class BatchStart:
+    """What a batch command settles before any log runs (:func:`begin_batch`)."""
 
     workspace: Workspace
     config: PipelineConfig
@@ -376,14 +376,14 @@ class _Begun:
 
 
 @contextlib.contextmanager
-def _begin(
+def begin_batch(
     logs: Sequence[Path],
     workspace_root: Path,
     config_path: Path | None,
     *,
     overwrite: bool,
     executors: Executors,
-) -> Iterator[_Begun]:
+) -> Iterator[BatchStart]:
     """How ``terrain ingest`` and ``terrain run`` both begin: this shard's logs
     (:meth:`Executors.mine`), the configuration in force (:func:`_config_in_force`), and
     the workspace, created for the ``with`` (:meth:`Workspace.created`), with that
@@ -399,7 +399,7 @@ def _begin(
     config = _config_in_force(workspace, config_path)
     with workspace.created():
         adopt_config = workspace.check_config(config, overwrite=overwrite)
-        yield _Begun(workspace, config, adopt_config, unique, mine)
+        yield BatchStart(workspace, config, adopt_config, unique, mine)
 
 
 def run_ingest_batch(
@@ -428,7 +428,7 @@ def run_ingest_batch(
     """
     shard_index, num_shards = executors.shard_index, executors.num_shards
     # Each ingest_log records the config only when it succeeds with it.
-    with _begin(
+    with begin_batch(
         logs, workspace_root, config_path, overwrite=overwrite, executors=executors
     ) as begun:
         workspace, config, mine = begun.workspace, begun.config, begun.mine

@@ -53,7 +53,7 @@ from toolkit.batch import (
     LOCAL,
     BatchSummary,
     Executors,
-    _begin,
+    begin_batch,
     run_batch,
     stage_task,
 )
@@ -351,7 +351,7 @@ def run_pipeline(
     start = time.perf_counter()
     stages = stage_range(first, last)
     shard_index, num_shards = executors.shard_index, executors.num_shards
-    with _begin(
+    with begin_batch(
         logs, workspace_root, config_path, overwrite=overwrite, executors=executors
     ) as begun:
         ws, unique, mine = begun.workspace, begun.unique, begun.mine
