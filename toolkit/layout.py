@@ -172,6 +172,7 @@ class WorkspaceLayout:
     config_path = _File("config", "``WS/config.toml``: the configuration in force.")
     manifest_path = _File("manifest", "``WS/manifest.json``: records of the stages that span logs.")
     lock_path = _File("lock", "``WS/.lock``.")
+    model_path = _File("model", "``WS/model.json``: the learned model.")
 
     @property
     def logs_dir(self) -> Path:
@@ -205,7 +206,6 @@ class WorkspaceLayout:
 
     events_table = _File("events_table", "``WS/tables/events.parquet`` (schema ``tables_events``).")
     event_points_table = _File("event_points_table", "``WS/tables/event_points.parquet``.")
-    model_path = _File("model", "``WS/model.json``.")
 
     @property
     def report_dir(self) -> Path:
