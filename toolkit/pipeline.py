@@ -224,13 +224,15 @@ class _RunLogs:
             )
         return cls(items)
 
-    def for_stage(self, spec: Stage[Any]) -> list[Item]:
+    def for_stage(self, spec: Stage[Any, Any]) -> list[Item]:
         """The logs its prerequisites passed: label needs pose, not project, so a log
         without lasers is still labelled."""
         needed = [set(self.passed[b]) for b in spec.after if b in self.passed]
         return [it for it in self.every if all(it in ok for ok in needed)]
 
-    def record(self, spec: Stage[Any], items: list[Item], results: dict[Any, Any]) -> list[Item]:
+    def record(
+        self, spec: Stage[Any, Any], items: list[Item], results: dict[Any, Any]
+    ) -> list[Item]:
         """The logs the stage passed (those with a result), kept for the stages after it;
         a source stage's with the ids it gave them (it has read the files)."""
         if spec.starts_log:
@@ -299,7 +301,7 @@ class _Run:
                 report_path = self.ws.index_path
         return report_path
 
-    def _workspace_stage(self, stage: str, spec: Stage[Any], bar: Any) -> bool:
+    def _workspace_stage(self, stage: str, spec: Stage[Any, Any], bar: Any) -> bool:
         """Run one workspace stage and report it; whether it succeeded."""
         t0 = time.perf_counter()
         try:

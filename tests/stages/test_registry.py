@@ -50,14 +50,14 @@ class Counted:
         return f"toy {self.status}: {self.rows} IMU rows"
 
 
-def compute(call: Call) -> Made:
+def compute(call: Call[ToySettings]) -> Made[Counted]:
     assert isinstance(call.settings, ToySettings)  # its own section, not the whole config
     rows = pq.read_metadata(call.files.imu).num_rows
     pq.write_table(pa.table({"imu_rows": [rows]}), call.files.path("toy"))
     return Made(Counted("counted", rows), ("toy.parquet",), row_counts={"toy": rows})
 
 
-def recall(last: Recalled) -> Counted:
+def recall(last: Recalled[ToySettings]) -> Counted:
     return Counted("up_to_date", int(last.record.row_counts["toy"]))
 
 
@@ -66,7 +66,6 @@ SPEC = Stage(
     "log",
     needs=(Need("imu", "ingest"),),
     makes=("toy",),
-    sections=("label",),
     settings=ToySettings,
     compute=compute,
     recall=recall,

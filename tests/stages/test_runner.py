@@ -11,6 +11,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from pathlib import Path
+from typing import Any
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -39,13 +40,13 @@ def _locate(source: Path) -> tuple[str, dict[str, str], Path]:
     return make_log_id(source.stem, sha), {"log": sha}, source
 
 
-def _seed(call: Call) -> Made:
+def _seed(call: Call[PipelineConfig]) -> Made[Outcome]:
     value = int(Path(call.found).read_text())
     pq.write_table(pa.table({"v": [value]}), call.files.path("seed"))
     return Made(Outcome("seeded", value), ("seed.parquet",), row_counts={"seed": 1})
 
 
-def _double(call: Call) -> Made:
+def _double(call: Call[DoubleSettings]) -> Made[Outcome]:
     assert isinstance(call.settings, DoubleSettings)  # its own section, not the config
     value = pq.read_table(call.files.path("seed")).column("v")[0].as_py() * 2
     pq.write_table(pa.table({"v": [value]}), call.files.path("double"))
@@ -53,7 +54,11 @@ def _double(call: Call) -> Made:
     return Made(Outcome("doubled", value, warnings), ("double.parquet",), warnings=warnings)
 
 
-def _recall(last: Recalled) -> Outcome:
+def _never(call: Call[Any]) -> Made[Outcome]:
+    raise AssertionError("only declared, never run")
+
+
+def _recall(last: Recalled[Any]) -> Outcome:
     return Outcome("up_to_date", -1)
 
 
@@ -123,8 +128,8 @@ def test_a_stage_is_keyed_by_its_settings_sections_unless_it_declares_fewer() ->
     wider = dataclasses.replace(
         config, vehicle=dataclasses.replace(config.vehicle, track_m=config.vehicle.track_m + 0.1)
     )
-    by_settings = Stage("both", "log", _double, _recall, settings=LabelAndVehicle)
-    declared = Stage("both", "log", _double, _recall, settings=LabelAndVehicle, sections=("label",))
+    by_settings = Stage("both", "log", _never, _recall, settings=LabelAndVehicle)
+    declared = Stage("both", "log", _never, _recall, settings=LabelAndVehicle, sections=("label",))
     assert by_settings.hashed_sections(config) == ("label", "vehicle")
     assert by_settings.config_hash(config) == config_hash(config, ("label", "vehicle"))
     assert by_settings.config_hash(wider) != by_settings.config_hash(config)

@@ -95,7 +95,7 @@ def each_log(
 
 
 def _one_log(
-    spec: Stage[Any],
+    spec: Stage[Any, Any],
     ws: Workspace,
     cfg: PipelineConfig,
     log_id: str,

@@ -15,7 +15,7 @@ import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Generic, Literal, Protocol, TypeVar
+from typing import Any, Generic, Literal, Protocol, TypeVar, cast
 
 from toolkit.config import SECTIONS, PipelineConfig, config_hash
 from toolkit.layout import LogFiles
@@ -36,6 +36,8 @@ class Outcome(Protocol):
 
 #: A stage's outcome type (its ``...Result``): what its compute makes and its recall gives.
 OutcomeT = TypeVar("OutcomeT", bound=Outcome)
+#: A stage's settings type (``LabelSettings``...): what its compute and recall are handed.
+SettingsT = TypeVar("SettingsT")
 
 
 def _summary(outcome: Any) -> str:
@@ -55,7 +57,7 @@ class Need:
 
 
 @dataclass(frozen=True)
-class Call:
+class Call(Generic[SettingsT]):
     """What the runner hands a stage's compute function.
 
     ``settings`` is the stage's own frozen configuration (its :attr:`Stage.settings`
@@ -69,7 +71,7 @@ class Call:
 
     workspace: Workspace
     log_id: str
-    settings: Any
+    settings: SettingsT
     files: LogFiles
     manifest: Manifest
     inputs: Mapping[str, str]
@@ -95,7 +97,7 @@ class Made(Generic[OutcomeT]):
 
 
 @dataclass(frozen=True)
-class Recalled:
+class Recalled(Generic[SettingsT]):
     """An up-to-date stage's last run, for its :attr:`Stage.recall`: its record, the
     manifest's header, the log, the settings, the seconds the check took, the workspace,
     and what the stage's gather or locate found."""
@@ -103,14 +105,14 @@ class Recalled:
     log_id: str
     record: StageRecord
     header: Mapping[str, Any]
-    settings: Any
+    settings: SettingsT
     seconds: float
     workspace: Workspace
     found: Any = None
 
 
 @dataclass(frozen=True)
-class Stage(Generic[OutcomeT]):
+class Stage(Generic[SettingsT, OutcomeT]):
     """One stage's declaration.
 
     - ``name``, ``scope``: as listed in the registry.
@@ -137,14 +139,14 @@ class Stage(Generic[OutcomeT]):
 
     name: str
     scope: Scope
-    compute: Callable[[Call], Made[OutcomeT]]
-    recall: Callable[[Recalled], OutcomeT]
+    compute: Callable[[Call[SettingsT]], Made[OutcomeT]]
+    recall: Callable[[Recalled[SettingsT]], OutcomeT]
     needs: tuple[Need, ...] = ()
     makes: tuple[str, ...] = ()
     sections: tuple[str, ...] = ()
-    settings: type | None = None
+    settings: type[SettingsT] | None = None
     hashed: Callable[[PipelineConfig], tuple[str, ...]] | None = None
-    check: Callable[[LogFiles, Any], None] | None = None
+    check: Callable[[LogFiles, SettingsT], None] | None = None
     gather: Callable[[Workspace, PipelineConfig], tuple[dict[str, str], Any]] | None = None
     locate: Callable[[Path], tuple[str, dict[str, str], Any]] | None = None
     rows: tuple[str, ...] | None = None
@@ -168,22 +170,24 @@ class Stage(Generic[OutcomeT]):
             return self.hashed(config)
         if self.sections or self.settings is None:
             return self.sections
-        return tuple(f.name for f in dataclasses.fields(self.settings) if f.name in SECTIONS)
+        return self._setting_sections()
 
     def config_hash(self, config: PipelineConfig) -> str:
         """The hash of the configuration this stage reads (:meth:`hashed_sections`): its part
         of the up-to-date key, stamped on its tables."""
         return config_hash(config, self.hashed_sections(config))
 
-    def settings_from(self, config: PipelineConfig) -> Any:
+    def settings_from(self, config: PipelineConfig) -> SettingsT:
         """The stage's own frozen configuration: its ``settings`` class, each field the
         configuration's section of that name (the whole configuration when it declares none)."""
         if self.settings is None:
-            return config
-        fields = dataclasses.fields(self.settings)
-        return self.settings(
-            **{f.name: getattr(config, f.name) for f in fields if f.name in SECTIONS}
-        )
+            return cast(SettingsT, config)
+        return self.settings(**{name: getattr(config, name) for name in self._setting_sections()})
+
+    def _setting_sections(self) -> tuple[str, ...]:
+        """The fields of its ``settings`` that are configuration sections, in order."""
+        fields = dataclasses.fields(cast(Any, self.settings))
+        return tuple(f.name for f in fields if f.name in SECTIONS)
 
 
 __all__ = [
@@ -192,6 +196,8 @@ __all__ = [
     "Need",
     "Outcome",
     "Recalled",
+    "OutcomeT",
     "Scope",
+    "SettingsT",
     "Stage",
 ]

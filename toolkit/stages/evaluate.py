@@ -167,7 +167,7 @@ def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str
     return inputs, None
 
 
-def _recall(last: Recalled) -> EvaluateResult:
+def _recall(last: Recalled[EvaluateSettings]) -> EvaluateResult:
     """The outcome of an up-to-date report: its summary as written."""
     report = last.workspace.report_dir
     done = json.loads((report / SUMMARY_NAME).read_text())
@@ -419,7 +419,7 @@ def _write_report(
     learned: MethodScores,
     closest: str | None,
     model_doc: dict[str, Any],
-    call: Call,
+    call: Call[EvaluateSettings],
     timings: dict[str, float],
 ) -> tuple[dict[str, Any], dict[str, int]]:
     """ROC, speed control, the summary and the scores, written into a new generation of the
@@ -477,9 +477,9 @@ def _write_report(
     return summary, counts
 
 
-def _compute(call: Call) -> Made[EvaluateResult]:
+def _compute(call: Call[EvaluateSettings]) -> Made[EvaluateResult]:
     """Score, compare and write the report (the module docstring); the runner records it."""
-    config: EvaluateSettings = call.settings
+    config = call.settings
     workspace, start = call.workspace, call.start
     steps = _Steps(call.step, start)
     warnings: list[str] = []

@@ -139,7 +139,7 @@ def _locate(log_path: Path) -> tuple[str, dict[str, str], _Source]:
     return make_log_id(log_path.stem, sha256), {"log": sha256}, _Source(log_path, sha256, before)
 
 
-def _recall(last: Recalled) -> IngestResult:
+def _recall(last: Recalled[IngestSettings]) -> IngestResult:
     """The outcome of an up-to-date ingest, from its record."""
     source: _Source = last.found
     _log.info("%s: up to date (%s)", source.path, last.log_id)
@@ -172,7 +172,7 @@ def _nonzero(topics: Mapping[str, Any], key: str) -> dict[str, dict[str, int]]:
 # --------------------------------------------------------------------------------------
 
 
-def _compute(call: Call) -> Made[IngestResult]:
+def _compute(call: Call[IngestSettings]) -> Made[IngestResult]:
     """Read the log into its tables (``docs/ingest.md``); the runner records them."""
     source: _Source = call.found
     previous = call.manifest.stage(STAGE)
@@ -195,7 +195,7 @@ def _compute(call: Call) -> Made[IngestResult]:
 
 
 def _read(
-    settings: IngestSettings, source: _Source, call: Call
+    settings: IngestSettings, source: _Source, call: Call[IngestSettings]
 ) -> tuple[IngestRun, ReadReport, dict[str, list[str]], list[str]]:
     """Plan the log's configured topics and read every batch into a run's tables (aside);
     the run, the reader's report, the missing topics by role and the warnings so far. The
@@ -259,7 +259,7 @@ def _truth_to_pose_frame(run: IngestRun) -> None:
 
 
 def _made(
-    call: Call,
+    call: Call[IngestSettings],
     source: _Source,
     run: IngestRun,
     report: ReadReport,

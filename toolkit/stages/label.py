@@ -55,7 +55,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -179,7 +179,7 @@ class LabelSettings:
     vehicle: VehicleConfig
 
 
-def _recall(last: Recalled) -> LabelResult:
+def _recall(last: Recalled[LabelSettings]) -> LabelResult:
     """The outcome of an up-to-date label, from its record and the manifest's header."""
     header = last.header.get("label") or {}
     return LabelResult(
@@ -225,9 +225,9 @@ class _Events:
     fast: NDArray[np.bool_]
 
 
-def _read_events(call: Call, warnings: list[str]) -> _Events:
+def _read_events(call: Call[LabelSettings], warnings: list[str]) -> _Events:
     """The IMU's mount, rate and filter, and the posed path cut into events (sect. 5)."""
-    config: LabelSettings = call.settings
+    config = call.settings
     cfg, imu_path = config.label, call.files.imu
     mounts = sensor_mounts(call.files.tf_static, config.vehicle, gps=False)
     warnings += mounts.warnings
@@ -242,11 +242,11 @@ def _read_events(call: Call, warnings: list[str]) -> _Events:
 
 
 def _filter_shocks(
-    call: Call, ev: _Events, warnings: list[str]
+    call: Call[LabelSettings], ev: _Events, warnings: list[str]
 ) -> tuple[EventShocks, NDArray[np.bool_], dict[str, int]]:
     """The shock of every fast event (sect. 5.1), which are covered by the filtered IMU,
     and the rejects by reason."""
-    cfg = cast(LabelSettings, call.settings).label
+    cfg = call.settings.label
     envelope = impact_envelope(ev.fir) if cfg.attribution == "impact" else None
     shocks = event_shocks(
         call.files.imu,
@@ -309,7 +309,7 @@ def _event_columns(
 
 
 def _fig5(
-    call: Call,
+    call: Call[LabelSettings],
     ev: _Events,
     keep: IntArray,
     labels: EventLabels,
@@ -328,7 +328,7 @@ def _fig5(
             labels.speed_mph,
             labels.shock_g,
             [truth.kind[i] for i in keep.tolist()],
-            cast(LabelSettings, call.settings).vehicle.wheelbase_m,
+            call.settings.vehicle.wheelbase_m,
         )
         if len({round(p.speed_mph, 1) for p in passes}) >= 2:
             fig5 = fit_line(
@@ -360,11 +360,11 @@ class _Written:
 
 
 def _write_events(
-    call: Call, ev: _Events, shocks: EventShocks, keep: IntArray, warnings: list[str]
+    call: Call[LabelSettings], ev: _Events, shocks: EventShocks, keep: IntArray, warnings: list[str]
 ) -> _Written:
     """Label the covered events (sect. 5.2, sect. 7), write ``events.parquet`` and, on a
     calibration log, Fig. 5."""
-    config: LabelSettings = call.settings
+    config = call.settings
     cfg = config.label
     labels = label_events(
         shocks.shock_mps2[keep], ev.speed_mps[keep], cfg.gravity_mps2, cfg.rough_threshold_g_per_mph
@@ -397,7 +397,7 @@ def _write_events(
 
 
 def _made(
-    call: Call,
+    call: Call[LabelSettings],
     ev: _Events,
     shocks: EventShocks,
     keep: IntArray,
@@ -445,7 +445,7 @@ def _made(
     )
 
 
-def _compute(call: Call) -> Made[LabelResult]:
+def _compute(call: Call[LabelSettings]) -> Made[LabelResult]:
     """Label the log in ``call.files`` (the module docstring); the runner records it."""
     timings: dict[str, float] = {}
     warnings: list[str] = []

@@ -157,15 +157,15 @@ def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str
     return table_inputs(workspace, config), None
 
 
-def _recall(last: Recalled) -> LearnResult:
+def _recall(last: Recalled[LearnSettings]) -> LearnResult:
     """The outcome of an up-to-date model: the model as written."""
     doc = json.loads(last.workspace.model_path.read_text())
     return LearnResult("up_to_date", doc, last.seconds)
 
 
-def _compute(call: Call) -> Made[LearnResult]:
+def _compute(call: Call[LearnSettings]) -> Made[LearnResult]:
     """Learn and write ``model.json`` (the module docstring); the runner records it."""
-    config: LearnSettings = call.settings
+    config = call.settings
     workspace, inputs, cfg_hash, start = call.workspace, call.inputs, call.config_hash, call.start
     timings: dict[str, float] = {}
     t0 = time.perf_counter()

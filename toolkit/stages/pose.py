@@ -165,7 +165,7 @@ class PoseSettings:
     topics: TopicsConfig
 
 
-def _recall(last: Recalled) -> PoseResult:
+def _recall(last: Recalled[PoseSettings]) -> PoseResult:
     """The outcome of an up-to-date pose, from its record and the manifest's header."""
     detail = last.header.get("pose") or {}
     return PoseResult(
@@ -213,11 +213,11 @@ def _frame(origin: GeodeticOrigin | None, data: SensorData) -> tuple[str, dict[s
     return origin_json, {"local_origin": origin_json, "frame_id": LOCAL_FRAME_ID}
 
 
-def _prepare(call: Call) -> _Prepared:
+def _prepare(call: Call[PoseSettings]) -> _Prepared:
     """The mounts, the sensor data (:mod:`toolkit.stages.pose_inputs`), the lever arms from
     the IMU in base_link axes (to the antenna, and to base_link's origin), the frame and,
     on a simulated log, the truth's accumulator."""
-    config: PoseSettings = call.settings
+    config = call.settings
     mounts = sensor_mounts(call.files.tf_static, config.vehicle, gps=config.topics.gps is not None)
     warnings = list(mounts.warnings)
     inputs = sensor_data(call.files.dir, config.pose, mounts.imu)
@@ -263,7 +263,7 @@ class _PathTally:
 
 
 def _estimate(
-    call: Call, prep: _Prepared, est: EstimateResult, timings: dict[str, float]
+    call: Call[PoseSettings], prep: _Prepared, est: EstimateResult, timings: dict[str, float]
 ) -> _PathTally:
     """Run the filter window by window (:func:`~toolkit.fusion.estimator.estimate_stream`),
     streaming its rows into ``pose.parquet`` and into the truth's accumulator."""
@@ -333,7 +333,7 @@ def _dead_reckoning(
 
 
 def _made(
-    call: Call,
+    call: Call[PoseSettings],
     prep: _Prepared,
     est: EstimateResult,
     tally: _PathTally,
@@ -384,7 +384,7 @@ def _made(
     )
 
 
-def _compute(call: Call) -> Made[PoseResult]:
+def _compute(call: Call[PoseSettings]) -> Made[PoseResult]:
     """Estimate the pose of the log in ``call.files`` (the module docstring)."""
     timings: dict[str, float] = dict.fromkeys(("read", "filter", "write", "accuracy"), 0.0)
     t = time.perf_counter()

@@ -152,7 +152,7 @@ def _require_lasers(files: LogFiles, config: ProjectSettings) -> None:
         )
 
 
-def _recall(last: Recalled) -> ProjectResult:
+def _recall(last: Recalled[ProjectSettings]) -> ProjectResult:
     """The outcome of an up-to-date projection, from its record."""
     record = last.record
     return ProjectResult(
@@ -166,10 +166,10 @@ def _recall(last: Recalled) -> ProjectResult:
     )
 
 
-def _compute(call: Call) -> Made[ProjectResult]:
+def _compute(call: Call[ProjectSettings]) -> Made[ProjectResult]:
     """Project the scans of the log in ``call.files`` (the module docstring): open the
     inputs, project and write the batches, then write the figures."""
-    config: ProjectSettings = call.settings
+    config = call.settings
     _require_disk_for_cloud(call.files.laser, config)
     timings = dict.fromkeys(("read", "project", "write", "figures"), 0.0)
     inputs = _open_inputs(call, config)
@@ -208,7 +208,7 @@ class _Inputs:
     near_path: NearPath | None
 
 
-def _open_inputs(call: Call, config: ProjectSettings) -> _Inputs:
+def _open_inputs(call: Call[ProjectSettings], config: ProjectSettings) -> _Inputs:
     """The mounts of the scans' frames, the pose's frame metadata and stream, and (with
     ``keep = "near_path"``) the tyres' paths, for the log in ``call.files``."""
     files = call.files
@@ -317,7 +317,7 @@ class _BatchLoop:
 
 
 def _made(
-    call: Call,
+    call: Call[ProjectSettings],
     loop: _BatchLoop,
     fig4: ScanAgreementResult,
     figure_files: list[str],

@@ -74,7 +74,7 @@ def listed(name: str) -> Listed:
     return line
 
 
-def stage(name: str) -> Stage[Any]:
+def stage(name: str) -> Stage[Any, Any]:
     """The declaration of stage ``name`` (ToolkitError when there is none, or it does not
     match its line)."""
     from toolkit.stages.contract import Stage
@@ -86,7 +86,7 @@ def stage(name: str) -> Stage[Any]:
     return spec
 
 
-def stages() -> tuple[Stage[Any], ...]:
+def stages() -> tuple[Stage[Any, Any], ...]:
     """Every stage's declaration, in order; each reads only stages listed before it."""
     out = tuple(stage(n) for n in REGISTRY)
     seen: set[str] = set()

@@ -49,7 +49,7 @@ def _quiet(_: str) -> None:
 
 
 def run_stage(
-    spec: Stage[OutcomeT],
+    spec: Stage[Any, OutcomeT],
     workspace: Workspace,
     config: PipelineConfig,
     *,
@@ -112,7 +112,7 @@ def _start_log(here: _Here[OutcomeT], source: Path) -> tuple[OutcomeT, str]:
 class _Here(Generic[OutcomeT]):
     """One run of one stage: what :meth:`fresh_or_computed` works with."""
 
-    spec: Stage[OutcomeT]
+    spec: Stage[Any, OutcomeT]
     workspace: Workspace
     config: PipelineConfig
     log_id: str
@@ -175,7 +175,7 @@ class _Here(Generic[OutcomeT]):
         return files.path(name) if self.spec.scope == "log" else self.workspace.path(name)
 
 
-def hash_needs(spec: Stage[Any], files: LogFiles, manifest: Manifest) -> dict[str, str]:
+def hash_needs(spec: Stage[Any, Any], files: LogFiles, manifest: Manifest) -> dict[str, str]:
     """Layout name -> sha256 of every file ``spec`` needs that is there, each checked
     against the last finished run of the stage that makes it. StageError naming the first
     required file missing; WorkspaceError naming a file its maker did not write."""

@@ -230,7 +230,7 @@ def _gather(
     return inputs, (logs, warnings)
 
 
-def _recall(last: Recalled) -> TablesResult:
+def _recall(last: Recalled[TablesSettings]) -> TablesResult:
     """The outcome of up-to-date tables, from their record."""
     record = last.record
     splits = {
@@ -354,11 +354,14 @@ def _write_events(
 
 
 def _write_tables(
-    call: Call, logs: list[LogInputs], events_by_log: list[pa.Table], timings: dict[str, float]
+    call: Call[TablesSettings],
+    logs: list[LogInputs],
+    events_by_log: list[pa.Table],
+    timings: dict[str, float],
 ) -> tuple[_Totals, int]:
     """Both tables, written aside and published when both are complete (aborted on any
     error): the totals and the distinct points."""
-    config: TablesSettings = call.settings
+    config = call.settings
     workspace, cfg_hash = call.workspace, call.config_hash
     split_of = _splits(events_by_log, config)
     sources = [li.hashes["events"] for li in logs]
@@ -389,9 +392,9 @@ def _write_tables(
     return totals, distinct_points
 
 
-def _compute(call: Call) -> Made[TablesResult]:
+def _compute(call: Call[TablesSettings]) -> Made[TablesResult]:
     """Write the two tables (the module docstring); the runner records them."""
-    config: TablesSettings = call.settings
+    config = call.settings
     workspace, start = call.workspace, call.start
     logs, warnings = call.found
     outputs = [workspace.events_table, workspace.event_points_table]
