@@ -253,3 +253,19 @@ def test_oracle_on_the_sample_log_reads_the_terrain_where_beams_hit(
         )
     # The terrain varies within a patch (the check above could not pass on a flat one).
     assert np.ptp(want[0, :10]) > 0.005
+
+
+def test_oracle_z_is_in_the_frame_of_the_points_it_replaces(sample_oracle: _SampleOracle) -> None:
+    """The oracle keeps each point's x and y (the pose frame) and replaces its z: the new z
+    must be the true terrain height in that same frame, within a few centimetres of where the
+    true pose puts the beam (the sample lasers' own error, median 25 mm here).
+
+    Fails: ``_true_heights`` returns ``TrueGround.height_m``'s height, which is in the
+    simulator's frame; on the sample log that frame's origin is 2.03 m lower than the pose's,
+    so every oracle z is 2.03 m above the points' frame. The model only uses differences of
+    z within a patch, so the oracle's scores are unaffected; the patches are not in one frame.
+    """
+    valid = sample_oracle.patches.valid
+    oracle_z = sample_oracle.truth.z[valid]
+    assert np.median(np.abs(sample_oracle.height_m - sample_oracle.hit[:, 2])) < 0.05
+    np.testing.assert_allclose(oracle_z, sample_oracle.height_m, rtol=0, atol=1e-3)
