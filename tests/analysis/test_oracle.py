@@ -25,8 +25,9 @@ TERRAIN_END_X_M = 15.0
 
 
 class _PlaneGround:
-    """A stand-in for :class:`TrueGround`: the plane z = 0.1 x - 0.05 y + 1 up to
-    x = TERRAIN_END_X_M, nothing (NaN) beyond; records the places it was asked about."""
+    """A stand-in for :class:`TrueGround` whose frame is the pose's: the plane
+    z = 0.1 x - 0.05 y + 1 up to x = TERRAIN_END_X_M, nothing (NaN) beyond; records the
+    places it was asked about."""
 
     def __init__(self) -> None:
         self.asked: list[np.ndarray] = []
@@ -39,7 +40,7 @@ class _PlaneGround:
         xyz = np.asarray(xyz_m, np.float64).reshape(-1, 3)
         self.asked.append(xyz)
         h = np.where(xyz[:, 0] <= TERRAIN_END_X_M, self.plane(xyz[:, 0], xyz[:, 1]), np.nan)
-        return h, xyz[:, 2] - h
+        return h, xyz[:, 2]  # as TrueGround: the terrain's height, the point's own
 
 
 def _write_pose(log_dir: Path, name: str, offset_m: tuple[float, float, float]) -> None:
@@ -260,10 +261,10 @@ def test_oracle_z_is_in_the_frame_of_the_points_it_replaces(sample_oracle: _Samp
     must be the true terrain height in that same frame, within a few centimetres of where the
     true pose puts the beam (the sample lasers' own error, median 25 mm here).
 
-    Fails: ``_true_heights`` returns ``TrueGround.height_m``'s height, which is in the
-    simulator's frame; on the sample log that frame's origin is 2.03 m lower than the pose's,
-    so every oracle z is 2.03 m above the points' frame. The model only uses differences of
-    z within a patch, so the oracle's scores are unaffected; the patches are not in one frame.
+    Found failing when written: the height was left in the simulator's frame, whose origin
+    is 2.03 m lower than the pose's on the sample log, so every oracle z stood 2.03 m above
+    the points' frame (the scores were unaffected: the model uses differences of z within
+    a patch).
     """
     valid = sample_oracle.patches.valid
     oracle_z = sample_oracle.truth.z[valid]

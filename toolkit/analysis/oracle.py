@@ -84,7 +84,12 @@ def _true_heights(
     # an hour's route); pocketfft splits each transform's independent lines over the
     # threads, so the heights are the same with one thread or two.
     with scipy.fft.set_workers(THREADS):
-        h[placed], _ = ground.height_m(hit[placed])
+        h_sim, z_sim = ground.height_m(hit[placed])
+    # The terrain's height comes in the simulator's frame; the points are in the pose's,
+    # whose origin is elsewhere (2 m higher on the sample log). The hit point's height
+    # above the terrain is the same in both, so the height in the points' frame is the
+    # point's z less it: the oracle's patches stay in one frame with their x and y.
+    h[placed] = hit[placed, 2] - (z_sim - h_sim)
     return h
 
 
