@@ -268,5 +268,5 @@ def test_oracle_z_is_in_the_frame_of_the_points_it_replaces(sample_oracle: _Samp
     """
     valid = sample_oracle.patches.valid
     oracle_z = sample_oracle.truth.z[valid]
-    assert np.median(np.abs(sample_oracle.height_m - sample_oracle.hit[:, 2])) < 0.05
+    assert np.median(np.abs(oracle_z - sample_oracle.hit[:, 2])) < 0.05
     np.testing.assert_allclose(oracle_z, sample_oracle.height_m, rtol=0, atol=1e-3)

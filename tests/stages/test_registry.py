@@ -8,6 +8,7 @@ up-to-date check and ``terrain logs`` all pick it up with nothing else changed.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import textwrap
 from pathlib import Path
@@ -16,6 +17,7 @@ import pytest
 from click.testing import CliRunner
 
 from toolkit.cli import main
+from toolkit.config import default_config
 from toolkit.errors import ToolkitError
 from toolkit.stages import registry
 from toolkit.stages.registry import Listed
@@ -139,3 +141,27 @@ def test_every_registered_stage_declares_itself_as_listed() -> None:
     for spec in registry.stages():
         assert spec.scope == registry.REGISTRY[spec.name].scope
         assert set(spec.after) <= set(registry.names())
+
+
+#: What each stage's up-to-date key hashes (default configuration): a change here makes every
+#: workspace's stage stale, so it is pinned. Pose leaves out the topics its settings hold
+#: (their changes reach it through ingest's tables); tables hashes one key of [model];
+#: project keeping every point hashes only which points it keeps of its section.
+HASHED = {
+    "ingest": ("topics", "time"),
+    "pose": ("pose", "time", "vehicle"),
+    "project": ("vehicle", "project.keep"),
+    "label": ("label", "vehicle"),
+    "tables": ("tables", "vehicle", "model.wheel_window_radius_m"),
+    "learn": ("model", "learn"),
+    "evaluate": ("model", "learn", "evaluate"),
+}
+
+
+def test_every_stage_hashes_the_configuration_it_always_has() -> None:
+    config = default_config()
+    assert {s.name: s.hashed_sections(config) for s in registry.stages()} == HASHED
+    near_path = dataclasses.replace(config.project, keep="near_path")
+    keeping_near_path = dataclasses.replace(config, project=near_path)
+    hashed = registry.stage("project").hashed_sections(keeping_near_path)
+    assert hashed == ("vehicle", "project", "model.wheel_window_radius_m")

@@ -40,7 +40,12 @@ def _locate(source: Path) -> tuple[str, dict[str, str], Path]:
     return make_log_id(source.stem, sha), {"log": sha}, source
 
 
-def _seed(call: Call[PipelineConfig]) -> Made[Outcome]:
+@dataclasses.dataclass(frozen=True)
+class NoSettings:
+    """Seed reads no configuration."""
+
+
+def _seed(call: Call[NoSettings]) -> Made[Outcome]:
     value = int(Path(call.found).read_text())
     pq.write_table(pa.table({"v": [value]}), call.files.path("seed"))
     return Made(Outcome("seeded", value), ("seed.parquet",), row_counts={"seed": 1})
@@ -67,7 +72,7 @@ class DoubleSettings:
     label: LabelConfig
 
 
-SEED = Stage("seed", "log", _seed, _recall, makes=("seed",), locate=_locate)
+SEED = Stage("seed", "log", _seed, _recall, NoSettings, makes=("seed",), locate=_locate)
 DOUBLE = Stage(
     "double",
     "log",
@@ -171,9 +176,37 @@ def test_a_stage_s_warnings_are_said_on_the_terminal(
     assert [r.getMessage() for r in caplog.records] == [f"{log_id}: an odd seed"]
 
 
-def test_a_stage_that_starts_a_log_needs_its_file(tmp_path: Path) -> None:
-    with pytest.raises(TypeError, match="run it with its source file"):
-        run_stage(SEED, Workspace(tmp_path / "ws"), default_config())
+def test_a_stage_is_run_with_what_its_scope_needs(
+    seeded: tuple[Workspace, str, Path], tmp_path: Path
+) -> None:
+    ws, log_id, source = seeded
+    config = default_config()
+    with pytest.raises(TypeError, match="'seed' starts a log: pass source="):
+        run_stage(SEED, Workspace(tmp_path / "none"), config)
+    with pytest.raises(TypeError, match="'seed' starts a log: pass source="):
+        run_stage(SEED, ws, config, log_id=log_id, source=source)
+    with pytest.raises(TypeError, match="'double' runs on one log: pass log_id="):
+        run_stage(DOUBLE, ws, config)
+    over_all = Stage("over_all", "workspace", _never, _recall, NoSettings)
+    with pytest.raises(TypeError, match="'over_all' runs over the workspace: pass no log_id"):
+        run_stage(over_all, ws, config, log_id=log_id)
+    assert not (tmp_path / "none").exists()  # refused before anything is made
+
+
+def test_a_declaration_the_runner_could_not_honour_is_refused() -> None:
+    @dataclasses.dataclass(frozen=True)
+    class Loose:
+        label: LabelConfig
+        threshold: float  # no section, no default: the runner could not fill it
+
+    with pytest.raises(TypeError, match="'loose': settings field 'threshold'"):
+        Stage("loose", "log", _never, _recall, Loose)
+    with pytest.raises(TypeError, match="'typo': it hashes 'lable', which its settings"):
+        Stage("typo", "log", _never, _recall, DoubleSettings, sections=("lable",))
+    with pytest.raises(TypeError, match="'plain': settings must be a dataclass"):
+        Stage("plain", "log", _never, _recall, dict)
+    narrowed = Stage("narrowed", "log", _never, _recall, DoubleSettings, sections=())
+    assert narrowed.hashed_sections(default_config()) == ()  # it may hash nothing
 
 
 def _with_threshold(config: PipelineConfig, threshold: float) -> PipelineConfig:

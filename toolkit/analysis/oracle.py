@@ -72,9 +72,9 @@ def _true_heights(
     rows: NDArray[np.intp],
     mask: NDArray[np.bool_],
 ) -> FloatArray:
-    """The true terrain height where each valid point (``mask``) of the patches ``rows``
-    (one log's, in ``log_dir``) truly hit; NaN where the true pose does not cover its time or
-    the terrain is not modelled."""
+    """The true terrain height, in the points' (pose) frame, where each valid point
+    (``mask``) of the patches ``rows`` (one log's, in ``log_dir``) truly hit; NaN where the
+    true pose does not cover its time or the terrain is not modelled."""
     xyz = np.c_[patches.x[rows][mask], patches.y[rows][mask], patches.z[rows][mask]]
     t_ns = np.round(patches.tau[rows][mask] * 1e9).astype(np.int64)
     hit = where_beams_hit(log_dir, xyz, t_ns)

@@ -122,10 +122,11 @@ class Stage(Generic[SettingsT, OutcomeT]):
     - ``settings``: the frozen dataclass it receives, whose fields are named after the
       configuration's sections (fields with defaults that are no section stay as they are).
     - ``sections``: the configuration whose hash is its configuration's part of the
-      up-to-date key: by default the sections its ``settings`` hold; declared when it reads
-      less (one key, ``"model.wheel_window_radius_m"``, or not a section whose changes reach
-      it through its inputs anyway); ``hashed`` overrides them when what it reads depends on
-      the configuration (project reads the tyres' radius only when it cuts by one).
+      up-to-date key: by default (None) the sections its ``settings`` hold; declared when it
+      hashes fewer (one key, ``"model.wheel_window_radius_m"``, or leaves out a section whose
+      changes already reach it through its inputs); ``hashed`` overrides them when what it
+      reads depends on the configuration (project reads the tyres' radius only when it cuts
+      by one). Declared sections its settings do not hold are refused when it is declared.
     - ``check`` refuses, before anything is hashed, a log the stage cannot work on (a role
       it needs missing).
     - ``gather`` replaces the hashing of ``needs`` for a stage whose inputs are no fixed
@@ -141,10 +142,10 @@ class Stage(Generic[SettingsT, OutcomeT]):
     scope: Scope
     compute: Callable[[Call[SettingsT]], Made[OutcomeT]]
     recall: Callable[[Recalled[SettingsT]], OutcomeT]
+    settings: type[SettingsT]
     needs: tuple[Need, ...] = ()
     makes: tuple[str, ...] = ()
-    sections: tuple[str, ...] = ()
-    settings: type[SettingsT] | None = None
+    sections: tuple[str, ...] | None = None
     hashed: Callable[[PipelineConfig], tuple[str, ...]] | None = None
     check: Callable[[LogFiles, SettingsT], None] | None = None
     gather: Callable[[Workspace, PipelineConfig], tuple[dict[str, str], Any]] | None = None
@@ -152,7 +153,29 @@ class Stage(Generic[SettingsT, OutcomeT]):
     rows: tuple[str, ...] | None = None
     unit: str = "step"
     progress_total: Callable[[PipelineConfig], int | None] | None = None
-    describe: Callable[[Any], str] = _summary
+    describe: Callable[[OutcomeT], str] = _summary
+
+    def __post_init__(self) -> None:
+        """Refuse a declaration the runner could not honour: settings that are no dataclass,
+        a settings field that is neither a configuration section nor has a default, or a
+        declared section its settings do not hold (TypeError, naming the stage)."""
+        if not (isinstance(self.settings, type) and dataclasses.is_dataclass(self.settings)):
+            raise TypeError(f"stage {self.name!r}: settings must be a dataclass class")
+        for f in dataclasses.fields(self.settings):
+            no_default = f.default is dataclasses.MISSING and (
+                f.default_factory is dataclasses.MISSING
+            )
+            if f.name not in SECTIONS and no_default:
+                raise TypeError(
+                    f"stage {self.name!r}: settings field {f.name!r} is no configuration "
+                    "section and has no default"
+                )
+        held = self._setting_sections()
+        for name in self.sections or ():
+            if name.partition(".")[0] not in held:
+                raise TypeError(
+                    f"stage {self.name!r}: it hashes {name!r}, which its settings do not hold"
+                )
 
     @property
     def starts_log(self) -> bool:
@@ -168,7 +191,7 @@ class Stage(Generic[SettingsT, OutcomeT]):
         """The configuration whose hash keys this stage's up-to-date check."""
         if self.hashed is not None:
             return self.hashed(config)
-        if self.sections or self.settings is None:
+        if self.sections is not None:
             return self.sections
         return self._setting_sections()
 
@@ -179,9 +202,7 @@ class Stage(Generic[SettingsT, OutcomeT]):
 
     def settings_from(self, config: PipelineConfig) -> SettingsT:
         """The stage's own frozen configuration: its ``settings`` class, each field the
-        configuration's section of that name (the whole configuration when it declares none)."""
-        if self.settings is None:
-            return cast(SettingsT, config)
+        configuration's section of that name."""
         return self.settings(**{name: getattr(config, name) for name in self._setting_sections()})
 
     def _setting_sections(self) -> tuple[str, ...]:

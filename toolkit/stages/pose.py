@@ -60,7 +60,9 @@ STAGE = "pose"
 #: ``frame_id`` of a pose without GPS: a local frame whose origin is the first pose.
 LOCAL_FRAME_ID = "local_first_pose"
 INPUT_TABLES = ("imu", "gps", "heading", "wheels")
-#: Configuration sections pose reads: the filter, timing, and the vehicle's mounts.
+#: The configuration pose's up-to-date key hashes: the filter, timing and the vehicle's
+#: mounts. Its settings also hold the topics (whether the log has a GPS role), left out of
+#: the key: their changes reach pose through ingest's tables.
 CONFIG_SECTIONS = ("pose", "time", "vehicle")
 OUTPUT = log_file_name("pose")
 

@@ -40,7 +40,7 @@ from toolkit.manifest import (
     file_sha256,
     require_finished,
 )
-from toolkit.stages.contract import Call, Made, OutcomeT, Recalled, Stage
+from toolkit.stages.contract import Call, Made, OutcomeT, Recalled, SettingsT, Stage
 from toolkit.workspace import Workspace
 
 
@@ -49,28 +49,28 @@ def _quiet(_: str) -> None:
 
 
 def run_stage(
-    spec: Stage[Any, OutcomeT],
+    spec: Stage[SettingsT, OutcomeT],
     workspace: Workspace,
     config: PipelineConfig,
     *,
     log_id: str = "",
     overwrite: bool = False,
     step: Callable[[str], None] | None = None,
-    settings: Any = None,
+    settings: SettingsT | None = None,
     source: Path | None = None,
 ) -> OutcomeT:
     """Run one stage (the module docstring) on one log (``log_id``) or the workspace.
 
     ``settings`` replaces the stage's own built from ``config`` (a test's smaller buffer);
-    ``source`` is the file of a stage that starts a log (:attr:`Stage.locate`)."""
+    ``source`` is the file of a stage that starts a log (:attr:`Stage.locate`), which names
+    the log itself. TypeError when what names the stage's scope is missing or misplaced."""
+    _require_scope_arguments(spec, log_id, source)
     start = time.perf_counter()
     here = _Here(spec, workspace, config, log_id, overwrite, step or _quiet, start, settings)
     where = log_id
     if spec.scope == "workspace":
         outcome = here.fresh_or_computed(workspace.manifest(), workspace.root)
-    elif spec.locate is not None:  # the stage that starts a log from its file (ingest)
-        if source is None:
-            raise TypeError(f"stage {spec.name!r} starts a log: run it with its source file")
+    elif source is not None:  # the stage that starts a log from its file (ingest)
         outcome, where = _start_log(here, source)
     else:
         workspace.require_log(log_id)
@@ -87,7 +87,20 @@ def run_stage(
     return outcome
 
 
-def _start_log(here: _Here[OutcomeT], source: Path) -> tuple[OutcomeT, str]:
+def _require_scope_arguments(spec: Stage[Any, Any], log_id: str, source: Path | None) -> None:
+    """TypeError unless the run names what the stage's scope needs: a workspace stage no
+    log, a log-starting stage its file (and no log id), any other per-log stage its log."""
+    if spec.scope == "workspace":
+        if log_id or source is not None:
+            raise TypeError(f"stage {spec.name!r} runs over the workspace: pass no log_id")
+    elif spec.starts_log:
+        if source is None or log_id:
+            raise TypeError(f"stage {spec.name!r} starts a log: pass source=, its file")
+    elif not log_id or source is not None:
+        raise TypeError(f"stage {spec.name!r} runs on one log: pass log_id=")
+
+
+def _start_log(here: _Here[Any, OutcomeT], source: Path) -> tuple[OutcomeT, str]:
     """Run a stage that starts a log from its file: it names the log and hashes the file
     (:attr:`Stage.locate`); the workspace is made if need be, and the configuration, checked
     against the workspace's before anything is read, becomes the workspace's once the stage
@@ -109,17 +122,17 @@ def _start_log(here: _Here[OutcomeT], source: Path) -> tuple[OutcomeT, str]:
 
 
 @dataclass(frozen=True)
-class _Here(Generic[OutcomeT]):
+class _Here(Generic[SettingsT, OutcomeT]):
     """One run of one stage: what :meth:`fresh_or_computed` works with."""
 
-    spec: Stage[Any, OutcomeT]
+    spec: Stage[SettingsT, OutcomeT]
     workspace: Workspace
     config: PipelineConfig
     log_id: str
     overwrite: bool
     step: Callable[[str], None]
     start: float
-    settings: Any = None
+    settings: SettingsT | None = None
 
     def fresh_or_computed(
         self,

@@ -302,14 +302,14 @@ class _Totals:
     dropped for too few points."""
 
     events: dict[str, int] = field(default_factory=lambda: defaultdict(int))
-    positives: dict[str, int] = field(default_factory=lambda: defaultdict(int))
+    rough: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     points: dict[str, int] = field(default_factory=lambda: defaultdict(int))
     rejected: int = 0
 
     def splits(self) -> dict[str, SplitTotals]:
         """The totals by split name."""
         return {
-            name: SplitTotals(self.events[name], self.positives[name], self.points[name])
+            name: SplitTotals(self.events[name], self.rough[name], self.points[name])
             for name in ("train", "test")
         }
 
@@ -348,7 +348,7 @@ def _write_events(
         for name in ("train", "test"):
             mine = split_kept == name
             totals.events[name] += int(mine.sum())
-            totals.positives[name] += int(rough[mine].sum())
+            totals.rough[name] += int(rough[mine].sum())
             totals.points[name] += int(counts[keep][mine].sum())
     return totals
 
@@ -415,7 +415,7 @@ def _compute(call: Call[TablesSettings]) -> Made[TablesResult]:
     row_counts: dict[str, int] = {}
     for name, t in splits.items():
         row_counts[f"{name}_events"] = t.events
-        row_counts[f"{name}_positives"] = t.rough
+        row_counts[f"{name}_positives"] = t.rough  # the manifest's key, as ever
         row_counts[f"{name}_points"] = t.points
     row_counts["distinct_points"] = distinct_points
     if splits["train"].events + splits["test"].events == 0:
