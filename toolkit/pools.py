@@ -6,17 +6,20 @@ shutdown waits for it. So the workers ignore Ctrl-C (it reaches the whole proces
 the parent decides: on any exception leaving the pool (KeyboardInterrupt, the SystemExit the
 command line raises on SIGTERM, an error) it cancels what has not started and terminates
 the workers it started (SIGTERM, whose default action ends a process wherever it is; SIGKILL
-after :data:`TERMINATE_GRACE_S`), then lets the exception go on. A parent killed outright
-(SIGKILL, which nothing can catch) is noticed by each worker's watcher thread within
+after :data:`TERMINATE_GRACE_S`), then lets the exception go on. A command that stopped a pool
+so ends without waiting on the pool's own threads (:func:`exit_without_waiting`). A parent
+killed outright (SIGKILL, which nothing can catch) is noticed by each worker's watcher thread within
 :data:`PARENT_CHECK_S` once the worker's interpreter runs again.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -28,6 +31,10 @@ from typing import Any
 PARENT_CHECK_S = 1.0
 #: How long a terminated worker may take to end before it is killed (s).
 TERMINATE_GRACE_S = 5.0
+
+#: Set once a pool's workers were ended mid-task (:func:`stop_now`): the pool's own threads
+#: may then wait for ever on what a killed worker half-wrote (:func:`exit_without_waiting`).
+_STOPPED_MID_TASK = threading.Event()
 
 
 def _exit_when_orphaned(parent_pid: int) -> None:
@@ -87,6 +94,7 @@ def stop_now(pool: ProcessPoolExecutor, before: set[int | None]) -> None:
     """Cancel the pool's pending tasks and end its workers now: those of this process's
     children whose pids are not in ``before`` (the children there were before the pool)."""
     pool.shutdown(wait=False, cancel_futures=True)
+    _STOPPED_MID_TASK.set()
     workers = [p for p in multiprocessing.active_children() if p.pid not in before]
     for p in workers:
         p.terminate()
@@ -96,6 +104,24 @@ def stop_now(pool: ProcessPoolExecutor, before: set[int | None]) -> None:
         if p.is_alive():
             p.kill()
             p.join()
+
+
+def exit_without_waiting(code: int) -> None:
+    """End the process now with ``code`` if a pool was stopped mid-task, else return.
+
+    A worker terminated while it wrote a result leaves the pool's manager thread reading
+    that message for ever, and the interpreter joins that thread before it exits: the
+    command, every ``with`` already unwound, would hang (or print a traceback from the
+    exit's thread shutdown) instead of ending. So the output streams and the logs are
+    flushed and the process ends without that join. Call it only where nothing is left to
+    clean up: the command line's last step."""
+    if not _STOPPED_MID_TASK.is_set():
+        return
+    logging.shutdown()
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
 
 
 class Terminated(SystemExit):

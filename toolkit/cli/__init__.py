@@ -18,6 +18,6 @@ executor and shard options), :mod:`~toolkit.cli.tools` (``sim``, ``info``, ``con
 """
 
 from toolkit.cli import batch, tools  # noqa: F401  (importing them registers their verbs)
-from toolkit.cli.group import main
+from toolkit.cli.group import entry, main
 
-__all__ = ["main"]
+__all__ = ["entry", "main"]

@@ -10,7 +10,7 @@ import click
 from toolkit import __version__
 from toolkit.cli.base import PROG, CliOptions, TerrainGroup, apply_global_flags
 from toolkit.cli.stages import stage_command
-from toolkit.pools import sigterm_as_exit
+from toolkit.pools import exit_without_waiting, sigterm_as_exit
 from toolkit.stages import registry
 
 
@@ -47,3 +47,14 @@ def _stop_on_sigterm(ctx: click.Context) -> None:
     stopped, temporary files removed, locks released); restored when the command ends."""
     if threading.current_thread() is threading.main_thread():  # (not in a test's thread)
         ctx.with_resource(sigterm_as_exit())
+
+
+def entry() -> None:
+    """The process's entry point (``terrain``, ``python -m toolkit``): :data:`main`, and,
+    when an interrupt stopped a pool mid-task, an exit that does not wait on the pool's
+    threads (:func:`toolkit.pools.exit_without_waiting`)."""
+    try:
+        main()
+    except SystemExit as exc:  # click ends every run so, Ctrl-C and SIGTERM included
+        exit_without_waiting(exc.code if isinstance(exc.code, int) else 1)
+        raise
