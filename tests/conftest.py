@@ -7,8 +7,12 @@ fresh clone with nothing beside it.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import pytest
+
+if TYPE_CHECKING:
+    from tests.stages.test_learn import Pipeline
 
 #: Files the tests read: the MCAP conformance corpus, real robots' logs.
 DATA_DIR = Path(__file__).resolve().parent / "data"
@@ -55,3 +59,14 @@ def sample_projected(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, st
     run_stage(POSE, ws, default_config(), log_id=log_id)
     run_stage(PROJECT, ws, default_config(), log_id=log_id)
     return ws.root, log_id
+
+
+@pytest.fixture(scope="module")
+def pipeline(
+    sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
+) -> Pipeline:
+    """The sample labelled, tabled, learned and evaluated, built once a session
+    (:func:`tests.stages.test_learn.build_pipeline`). Read-only: copy it to change it."""
+    from tests.stages.test_learn import build_pipeline
+
+    return build_pipeline(sample_projected, tmp_path_factory)

@@ -5,19 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import pytest
 from click.testing import CliRunner
 
-from tests.stages.test_learn import Pipeline, build_pipeline
+from tests.stages.test_learn import Pipeline
 from toolkit.cli import main
 from toolkit.workspace import Workspace
-
-
-@pytest.fixture(scope="module")
-def pipeline(
-    sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
-) -> Pipeline:
-    return build_pipeline(sample_projected, tmp_path_factory)
 
 
 def test_logs_lists_each_log_its_source_stages_and_rows(pipeline: Pipeline) -> None:

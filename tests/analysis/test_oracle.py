@@ -11,11 +11,12 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
+from tests.analysis.test_truth_terrain import write_pose_table
 from toolkit.analysis import oracle as oracle_module
 from toolkit.analysis.oracle import oracle_patches
 from toolkit.analysis.truth_terrain import TrueGround, true_ground, where_beams_hit
 from toolkit.model.patches import TyrePatches
-from toolkit.tableio import load_table_schema, read_table, write_table
+from toolkit.tableio import read_table
 from toolkit.workspace import Workspace
 
 #: The poses' times: 0 to 2 s at 100 Hz (the points' tau lie inside unless said otherwise).
@@ -48,20 +49,9 @@ def _write_pose(log_dir: Path, name: str, offset_m: tuple[float, float, float]) 
     10 m/s, level, shifted by ``offset_m``."""
     log_dir.mkdir(parents=True, exist_ok=True)
     s = POSE_T_NS * 1e-9
-    given = {
-        "x": 10.0 * s + offset_m[0],
-        "y": np.full(s.size, offset_m[1]),
-        "z": np.full(s.size, offset_m[2]),
-    }
-    cols = {}
-    for spec in load_table_schema(name).columns:
-        if spec.name == "t_ns":
-            cols[spec.name] = pa.array(POSE_T_NS, pa.int64())
-        else:
-            values = given.get(spec.name, np.zeros(s.size))
-            cols[spec.name] = pa.array(values, spec.arrow_type())
+    xyz = np.c_[10.0 * s + offset_m[0], np.full(s.size, offset_m[1]), np.full(s.size, offset_m[2])]
     path = log_dir / f"{name}.parquet"
-    write_table(path, pa.table(cols), name, source_sha256="0" * 64, config_hash="test")
+    write_pose_table(path, name, POSE_T_NS, xyz, np.zeros((s.size, 3)))
 
 
 def _simulated_log(ws: Workspace, log_id: str, error_m: tuple[float, float, float]) -> None:

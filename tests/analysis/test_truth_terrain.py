@@ -323,7 +323,9 @@ def test_a_short_route_checks_closer_stretches(projected: Path) -> None:
     assert ground.stretch_every(1000, 8) == 1
 
 
-def _write_pose(path: Path, name: str, t_ns: np.ndarray, xyz: np.ndarray, rpy: np.ndarray) -> None:
+def write_pose_table(
+    path: Path, name: str, t_ns: np.ndarray, xyz: np.ndarray, rpy: np.ndarray
+) -> None:
     """A ``pose``-shaped table (``name``: pose or truth_pose) with the given track."""
     import pyarrow as pa
 
@@ -354,8 +356,8 @@ def test_beams_are_moved_by_the_pose_error_at_their_time(tmp_path: Path) -> None
     true_rpy = np.c_[0.02 * np.sin(s), 0.01 * s, 0.3 * s]
     est_xyz = true_xyz + [0.2, 0.0, 0.05]
     est_rpy = true_rpy + [0.0, 0.0, 0.02]
-    _write_pose(tmp_path / "pose.parquet", "pose", t_ns, est_xyz, est_rpy)
-    _write_pose(tmp_path / "truth_pose.parquet", "truth_pose", t_ns, true_xyz, true_rpy)
+    write_pose_table(tmp_path / "pose.parquet", "pose", t_ns, est_xyz, est_rpy)
+    write_pose_table(tmp_path / "truth_pose.parquet", "truth_pose", t_ns, true_xyz, true_rpy)
     # Beams 10-20 m ahead, at times between pose rows.
     rng = np.random.default_rng(5)
     beam_t = np.sort(rng.integers(0, t_ns[-1], 50))
@@ -381,6 +383,6 @@ def test_beams_need_both_poses(tmp_path: Path) -> None:
     from toolkit.analysis.truth_terrain import where_beams_hit
 
     t_ns = np.arange(0, 100_000_000, 10_000_000, dtype=np.int64)
-    _write_pose(tmp_path / "pose.parquet", "pose", t_ns, np.zeros((10, 3)), np.zeros((10, 3)))
+    write_pose_table(tmp_path / "pose.parquet", "pose", t_ns, np.zeros((10, 3)), np.zeros((10, 3)))
     with pytest.raises(StageError, match="truth_pose"):
         where_beams_hit(tmp_path, np.zeros((1, 3)), np.array([5]))

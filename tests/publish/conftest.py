@@ -12,17 +12,10 @@ import pyarrow as pa
 import pytest
 
 from tests.publish.exported import POINT_COLUMNS, SPLITS, event_keys
-from tests.stages.test_learn import Pipeline, build_pipeline
+from tests.stages.test_learn import Pipeline
 from toolkit.config import PipelineConfig
 from toolkit.publish.export import ExportResult, run_export
 from toolkit.tableio import load_table_schema, read_table
-
-
-@pytest.fixture(scope="module")
-def pipeline(
-    sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
-) -> Pipeline:
-    return build_pipeline(sample_projected, tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

@@ -40,6 +40,7 @@ from tests.stages.test_learn import (
     copy_workspace,
     rewrite_events_table,
     with_rough,
+    write_events_unrecorded,
 )
 from toolkit import __version__
 from toolkit.atomic import host_name
@@ -49,7 +50,7 @@ from toolkit.manifest import Manifest, file_sha256
 from toolkit.publish import export as export_stage
 from toolkit.publish.dataset import data_file, export_config_hash
 from toolkit.publish.export import ExportResult, run_export
-from toolkit.tableio import load_table_schema, read_table, read_table_metadata, write_table
+from toolkit.tableio import load_table_schema, read_table, read_table_metadata
 
 
 def tree_digest(root: Path) -> dict[str, str]:
@@ -258,15 +259,7 @@ def test_tables_not_written_by_terrain_tables_are_refused(
     without a row), or never made: one-line errors naming the file and the verb to run; no
     export is made."""
     ws = copy_workspace(pipeline.ws, tmp_path / "ws")
-    events = read_table(ws.events_table, "tables_events")
-    meta = read_table_metadata(ws.events_table)
-    write_table(
-        ws.events_table,
-        events.slice(1),
-        "tables_events",
-        source_sha256=meta["source_sha256"].split(","),
-        config_hash=meta["config_hash"],
-    )
+    write_events_unrecorded(ws, read_table(ws.events_table, "tables_events").slice(1))
     out = tmp_path / "dataset"
     with pytest.raises(WorkspaceError, match="run `terrain tables` again") as err:
         run_export(ws, out, config)

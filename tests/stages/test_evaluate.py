@@ -22,7 +22,6 @@ from sklearn.metrics import roc_auc_score, roc_curve
 
 from tests.stages.test_learn import (
     Pipeline,
-    build_pipeline,
     copy_workspace,
     one_error_line,
     rewrite_events_table,
@@ -44,13 +43,6 @@ METHODS = ("self_supervised", "baseline_all_lasers", "baseline_closest_laser", "
 ABLATIONS = ("no_time_term", "no_rate_terms")
 FPR_KEYS = ("0.05", "0.1", "0.2")
 REPORT_FILES = ("scores.parquet", "summary.json", "index.html")
-
-
-@pytest.fixture(scope="module")
-def pipeline(
-    sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
-) -> Pipeline:
-    return build_pipeline(sample_projected, tmp_path_factory)
 
 
 @pytest.fixture(scope="module")

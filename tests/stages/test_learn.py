@@ -114,6 +114,19 @@ def copy_workspace(ws: Workspace, dst: Path) -> Workspace:
     return Workspace(dst)
 
 
+def write_events_unrecorded(ws: Workspace, events: pa.Table) -> None:
+    """Replace ``tables/events.parquet`` by ``events``, its metadata kept but no finished
+    ``terrain tables`` recording it: a table rewritten by hand."""
+    meta = read_table_metadata(ws.events_table)
+    write_table(
+        ws.events_table,
+        events,
+        "tables_events",
+        source_sha256=meta["source_sha256"].split(","),
+        config_hash=meta["config_hash"],
+    )
+
+
 def split_and_rough(ws: Workspace) -> tuple[np.ndarray, np.ndarray]:
     """The ``split`` (object) and ``rough`` (bool) columns of ``tables/events.parquet``."""
     events = read_table(ws.events_table, "tables_events")
@@ -126,14 +139,7 @@ def rewrite_events_table(ws: Workspace, events: pa.Table) -> None:
     """Replace ``tables/events.parquet`` by ``events`` and record the tables as what the
     last finished ``terrain tables`` wrote (sizes and sha256 of both files, as a real run
     that produced these tables would have), so the consumers' input check passes."""
-    meta = read_table_metadata(ws.events_table)
-    write_table(
-        ws.events_table,
-        events,
-        "tables_events",
-        source_sha256=meta["source_sha256"].split(","),
-        config_hash=meta["config_hash"],
-    )
+    write_events_unrecorded(ws, events)
     manifest = Manifest(ws.manifest_path)
     record = manifest.stage("tables")
     assert record is not None, "the workspace has no finished tables stage"
@@ -158,13 +164,6 @@ def one_error_line(stderr: str) -> str:
     assert lines[0].startswith("terrain: error: "), stderr
     assert "Traceback" not in stderr
     return lines[0]
-
-
-@pytest.fixture(scope="module")
-def pipeline(
-    sample_projected: tuple[Path, str], tmp_path_factory: pytest.TempPathFactory
-) -> Pipeline:
-    return build_pipeline(sample_projected, tmp_path_factory)
 
 
 @pytest.fixture(scope="module")
@@ -407,15 +406,7 @@ def test_tables_changed_after_the_tables_stage_are_refused(
     is not learned from: one error naming the file and telling to run tables again."""
     ws = copy_workspace(pipeline.ws, tmp_path / "ws")
     before = ws.model_path.read_bytes()
-    events = read_table(ws.events_table, "tables_events")
-    meta = read_table_metadata(ws.events_table)
-    write_table(
-        ws.events_table,
-        events.slice(1),
-        "tables_events",
-        source_sha256=meta["source_sha256"].split(","),
-        config_hash=meta["config_hash"],
-    )
+    write_events_unrecorded(ws, read_table(ws.events_table, "tables_events").slice(1))
     with pytest.raises(WorkspaceError, match="run `terrain tables` again") as err:
         run_stage(LEARN, ws, default_config(), overwrite=True)
     assert err.value.path == ws.events_table
