@@ -1,0 +1,52 @@
+"""The house's size rules, held: no module over 600 lines, no function over 80 without a
+stated reason (a ``# long: <why>`` comment right above it). ``vendor/`` is not ours."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "toolkit"
+MAX_MODULE_LINES = 600
+MAX_FUNCTION_LINES = 80
+
+
+def _modules() -> list[Path]:
+    return sorted(p for p in PACKAGE.rglob("*.py") if "vendor" not in p.parts)
+
+
+def test_no_module_is_over_600_lines() -> None:
+    sizes = {p: len(p.read_text(encoding="utf-8").splitlines()) for p in _modules()}
+    assert len(sizes) > 100  # the package was found
+    assert {str(p.relative_to(PACKAGE)): n for p, n in sizes.items() if n > MAX_MODULE_LINES} == {}
+
+
+def _long_functions(source: str) -> list[tuple[str, int]]:
+    """(name, lines) of the functions over the limit without a ``# long:`` reason."""
+    lines = source.splitlines()
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            assert node.end_lineno is not None
+            length = node.end_lineno - node.lineno + 1
+            first = node.decorator_list[0].lineno if node.decorator_list else node.lineno
+            above = lines[first - 2].strip() if first >= 2 else ""
+            if length > MAX_FUNCTION_LINES and not above.startswith("# long:"):
+                found.append((node.name, length))
+    return found
+
+
+def test_the_function_rule_sees_a_long_function_and_its_reason() -> None:
+    body = "".join(f"    x{i} = {i}\n" for i in range(MAX_FUNCTION_LINES))
+    assert _long_functions(f"def f() -> None:\n{body}") == [("f", MAX_FUNCTION_LINES + 1)]
+    assert _long_functions(f"# long: one table, read whole\ndef f() -> None:\n{body}") == []
+    assert _long_functions(f"def f() -> None:\n{body[: -len(body.splitlines()[-1]) - 1]}") == []
+
+
+def test_no_function_is_over_80_lines_without_a_reason() -> None:
+    long = {
+        f"{p.relative_to(PACKAGE)}:{name}": n
+        for p in _modules()
+        for name, n in _long_functions(p.read_text(encoding="utf-8"))
+    }
+    assert long == {}
