@@ -15,6 +15,7 @@ import re
 from pathlib import Path
 
 import numpy as np
+import pytest
 from mcap.reader import make_reader
 
 from toolkit.mcapio.cdr import decode_batch
@@ -56,6 +57,47 @@ def _messages(path: Path) -> dict[str, tuple[str, list[tuple[int, int]], list[by
     return out
 
 
+# How far a regenerated value may be from the bundled one, by the dtype the message stores.
+# float64: an ulp of difference in a transcendental function (1e-16 relative) is carried along,
+# damped, by the simulator's integration over the whole drive. Measured with numpy's AVX-512
+# and AVX2 paths switched off (NPY_DISABLE_CPU_FEATURES, as on a CPU without them): at most
+# 2.3e-10 m/s^2 on the IMU, 1.5e-11 on the truth's rates, 1.9e-9 m on the GPS altitude (it
+# comes from Earth-centred coordinates, 6.4e6 m, where an ulp is 1e-9 m). 1e-8 absolute plus
+# 1e-9 relative is above all of it and a thousand times below the simulator's smallest sensor
+# noise. float32 (laser ranges, intensities): computed in float64 and rounded to float32 once,
+# so two float32 ulps (a rounding that lands on the other side).
+FLOAT_TOLERANCE = {
+    np.dtype(np.float64): {"rtol": 1e-9, "atol": 1e-8},
+    np.dtype(np.float32): {"rtol": float(2 * np.finfo(np.float32).eps), "atol": 1e-6},
+}
+
+
+def assert_decoded_close(mine: object, theirs: object, where: str) -> None:
+    """Assert two decoded values equal, field by field, floats within FLOAT_TOLERANCE.
+
+    ``decode_batch`` gives numpy arrays, and for sequences of messages (a TFMessage's
+    transforms, a RoughFeatureArray's features) object arrays of dicts of arrays: each level is
+    compared by what it is, and a failure names the path to the field that differs.
+    """
+    if isinstance(mine, dict):
+        assert isinstance(theirs, dict), where
+        assert mine.keys() == theirs.keys(), f"{where}: fields {sorted(mine)} vs {sorted(theirs)}"
+        for key in mine:
+            assert_decoded_close(mine[key], theirs[key], f"{where}.{key}")
+        return
+    x, y = np.asarray(mine), np.asarray(theirs)
+    assert x.shape == y.shape, f"{where}: shape {x.shape} vs {y.shape}"
+    assert x.dtype == y.dtype, f"{where}: dtype {x.dtype} vs {y.dtype}"
+    if x.dtype.kind == "O":
+        for i, (a, b) in enumerate(zip(x.ravel(), y.ravel(), strict=True)):
+            assert_decoded_close(a, b, f"{where}[{i}]")
+    elif x.dtype.kind == "f":
+        tolerance = FLOAT_TOLERANCE[x.dtype]
+        np.testing.assert_allclose(x, y, **tolerance, equal_nan=True, err_msg=where)
+    else:
+        np.testing.assert_array_equal(x, y, err_msg=where)
+
+
 def _assert_same_up_to_float_rounding(ours: Path, bundled: Path) -> None:
     mine, theirs = _messages(ours), _messages(bundled)
     assert mine.keys() == theirs.keys()
@@ -67,17 +109,25 @@ def _assert_same_up_to_float_rounding(ours: Path, bundled: Path) -> None:
         if payloads == other_payloads:
             continue
         differing.append(topic)
-        a, b = decode_batch(name, payloads), decode_batch(name, other_payloads)
-        assert a.keys() == b.keys()
-        for key in a:
-            x, y = np.asarray(a[key]), np.asarray(b[key])
-            if x.dtype.kind == "f":
-                # A few ulp of what they are computed from: lat/lon come from Earth-centred
-                # coordinates (6.4e6 m, 1e-9 m per ulp), so altitude may move by nanometres.
-                np.testing.assert_allclose(x, y, rtol=1e-13, atol=1e-8, err_msg=f"{topic} {key}")
-            else:
-                np.testing.assert_array_equal(x, y, err_msg=f"{topic} {key}")
+        assert_decoded_close(
+            decode_batch(name, payloads), decode_batch(name, other_payloads), topic
+        )
     assert differing, "the bytes differ but no message does"
+
+
+def test_decoded_values_compare_through_nested_messages() -> None:
+    """The fallback comparison reaches into sequences of messages and names what differs."""
+    feature = {"kind": np.array(["rock"]), "height_m": np.array([0.1])}
+    nested = {"features": np.array([feature], dtype=object), "t": np.array([1], np.int32)}
+    near = {"height_m": np.array([0.1 + 1e-15]), "kind": np.array(["rock"])}
+    assert_decoded_close(nested, {**nested, "features": np.array([near], dtype=object)}, "x")
+    far = {"height_m": np.array([0.1001]), "kind": np.array(["rock"])}
+    with pytest.raises(AssertionError, match=r"x\.features\[0\]\.height_m"):
+        assert_decoded_close(nested, {**nested, "features": np.array([far], dtype=object)}, "x")
+    ranges = np.array([10.0], np.float32)
+    assert_decoded_close(ranges, np.nextafter(ranges, np.float32(11.0)), "r")
+    with pytest.raises(AssertionError):
+        assert_decoded_close(ranges, ranges + np.float32(0.001), "r")
 
 
 def test_sample_is_a_minute_small_and_has_rough_events() -> None:
