@@ -54,3 +54,26 @@ class StageError(ToolkitError):
 
 class SimulationError(ToolkitError):
     """The simulator was asked for something it cannot produce."""
+
+
+class CloudError(CdrError):
+    """A ``sensor_msgs/PointCloud2`` of one topic cannot be read; carries ``topic`` and
+    ``problem`` (one line, what is wrong) as well as the message naming both."""
+
+    def __init__(self, topic: str, problem: str) -> None:
+        self.topic = topic
+        self.problem = problem
+        super().__init__(f"topic {topic}: {problem}")
+
+    def __reduce__(self) -> tuple[type[CloudError], tuple[str, str]]:
+        # Rebuilt from its data, not from the formatted message, so it crosses processes.
+        return (type(self), (self.topic, self.problem))
+
+
+class CloudPayloadError(CloudError):
+    """A PointCloud2 payload is truncated or its CDR is inconsistent (bad header, string)."""
+
+
+class CloudLayoutError(CloudError):
+    """A PointCloud2's point layout is unusable: overlapping or unknown fields, no x/y/z,
+    steps that do not fit its data, or a time field the caller asked for that is missing."""
