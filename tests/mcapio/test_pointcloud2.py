@@ -273,8 +273,21 @@ def test_non_finite_float_times_are_refused() -> None:
     fields, step = LAYOUTS["velodyne"]
     arr = np.frombuffer(point_bytes("velodyne", xyz, t_ns, STAMP_NS), np.uint8).copy()
     arr[18 : 18 + 4] = np.frombuffer(np.float32(np.nan).tobytes(), np.uint8)
-    with pytest.raises(CloudPayloadError, match="1 values of 'time' are not finite"):
+    with pytest.raises(
+        CloudPayloadError, match="1 values of 'time' are not finite or out of range"
+    ):
         decode(encode_cloud(fields, step, arr.tobytes()))
+
+
+def test_float_times_beyond_int64_are_refused() -> None:
+    fields = [("x", 0, F32), ("y", 4, F32), ("z", 8, F32), ("timestamp", 12, F64)]
+    dt = np.dtype({"names": ["x", "y", "z", "timestamp"], "formats": ["<f4"] * 3 + ["<f8"],
+                   "offsets": [0, 4, 8, 12], "itemsize": 20})  # fmt: skip
+    arr = np.ones(2, dt)
+    arr["timestamp"] = [1.7e9, 1e12]  # seconds: the second is 31,700 years away
+    _, points, _ = decode(encode_cloud(fields, 20, arr.tobytes()), PRESETS["none"])
+    with pytest.raises(CloudPayloadError, match="1 values of 'timestamp' are not finite or out"):
+        point_times_ns(points, 0, PRESETS["rslidar"], topic=TOPIC)
 
 
 def test_preset_detection_from_field_names() -> None:
@@ -350,7 +363,9 @@ def test_times_of_dropped_points_may_be_nan_when_keep_is_given() -> None:
     _, keep, _ = xyz_valid(points)
     times = point_times_ns(points, STAMP_NS, PRESETS["velodyne"], topic=TOPIC, keep=keep)
     assert np.abs(times - t_ns[keep]).max() <= 1000
-    with pytest.raises(CloudPayloadError, match="1 values of 'time' are not finite"):
+    with pytest.raises(
+        CloudPayloadError, match="1 values of 'time' are not finite or out of range"
+    ):
         point_times_ns(points, STAMP_NS, PRESETS["velodyne"], topic=TOPIC)
 
 

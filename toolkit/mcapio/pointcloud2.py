@@ -452,8 +452,8 @@ def point_times_ns(
     float64 absolute second time near 1.7e9 s resolves ~238 ns, and a float32 offset of 0.1 s
     ~7 ns. Offsets (``reference == "header"``) are added to ``stamp_ns``. Raises
     :class:`CloudLayoutError` naming ``topic`` if the spec's field is not in ``points``, and
-    :class:`CloudPayloadError` if a float time is NaN or infinite (pass ``keep`` from
-    :func:`xyz_valid` if a driver leaves the times of its invalid points undefined).
+    :class:`CloudPayloadError` if a float time is NaN, infinite or beyond 2**62 ns (pass
+    ``keep`` from :func:`xyz_valid` if a driver leaves its invalid points' times undefined).
     """
     n = len(points) if keep is None else int(np.count_nonzero(keep))
     if spec.field is None:
@@ -475,10 +475,13 @@ def point_times_ns(
             t_ns *= scale
     else:
         v = values.astype(np.float64)
-        finite = np.isfinite(v)
-        if not finite.all():
-            bad = int(v.size - np.count_nonzero(finite))
-            raise CloudPayloadError(topic, f"{bad} values of {spec.field!r} are not finite")
+        # NaN fails this comparison too; past 2**62 ns (146 years) an int64 could overflow.
+        fits = np.abs(v) * scale < 2.0**62
+        if not fits.all():
+            bad = int(v.size - np.count_nonzero(fits))
+            raise CloudPayloadError(
+                topic, f"{bad} values of {spec.field!r} are not finite or out of range"
+            )
         t_ns = _float_to_ns(v, scale)
     if spec.reference == "header":
         t_ns += np.int64(stamp_ns)
@@ -492,7 +495,9 @@ def _float_to_ns(v: NDArray[np.float64], scale: int) -> IntArray:
         # Already ns: above 2**53 every float64 is an integer, so this conversion is exact.
         return np.rint(v).astype(np.int64)
     whole = np.floor(v)
-    frac = v - whole  # exact in float64 (Sterbenz): whole and v share the exponent range
+    # Exact when |v| >= 1 (the fraction is a multiple of v's own ulp); for a negative offset
+    # above -1 s (velodyne) it is v + 1, off by at most 1.1e-16 s: far below a nanosecond.
+    frac = v - whole
     t_ns = whole.astype(np.int64) * np.int64(scale)
     t_ns += np.rint(frac * scale).astype(np.int64)
     return t_ns
