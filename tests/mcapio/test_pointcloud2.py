@@ -258,6 +258,10 @@ def test_times_by_hand_and_without_a_field() -> None:
     _, points, _ = decode(driver_payload("ouster", xyz, t_ns))
     none = point_times_ns(points, 42, PRESETS["none"], topic=TOPIC)
     np.testing.assert_array_equal(none, np.full(8, 42))
+    keep = np.arange(8) % 2 == 0
+    np.testing.assert_array_equal(
+        point_times_ns(points, 42, PRESETS["none"], topic=TOPIC, keep=keep), np.full(4, 42)
+    )
     us = point_times_ns(points, 0, PointTime("ring", "us"), topic=TOPIC)
     np.testing.assert_array_equal(us, points["ring"].astype(np.int64) * 1000)
     with pytest.raises(CloudLayoutError, match=f"topic {TOPIC}: no time field 'time'"):
@@ -269,8 +273,21 @@ def test_non_finite_float_times_are_refused() -> None:
     fields, step = LAYOUTS["velodyne"]
     arr = np.frombuffer(point_bytes("velodyne", xyz, t_ns, STAMP_NS), np.uint8).copy()
     arr[18 : 18 + 4] = np.frombuffer(np.float32(np.nan).tobytes(), np.uint8)
-    with pytest.raises(CloudPayloadError, match="1 values of 'time' are not finite"):
+    with pytest.raises(
+        CloudPayloadError, match="1 values of 'time' are not finite or out of range"
+    ):
         decode(encode_cloud(fields, step, arr.tobytes()))
+
+
+def test_float_times_beyond_int64_are_refused() -> None:
+    fields = [("x", 0, F32), ("y", 4, F32), ("z", 8, F32), ("timestamp", 12, F64)]
+    dt = np.dtype({"names": ["x", "y", "z", "timestamp"], "formats": ["<f4"] * 3 + ["<f8"],
+                   "offsets": [0, 4, 8, 12], "itemsize": 20})  # fmt: skip
+    arr = np.ones(2, dt)
+    arr["timestamp"] = [1.7e9, 1e12]  # seconds: the second is 31,700 years away
+    _, points, _ = decode(encode_cloud(fields, 20, arr.tobytes()), PRESETS["none"])
+    with pytest.raises(CloudPayloadError, match="1 values of 'timestamp' are not finite or out"):
+        point_times_ns(points, 0, PRESETS["rslidar"], topic=TOPIC)
 
 
 def test_preset_detection_from_field_names() -> None:
@@ -331,7 +348,25 @@ def test_nan_and_zero_points_are_dropped_and_counted_whatever_is_dense_says() ->
         assert (counts.total, counts.non_finite, counts.zero_range, counts.kept) == (10, 2, 2, 6)
         np.testing.assert_array_equal(keep, ~np.isin(np.arange(10), [1, 4, 5, 7]))
         np.testing.assert_array_equal(got, xyz[keep])
-        assert len(times[keep]) == 6
+        kept = point_times_ns(points, cloud.stamp_ns, PRESETS[driver], topic=TOPIC, keep=keep)
+        np.testing.assert_array_equal(kept, times[keep])
+
+
+def test_times_of_dropped_points_may_be_nan_when_keep_is_given() -> None:
+    xyz, t_ns = truth(4)
+    xyz[2] = np.nan
+    fields, step = LAYOUTS["velodyne"]
+    arr = np.frombuffer(point_bytes("velodyne", xyz, t_ns, STAMP_NS), np.uint8).copy()
+    arr[2 * step + 18 : 2 * step + 22] = np.frombuffer(np.float32(np.nan).tobytes(), np.uint8)
+    cloud = parse_cloud(encode_cloud(fields, step, arr.tobytes()), topic=TOPIC)
+    points = cloud_points(cloud, cloud_dtype(cloud.fields, step, False, topic=TOPIC))
+    _, keep, _ = xyz_valid(points)
+    times = point_times_ns(points, STAMP_NS, PRESETS["velodyne"], topic=TOPIC, keep=keep)
+    assert np.abs(times - t_ns[keep]).max() <= 1000
+    with pytest.raises(
+        CloudPayloadError, match="1 values of 'time' are not finite or out of range"
+    ):
+        point_times_ns(points, STAMP_NS, PRESETS["velodyne"], topic=TOPIC)
 
 
 def test_float64_positions_stay_float64() -> None:
@@ -341,6 +376,31 @@ def test_float64_positions_stay_float64() -> None:
     got, _, _ = xyz_valid(points)
     assert got.dtype == np.float64
     np.testing.assert_array_equal(got, xyz)
+
+
+def test_extreme_but_finite_coordinates_are_kept() -> None:
+    tiny, huge = np.float32(1e-45), np.float32(3e38)  # a subnormal and near float32's max
+    xyz = np.array([[tiny, 0, 0], [huge, huge, -huge], [0, -0.0, tiny], [0, 0, 0]], np.float32)
+    fields = [("x", 0, F32), ("y", 4, F32), ("z", 8, F32)]
+    for big_endian in (False, True):
+        data = xyz.astype(">f4" if big_endian else "<f4").tobytes()
+        _, points, _ = decode(encode_cloud(fields, 12, data, big_endian=big_endian))
+        got, keep, counts = xyz_valid(points)
+        np.testing.assert_array_equal(keep, [True, True, True, False])
+        np.testing.assert_array_equal(got, xyz[:3])
+        assert got.dtype == np.dtype("=f4") and counts.zero_range == 1
+
+
+def test_integer_positions_become_float64() -> None:
+    fields = [("x", 0, 5), ("y", 4, 5), ("z", 8, 3)]  # int32, int32, int16 (then 2 bytes pad)
+    dt = np.dtype({"names": ["x", "y", "z"], "formats": ["<i4", "<i4", "<i2"],
+                   "offsets": [0, 4, 8], "itemsize": 12})  # fmt: skip
+    arr = np.zeros(3, dt)
+    arr["x"], arr["y"], arr["z"] = [1, 0, -2_000_000_000], [2, 0, 5], [3, 0, -7]
+    _, points, _ = decode(encode_cloud(fields, 12, arr.tobytes()))
+    got, keep, counts = xyz_valid(points)
+    assert got.dtype == np.float64 and counts.zero_range == 1
+    np.testing.assert_array_equal(got, [[1, 2, 3], [-2_000_000_000, 5, -7]])
 
 
 def test_count_zero_is_one_and_count_above_one_is_a_subarray() -> None:

@@ -29,6 +29,7 @@ from functools import lru_cache
 from typing import Any, Literal
 
 import numpy as np
+from numpy.lib.recfunctions import structured_to_unstructured
 from numpy.typing import NDArray
 
 from toolkit.arrays import AnyFloatArray, BoolArray, IntArray
@@ -342,23 +343,38 @@ def xyz_valid(points: NDArray[np.void]) -> tuple[AnyFloatArray, BoolArray, DropC
     ``xyz`` (to select their times or other fields). Points with any non-finite coordinate and
     points exactly at the origin are dropped and counted, whatever ``is_dense`` claims.
     """
-    dt = points.dtype
-    if dt.names is None or not {"x", "y", "z"} <= set(dt.names):
-        raise ValueError(f"points need fields x, y, z; got {dt.names}")
-    x, y, z = points["x"], points["y"], points["z"]
-    finite: BoolArray = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
-    zero: BoolArray = (x == 0) & (y == 0) & (z == 0)
-    keep = finite & ~zero
+    names = points.dtype.names
+    if names is None or not {"x", "y", "z"} <= set(names):
+        raise ValueError(f"points need fields x, y, z; got {names}")
     all_f4 = all(points[a].dtype.kind == "f" and points[a].dtype.itemsize == 4 for a in "xyz")
-    out = np.empty((int(np.count_nonzero(keep)), 3), dtype=np.float32 if all_f4 else np.float64)
-    # Gather column by column: the strided field views are read once each, no (n, 3) copy.
-    out[:, 0] = x[keep]
-    out[:, 1] = y[keep]
-    out[:, 2] = z[keep]
+    ftype = np.dtype(np.float32 if all_f4 else np.float64)
+    # One pass over the point bytes into a contiguous (n, 3) of native floats (x, y, z side by
+    # side in a point, as every driver lays them, are read as one strided block); every later
+    # pass then reads 12 or 24 bytes a point instead of point_step.
+    xyz = np.ascontiguousarray(structured_to_unstructured(points[["x", "y", "z"]]), dtype=ftype)
+    # The largest |coordinate| of each point, compared as IEEE bits: at or above the exponent
+    # of infinity means a NaN or an infinity; 0 means all three are (+ or -) zero. Exact,
+    # unlike a squared range (which can overflow or underflow), and two passes of n.
+    utype, magnitude, infinity = _FLOAT_BITS[ftype.itemsize]
+    bits: NDArray[np.unsignedinteger[Any]] = xyz.view(utype)
+    mag = np.bitwise_and(bits, np.array(magnitude, dtype=utype))
+    biggest = np.maximum(np.maximum(mag[:, 0], mag[:, 1]), mag[:, 2])
+    bad = biggest >= infinity
+    zero = biggest == 0
+    keep: BoolArray = ~(bad | zero)
+    out: AnyFloatArray = np.compress(keep, xyz, axis=0)
     n = len(points)
-    non_finite = n - int(np.count_nonzero(finite))
+    non_finite = int(np.count_nonzero(bad))
     counts = DropCounts(n, non_finite, n - non_finite - out.shape[0])
     return out, keep, counts
+
+
+#: By float size: the unsigned integer of the same size, the mask of an IEEE float's magnitude
+#: bits (all but the sign) and the bits of infinity.
+_FLOAT_BITS: dict[int, tuple[np.dtype[np.unsignedinteger[Any]], int, int]] = {
+    4: (np.dtype(np.uint32), 0x7FFF_FFFF, 0x7F80_0000),
+    8: (np.dtype(np.uint64), 0x7FFF_FFFF_FFFF_FFFF, 0x7FF0_0000_0000_0000),
+}
 
 
 # --------------------------------------------------------------------------------------------
@@ -418,9 +434,16 @@ def preset_for_fields(names: Iterable[str]) -> str:
 
 
 def point_times_ns(
-    points: NDArray[np.void], stamp_ns: int, spec: PointTime, *, topic: str
+    points: NDArray[np.void],
+    stamp_ns: int,
+    spec: PointTime,
+    *,
+    topic: str,
+    keep: BoolArray | None = None,
 ) -> IntArray:
-    """Each point's time, int64 ns since the epoch, shape ``(n,)``.
+    """Each point's time, int64 ns since the epoch, shape ``(n,)``, or ``(m,)`` for the
+    points ``keep`` selects (the mask of :func:`xyz_valid`; cheaper than ``points[keep]``,
+    which copies whole points).
 
     Integer fields are converted exactly (int64 arithmetic, no float on the way). A float field
     in seconds is split into whole seconds and a fraction before scaling, so the result is the
@@ -429,10 +452,10 @@ def point_times_ns(
     float64 absolute second time near 1.7e9 s resolves ~238 ns, and a float32 offset of 0.1 s
     ~7 ns. Offsets (``reference == "header"``) are added to ``stamp_ns``. Raises
     :class:`CloudLayoutError` naming ``topic`` if the spec's field is not in ``points``, and
-    :class:`CloudPayloadError` if a float time is NaN or infinite (pass ``points[keep]`` from
-    :func:`xyz_valid` if a driver leaves the times of its invalid points undefined).
+    :class:`CloudPayloadError` if a float time is NaN, infinite or beyond 2**62 ns (pass
+    ``keep`` from :func:`xyz_valid` if a driver leaves its invalid points' times undefined).
     """
-    n = len(points)
+    n = len(points) if keep is None else int(np.count_nonzero(keep))
     if spec.field is None:
         return np.full(n, stamp_ns, dtype=np.int64)
     names = points.dtype.names or ()
@@ -443,6 +466,8 @@ def point_times_ns(
     values = points[spec.field]
     if values.ndim != 1:
         raise CloudLayoutError(topic, f"time field {spec.field!r} has count > 1")
+    if keep is not None:
+        values = values[keep]
     scale = NS_PER_UNIT[spec.unit]
     if values.dtype.kind in "iu":
         t_ns = values.astype(np.int64)
@@ -450,10 +475,13 @@ def point_times_ns(
             t_ns *= scale
     else:
         v = values.astype(np.float64)
-        finite = np.isfinite(v)
-        if not finite.all():
-            bad = int(v.size - np.count_nonzero(finite))
-            raise CloudPayloadError(topic, f"{bad} values of {spec.field!r} are not finite")
+        # NaN fails this comparison too; past 2**62 ns (146 years) an int64 could overflow.
+        fits = np.abs(v) * scale < 2.0**62
+        if not fits.all():
+            bad = int(v.size - np.count_nonzero(fits))
+            raise CloudPayloadError(
+                topic, f"{bad} values of {spec.field!r} are not finite or out of range"
+            )
         t_ns = _float_to_ns(v, scale)
     if spec.reference == "header":
         t_ns += np.int64(stamp_ns)
@@ -467,7 +495,9 @@ def _float_to_ns(v: NDArray[np.float64], scale: int) -> IntArray:
         # Already ns: above 2**53 every float64 is an integer, so this conversion is exact.
         return np.rint(v).astype(np.int64)
     whole = np.floor(v)
-    frac = v - whole  # exact in float64 (Sterbenz): whole and v share the exponent range
+    # Exact when |v| >= 1 (the fraction is a multiple of v's own ulp); for a negative offset
+    # above -1 s (velodyne) it is v + 1, off by at most 1.1e-16 s: far below a nanosecond.
+    frac = v - whole
     t_ns = whole.astype(np.int64) * np.int64(scale)
     t_ns += np.rint(frac * scale).astype(np.int64)
     return t_ns
