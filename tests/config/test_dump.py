@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
 import subprocess
 import sys
 import tomllib
@@ -11,7 +13,9 @@ from pathlib import Path
 import pytest
 
 from toolkit.config import (
+    CONFIG_FORMAT,
     SECTIONS,
+    TIMED_ROLES,
     PipelineConfig,
     config_hash,
     default_config,
@@ -102,4 +106,26 @@ def test_dump_is_complete_without_defaults(tmp_path: Path) -> None:
     raw = tomllib.loads(dump_toml(cfg))
     assert set(raw) == {"name", *SECTIONS}
     assert set(raw["label"]) == {f.name for f in dataclasses.fields(cfg.label)}
-    assert set(raw["time"]["latency_ns"]) == {"lasers", "imu", "gps", "heading", "wheels"}
+    assert set(raw["time"]["latency_ns"]) == set(TIMED_ROLES)
+
+
+def test_settings_new_since_hashing_key_nothing_at_their_default() -> None:
+    """The lidar's settings at their defaults leave every hash as before the role existed
+    (a laser-only workspace stays up to date); set, they key like any setting."""
+    cfg = default_config()
+    before = {s: config_hash(cfg, [s]) for s in ("topics", "time", "lidar")}
+    lidar_topics = dataclasses.replace(cfg.topics, lidars=("/ouster/points",))
+    assert (
+        config_hash(dataclasses.replace(cfg, topics=lidar_topics), ["topics"]) != before["topics"]
+    )
+    ouster = dataclasses.replace(cfg.lidar, time="ouster")
+    assert config_hash(dataclasses.replace(cfg, lidar=ouster), ["lidar"]) != before["lidar"]
+    # What the hash of [topics] was before lidars existed: the eight roles of a laser vehicle.
+    laser_only = {f.name: getattr(cfg.topics, f.name) for f in dataclasses.fields(cfg.topics)}
+    del laser_only["lidars"]
+    canonical = json.dumps(
+        {"config_format": CONFIG_FORMAT, "config": {"topics": json.loads(json.dumps(laser_only))}},
+        sort_keys=True,
+        separators=(",", ":"),
+    )
+    assert before["topics"] == hashlib.sha256(canonical.encode("ascii")).hexdigest()

@@ -117,7 +117,7 @@ def test_every_role_may_be_absent(tmp_path: Path) -> None:
     """A vehicle without lasers, IMU or GPS is a configuration, not an error: "" (or [])."""
     cfg = load_config(write(tmp_path, "[topics]\nlasers = []\nimu = ''\ngps = ''\nheading = ''\n"))
     assert cfg.topics.lasers == () and cfg.topics.imu is None and cfg.topics.gps is None
-    assert set(cfg.topics.absent_roles()) == {"lasers", "imu", "gps", "heading"}
+    assert set(cfg.topics.absent_roles()) == {"lasers", "lidars", "imu", "gps", "heading"}
     assert set(cfg.topics.by_role()) == {"wheels", "tf_static", "truth_pose", "truth_features"}
 
 

@@ -74,6 +74,7 @@ def test_default_has_the_papers_settings() -> None:
         "learn",
         "tables",
         "evaluate",
+        "lidar",
     )
 
 

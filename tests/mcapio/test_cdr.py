@@ -49,6 +49,8 @@ WRITTEN_TYPES = [
     "sensor_msgs/msg/Imu",
     "sensor_msgs/msg/NavSatFix",
     "sensor_msgs/msg/NavSatStatus",
+    "sensor_msgs/msg/PointCloud2",
+    "sensor_msgs/msg/PointField",
     "nav_msgs/msg/Odometry",
     "tf2_msgs/msg/TFMessage",
     "terrain_msgs/msg/GpsHeading",

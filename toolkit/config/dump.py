@@ -21,6 +21,36 @@ def to_dict(cfg: PipelineConfig) -> dict[str, Any]:
     return typing.cast(dict[str, Any], json.loads(json.dumps(dataclasses.asdict(cfg))))
 
 
+def keyed_dict(cfg: PipelineConfig) -> dict[str, Any]:
+    """:func:`to_dict` without the settings marked ``UNHASHED_AT_DEFAULT`` that hold their
+    default (and without a section left empty by that): what keys an output. (A written
+    configuration holds every key, these too: it never depends on a default to be complete.)"""
+    return typing.cast(dict[str, Any], _prune(cfg))
+
+
+def _prune(obj: Any) -> Any:
+    if not dataclasses.is_dataclass(obj) or isinstance(obj, type):
+        return json.loads(json.dumps(obj))
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if f.metadata.get("unhashed_at_default") and value == _default_of(f):
+            continue
+        pruned = _prune(value)
+        if dataclasses.is_dataclass(value) and not pruned:
+            continue
+        out[f.name] = pruned
+    return out
+
+
+def _default_of(f: dataclasses.Field[Any]) -> Any:
+    if f.default is not dataclasses.MISSING:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return dataclasses.MISSING
+
+
 def config_hash(cfg: PipelineConfig, sections: Iterable[str] | None = None) -> str:
     """sha256 (hex) of the canonical JSON of ``cfg``, or only of the named sections
     (``"tables"``) and single keys (``"model.wheel_window_radius_m"``).
@@ -28,7 +58,8 @@ def config_hash(cfg: PipelineConfig, sections: Iterable[str] | None = None) -> s
     Hashing only what a stage reads lets an up-to-date check ignore changes to settings the
     stage does not use. The format number is part of every hash.
     """
-    full = to_dict(cfg)
+    full = keyed_dict(cfg)
+    known = to_dict(cfg)
     if sections is None:
         body: dict[str, Any] = full
     else:
@@ -36,8 +67,10 @@ def config_hash(cfg: PipelineConfig, sections: Iterable[str] | None = None) -> s
         body = {}
         for name in wanted:
             section, _, key = name.partition(".")
-            if section not in full or (key and key not in full[section]):
+            if section not in known or (key and key not in known[section]):
                 raise ValueError(f"unknown config section or key: {name!r}")
+            if section not in full or (key and key not in full[section]):
+                continue  # a setting at a default that keys nothing
             if not key:
                 body[section] = full[section]
             elif section not in wanted:  # a whole section asked for holds the key already
@@ -61,18 +94,17 @@ def dump_toml(cfg: PipelineConfig) -> str:
         f"# config_hash = {config_hash(cfg)}",
         "",
     ]
-    _dump_table(cfg, "", lines)
+    _dump_table(to_dict(cfg), "", lines)
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
-def _dump_table(obj: Any, prefix: str, lines: list[str]) -> None:
+def _dump_table(table: dict[str, Any], prefix: str, lines: list[str]) -> None:
     nested = []
-    for f in dataclasses.fields(obj):
-        value = getattr(obj, f.name)
-        if dataclasses.is_dataclass(value):
-            nested.append((f.name, value))
+    for name, value in table.items():
+        if isinstance(value, dict):
+            nested.append((name, value))
         else:
-            lines.append(f"{f.name} = {toml_value(value)}")
+            lines.append(f"{name} = {toml_value(value)}")
     for name, value in nested:
         dotted = dotted_key(prefix, name)
         lines.extend(["", f"[{dotted}]"])

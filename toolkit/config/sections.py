@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import typing
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Annotated
 
 #: The range of every integer setting (they end up in int64 arrays).
@@ -22,11 +22,19 @@ CONFIG_FORMAT = 1
 #: File name of the packaged default configuration (inside the ``toolkit`` package).
 DEFAULT_CONFIG_RESOURCE = "default_config.toml"
 
+#: Field metadata of a setting added after configurations were first hashed (the 3-D lidar's):
+#: at its default it is left out of the configuration's hash and of the configuration written
+#: to a workspace, so a vehicle that does not use it keys every output exactly as before (a
+#: laser-only workspace stays up to date, its tables byte for byte, when the role arrives).
+#: Set to anything else, it is hashed like every other setting.
+UNHASHED_AT_DEFAULT: dict[str, bool] = {"unhashed_at_default": True}
+
 #: Topic roles, in the order ingest reports them. Any role may be absent from a vehicle
-#: (``""``, or ``[]`` for lasers, in the file): ingest converts the roles a log has, and a
-#: stage that needs a missing role refuses with one line naming it.
+#: (``""``, or ``[]`` for the roles of several topics, in the file): ingest converts the roles
+#: a log has, and a stage that needs a missing role refuses with one line naming it.
 ROLES: tuple[str, ...] = (
     "lasers",
+    "lidars",
     "imu",
     "gps",
     "heading",
@@ -36,7 +44,9 @@ ROLES: tuple[str, ...] = (
     "truth_features",
 )
 #: Sensor roles that carry declared latencies and clock offsets.
-TIMED_ROLES: tuple[str, ...] = ("lasers", "imu", "gps", "heading", "wheels")
+TIMED_ROLES: tuple[str, ...] = ("lasers", "lidars", "imu", "gps", "heading", "wheels")
+#: Roles of several topics (a vehicle carries several lasers, several lidars).
+MULTI_TOPIC_ROLES: tuple[str, ...] = ("lasers", "lidars")
 
 
 @dataclass(frozen=True)
@@ -64,7 +74,8 @@ class Rule:
 
 @dataclass(frozen=True)
 class TopicsConfig:
-    """Which topic plays which role; a role the vehicle lacks is ``None`` (``()`` for lasers)."""
+    """Which topic plays which role; a role the vehicle lacks is ``None`` (``()`` for the
+    roles of several topics: lasers, lidars)."""
 
     lasers: Annotated[tuple[str, ...], Rule(nonempty=True, unique=True)]
     imu: str | None
@@ -74,16 +85,20 @@ class TopicsConfig:
     tf_static: str | None
     truth_pose: str | None
     truth_features: str | None
+    #: 3-D lidars (sensor_msgs/PointCloud2), after the others: a field with a default.
+    lidars: Annotated[tuple[str, ...], Rule(nonempty=True, unique=True)] = field(
+        default=(), metadata=UNHASHED_AT_DEFAULT
+    )
 
     def by_role(self) -> dict[str, tuple[str, ...]]:
-        """Role -> topics (lasers may be several), leaving out absent roles."""
+        """Role -> topics (lasers and lidars may be several), leaving out absent roles, in
+        the order of :data:`ROLES`."""
         out: dict[str, tuple[str, ...]] = {}
-        if self.lasers:
-            out["lasers"] = self.lasers
-        for role in ROLES[1:]:
-            topic = getattr(self, role)
-            if topic is not None:
-                out[role] = (topic,)
+        for role in ROLES:
+            value = getattr(self, role)
+            topics = tuple(value) if role in MULTI_TOPIC_ROLES else (value,)
+            if value:
+                out[role] = topics
         return out
 
     def absent_roles(self) -> tuple[str, ...]:
@@ -127,6 +142,9 @@ class RoleTimesNs:
     gps: Annotated[int, Rule(ge=-MAX_SENSOR_TIME_NS, le=MAX_SENSOR_TIME_NS)]
     heading: Annotated[int, Rule(ge=-MAX_SENSOR_TIME_NS, le=MAX_SENSOR_TIME_NS)]
     wheels: Annotated[int, Rule(ge=-MAX_SENSOR_TIME_NS, le=MAX_SENSOR_TIME_NS)]
+    lidars: Annotated[int, Rule(ge=-MAX_SENSOR_TIME_NS, le=MAX_SENSOR_TIME_NS)] = field(
+        default=0, metadata=UNHASHED_AT_DEFAULT
+    )
 
     def for_role(self, role: str) -> int:
         """The value for a role (0 for roles without timing, e.g. tf_static)."""
@@ -266,6 +284,60 @@ class LearnConfig:
     )
 
 
+#: Per-point time presets of the 3-D lidar drivers (:mod:`toolkit.mcapio.pointcloud2`), and
+#: "auto" (chosen per topic from its fields' names) and "custom" (the ``time_*`` keys).
+LIDAR_TIME_CHOICES: tuple[str, ...] = (
+    "auto",
+    "ouster",
+    "velodyne",
+    "nebula",
+    "livox",
+    "rslidar",
+    "none",
+    "custom",
+)
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    """How a 3-D lidar's clouds are read: each point's own time, which rings, what ranges.
+
+    Every key is new since configurations were first hashed: at its default it keys nothing
+    (:data:`UNHASHED_AT_DEFAULT`).
+    """
+
+    #: A driver's preset, "auto" (from the cloud's field names; ``config init`` says which it
+    #: found) or "custom" (the four keys below).
+    time: Annotated[str, Rule(choices=LIDAR_TIME_CHOICES)] = field(
+        default="auto", metadata=UNHASHED_AT_DEFAULT
+    )
+    #: custom only: the per-point time field ("" = none: every point at the header stamp).
+    time_field: str = field(default="", metadata=UNHASHED_AT_DEFAULT)
+    time_unit: Annotated[str, Rule(choices=("s", "ms", "us", "ns"))] = field(
+        default="ns", metadata=UNHASHED_AT_DEFAULT
+    )
+    #: "header": relative to the header stamp; "absolute": on a clock of its own.
+    time_reference: Annotated[str, Rule(choices=("header", "absolute"))] = field(
+        default="header", metadata=UNHASHED_AT_DEFAULT
+    )
+    #: Where the driver stamps the header: the sweep's first point or its last.
+    header_at: Annotated[str, Rule(choices=("start", "end"))] = field(
+        default="start", metadata=UNHASHED_AT_DEFAULT
+    )
+    #: Rings (beams) kept; empty keeps every ring.
+    rings: Annotated[tuple[int, ...], Rule(ge=0, le=1023, unique=True)] = field(
+        default=(), metadata=UNHASHED_AT_DEFAULT
+    )
+    #: Returns nearer than this are dropped (the vehicle's own body), m.
+    min_range_m: Annotated[float, Rule(ge=0.0, le=1000.0)] = field(
+        default=0.0, metadata=UNHASHED_AT_DEFAULT
+    )
+    #: Returns farther than this are dropped, m.
+    max_range_m: Annotated[float, Rule(gt=0.0, le=10000.0)] = field(
+        default=1000.0, metadata=UNHASHED_AT_DEFAULT
+    )
+
+
 @dataclass(frozen=True)
 class ProjectConfig:
     """Which of the projected points the cloud keeps (its size on disk is the user's call)."""
@@ -341,6 +413,7 @@ class PipelineConfig:
     learn: LearnConfig
     tables: TablesConfig
     evaluate: EvaluateConfig
+    lidar: LidarConfig = field(default_factory=LidarConfig)
 
 
 #: The TOML sections, in file order (every field of PipelineConfig that is a table).

@@ -9,6 +9,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from toolkit.config import (
+    MULTI_TOPIC_ROLES,
     ROLES,
 )
 from toolkit.config_init.summary import LogSummary, TopicSummary
@@ -74,23 +75,14 @@ TYPE_ORDER: dict[str, tuple[str, ...]] = {
     # the mean of the rear wheels is exactly base_link's speed; a twist is a controller's
     "wheels": ("terrain_msgs/msg/WheelSpeeds", "nav_msgs/msg/Odometry"),
 }
-#: What each role is, for the comments ("no GPS compass found").
-ROLE_WORDS: dict[str, str] = {
-    "lasers": "laser",
-    "imu": "IMU",
-    "gps": "GPS",
-    "heading": "GPS compass",
-    "wheels": "wheel speed",
-    "tf_static": "static transform topic",
-    "truth_pose": "true pose (simulated logs only)",
-    "truth_features": "true terrain features (simulated logs only)",
-}
+#: What each role is, for the comments ("no GPS compass found"): the roles' own words.
+ROLE_WORDS: dict[str, str] = {role: spec.word for role, spec in ROLE_SPECS.items()}
 
 
 @dataclass(frozen=True)
 class RoleGuess:
-    """The topics chosen for a role (none, one, or for lasers several), why, and the other
-    topics of an accepted type with the reason each was not chosen."""
+    """The topics chosen for a role (none, one, or for lasers and lidars several), why, and
+    the other topics of an accepted type with the reason each was not chosen."""
 
     role: str
     topics: tuple[str, ...]
@@ -147,12 +139,13 @@ def guess_role(role: str, topics: Sequence[TopicSummary]) -> RoleGuess:
         return RoleGuess(
             role, (), f"no {ROLE_WORDS[role]} found: no usable topic of type {types}", tuple(others)
         )
-    if role == "lasers":  # every laser scans terrain: all of them
+    if role in MULTI_TOPIC_ROLES:  # every laser (lidar) scans terrain: all of them
         chosen = sorted(usable, key=lambda t: t.topic)
+        types = " or ".join(ROLE_SPECS[role].accepted_types)
         return RoleGuess(
             role,
             tuple(t.topic for t in chosen),
-            f"every sensor_msgs/msg/LaserScan topic ({len(chosen)})",
+            f"every {types} topic ({len(chosen)})",
             tuple(others),
         )
     ranked = sorted(usable, key=lambda t: _rank(role, t))

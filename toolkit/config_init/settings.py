@@ -11,6 +11,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 from toolkit.config import (
+    MULTI_TOPIC_ROLES,
     ROLES,
     PipelineConfig,
     default_config,
@@ -21,6 +22,7 @@ from toolkit.config_init.render import Setting, Settings
 from toolkit.config_init.roles import RoleGuess, describe_topic
 from toolkit.config_init.summary import LogSummary, TopicSummary
 from toolkit.errors import ToolkitError
+from toolkit.mcapio.pointcloud2 import preset_for_fields
 from toolkit.model.shock import MIN_PASSBAND_HZ, design_shock_fir
 
 
@@ -30,9 +32,9 @@ def _topic_settings(guesses: Mapping[str, RoleGuess], summary: LogSummary) -> Se
     for role in ROLES:
         guess = guesses[role]
         comments: list[str] = []
-        if role == "lasers":
+        if role in MULTI_TOPIC_ROLES:
             value = toml_value(list(guess.topics))
-            comments.append(guess.why if guess.topics else f"{guess.why}: project cannot run")
+            comments.append(guess.why if guess.topics else f"{guess.why}")
             for topic in guess.topics:
                 t = summary.topic(topic)
                 comments.append(f"  {topic}: {describe_topic(t)}{_laser_mount_note(t, summary)}")
@@ -109,10 +111,19 @@ def stage_verdicts(summary: LogSummary, guesses: Mapping[str, RoleGuess]) -> Sta
     else:
         feeds = " and ".join(w for r, w in (("gps", "GPS"), ("wheels", "wheel speeds")) if has[r])
         pose = (True, f"an IMU, and {feeds}")
-    if has["lasers"]:
-        project = (True, f"{len(guesses['lasers'].topics)} laser(s), and a pose")
+    scanners = [
+        f"{len(guesses[role].topics)} {word}(s)"
+        for role, word in (("lasers", "laser"), ("lidars", "3-D lidar"))
+        if has[role]
+    ]
+    if scanners:
+        project = (True, f"{' and '.join(scanners)}, and a pose")
     else:
-        project = (False, "no laser (sensor_msgs/msg/LaserScan): project needs one")
+        project = (
+            False,
+            "no laser (sensor_msgs/msg/LaserScan) nor 3-D lidar (sensor_msgs/msg/PointCloud2): "
+            "project needs one",
+        )
     if has["imu"]:
         imu = summary.topic(guesses["imu"].topics[0])
         ok, why = _shock_band_note(imu.rate_hz, default_config())
@@ -179,6 +190,30 @@ def _pose_settings(guesses: Mapping[str, RoleGuess]) -> Settings:
     }
 
 
+def _lidar_settings(guesses: Mapping[str, RoleGuess], summary: LogSummary) -> Settings:
+    """``[lidar] time``: the driver preset the lidars' field names say, with why."""
+    topics = guesses["lidars"].topics
+    if not topics:
+        return {}
+    found = {t: preset_for_fields(summary.topic(t).point_fields) for t in topics}
+    presets = sorted(set(found.values()))
+    comments = [
+        f"{t}: fields {', '.join(summary.topic(t).point_fields) or 'unread'} -> {p}"
+        for t, p in found.items()
+    ]
+    if len(presets) > 1:
+        comments.append(
+            f"CHECK: the lidars' layouts differ ({', '.join(presets)}): 'auto' reads each"
+        )
+        return {("lidar", "time"): Setting(toml_value("auto"), tuple(comments))}
+    if presets == ["none"]:
+        comments.append(
+            "CHECK: no per-point time field: every return at its cloud's stamp (motion "
+            'correction off); name the field with time = "custom" if the driver has one'
+        )
+    return {("lidar", "time"): Setting(toml_value(presets[0]), tuple(comments))}
+
+
 def _label_settings(verdicts: StageVerdicts, guesses: Mapping[str, RoleGuess]) -> Settings:
     if not guesses["imu"].topics:
         return {}
@@ -192,6 +227,7 @@ def log_settings(summary: LogSummary, guesses: Mapping[str, RoleGuess]) -> Setti
     name = re.sub(r"[^A-Za-z0-9_.-]+", "-", summary.path.stem).strip("-") or "my-robot"
     settings: Settings = {("", "name"): Setting(toml_value(name))}
     settings.update(_topic_settings(guesses, summary))
+    settings.update(_lidar_settings(guesses, summary))
     settings.update(vehicle_settings(summary, guesses))
     settings.update(_pose_settings(guesses))
     settings.update(_label_settings(verdicts, guesses))

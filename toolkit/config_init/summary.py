@@ -10,6 +10,7 @@ import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -21,7 +22,7 @@ from toolkit.mcapio.msgdefs import full_type_name
 from toolkit.mcapio.reader import LogReader
 
 #: Sensor roles whose messages carry the frame their mount is looked up by.
-FRAMED_ROLES: tuple[str, ...] = ("lasers", "imu", "gps")
+FRAMED_ROLES: tuple[str, ...] = ("lasers", "lidars", "imu", "gps")
 #: Largest mount offset the configuration accepts (``[vehicle] *_position_m``), m.
 MAX_MOUNT_M = 100.0
 #: An IMU tilted less than this (deg) at the start is taken as level (the robot on a slope).
@@ -50,6 +51,8 @@ class TopicSummary:
     frame_id: str = ""
     accel_mean: tuple[float, float, float] | None = None
     problem: str = ""
+    #: A point cloud's field names (its driver's layout), from its first message.
+    point_fields: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -112,6 +115,7 @@ def summarize_log(path: str | Path) -> LogSummary:
                 frame_id=_first_frame(cols),
                 accel_mean=_accel_mean(cols) if types[t.topic] == IMU_TYPE else None,
                 problem=problems.get(t.topic, ""),
+                point_fields=_point_fields(cols),
             )
         )
     return LogSummary(
@@ -150,7 +154,8 @@ def _read_first_batches(
             topic = batch.channel.topic
             if topic == tf_topic or topic not in seen:
                 try:
-                    cols = channel_decoder(topic, batch.channel)(batch.payloads)
+                    own = _own_decoder(topic, batch.channel.schema_name)
+                    cols = (own or channel_decoder(topic, batch.channel))(batch.payloads)
                 except ToolkitError as exc:  # a sensor whose messages do not decode
                     problems.setdefault(topic, str(exc))
                     cols = {}
@@ -165,7 +170,26 @@ def _read_first_batches(
                 break
 
 
+def _own_decoder(topic: str, schema_name: str) -> Any:
+    """A role's own decoder of this type (a point cloud's), or None."""
+    for spec in ROLE_SPECS.values():
+        decoder = spec.decoder_for(topic, schema_name)
+        if decoder is not None:
+            return decoder
+    return None
+
+
+def _point_fields(cols: Mapping[str, np.ndarray]) -> tuple[str, ...]:
+    clouds = cols.get("cloud")
+    if clouds is None or len(clouds) == 0:
+        return ()
+    return tuple(f.name for f in clouds[0].fields)
+
+
 def _first_frame(cols: Mapping[str, np.ndarray]) -> str:
+    clouds = cols.get("cloud")
+    if clouds is not None and len(clouds):
+        return str(clouds[0].frame_id).strip().lstrip("/")
     frames = cols.get("header.frame_id")
     if frames is None or len(frames) == 0:
         return ""

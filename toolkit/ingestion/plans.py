@@ -10,22 +10,17 @@ StageError that says what the log does hold and what the role accepts.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
-
-from toolkit.config import TimeConfig, TopicsConfig
+from toolkit.config import LidarConfig, TimeConfig, TopicsConfig
 from toolkit.errors import SchemaError, StageError
-from toolkit.ingestion.roles import ROLE_SPECS
+from toolkit.ingestion.roles import ROLE_SPECS, Decoder
 from toolkit.ingestion.rows import ConvertContext, Converter
 from toolkit.mcapio.cdr import decode_batch
 from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_text
 from toolkit.mcapio.reader import Channel
-
-#: A channel's decoder: payloads -> one array per dotted field path.
-Decoder = Callable[[Sequence[bytes]], dict[str, np.ndarray]]
 
 
 @dataclass(frozen=True)
@@ -73,7 +68,11 @@ def _role_line(role: str, topics: Sequence[str]) -> str:
 
 
 def resolve_topics(
-    topics: TopicsConfig, time: TimeConfig, found: Mapping[str, Channel], log_path: Path
+    topics: TopicsConfig,
+    time: TimeConfig,
+    found: Mapping[str, Channel],
+    log_path: Path,
+    lidar: LidarConfig | None = None,
 ) -> tuple[dict[str, TopicPlan], dict[str, list[str]], list[str]]:
     """Plan every configured topic present in the log.
 
@@ -99,7 +98,7 @@ def resolve_topics(
             warnings.append(f"role {role}: topic(s) {', '.join(absent)} not in the log")
         for topic in role_topics:
             if topic in found:
-                plans[topic] = plan_topic(topic, role, found[topic], time, log_path)
+                plans[topic] = plan_topic(topic, role, found[topic], time, log_path, lidar)
     if not plans:
         configured = "; ".join(_role_line(r, t) for r, t in by_role.items()) or "none"
         raise StageError(
@@ -118,14 +117,19 @@ def resolve_topics(
 
 
 def plan_topic(
-    topic: str, role: str, channel: Channel, time: TimeConfig, log_path: Path
+    topic: str,
+    role: str,
+    channel: Channel,
+    time: TimeConfig,
+    log_path: Path,
+    lidar: LidarConfig | None = None,
 ) -> TopicPlan:
     """The plan of one channel playing ``role``; StageError (naming the log) when the role
     does not accept its type or its messages cannot be decoded."""
     spec = ROLE_SPECS[role]
     try:
         convert = spec.converter_for(topic, channel.schema_name)
-        decode = channel_decoder(topic, channel)
+        decode = spec.decoder_for(topic, channel.schema_name) or channel_decoder(topic, channel)
     except StageError as exc:
         raise StageError(str(exc), path=log_path) from None
     return TopicPlan(
@@ -136,7 +140,9 @@ def plan_topic(
         type_name=full_type_name(channel.schema_name),
         decode=decode,
         convert=convert,
-        context=ConvertContext.for_topic(topic, role, channel.schema_name, time),
+        context=ConvertContext.for_topic(
+            topic, role, channel.schema_name, time, lidar if role == "lidars" else None
+        ),
     )
 
 

@@ -1,20 +1,25 @@
 """Topic roles: which message types each role accepts and the converter of each.
 
 A role (``[topics]`` of the configuration) names what a topic means to the pipeline: lasers,
-imu, gps, heading, wheels, and on simulated logs the truth. Each role accepts a few standard
-ROS 2 message types besides the simulator's own, so another vehicle's logs ingest after a
-configuration change alone. For each accepted type a *converter* turns the columns of
-:func:`~toolkit.mcapio.cdr.decode_batch` (one numpy array per dotted field path, a whole chunk of
-one topic at once) into the contract table's columns, vectorised: no Python work per message.
+lidars, imu, gps, heading, wheels, and on simulated logs the truth. Each is declared once, in
+:data:`ROLE_SPECS`; ingest, ``config init`` and ``info`` read it from there. Each role
+accepts a few standard ROS 2 message types besides the simulator's own, so another vehicle's
+logs ingest after a configuration change alone. For each accepted type a *converter* turns
+the columns of :func:`~toolkit.mcapio.cdr.decode_batch` (one numpy array per dotted field
+path, a whole chunk of one topic at once) into the contract table's columns, vectorised: no
+Python work per message (a point cloud's own decoder views its points in place).
 The converters are :mod:`toolkit.ingestion.converters`; what they give back,
 :class:`~toolkit.ingestion.rows.RoleRows`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 
+import numpy as np
+
+from toolkit.config import ROLES
 from toolkit.errors import StageError
 from toolkit.ingestion.converters import (
     features_from_array,
@@ -29,17 +34,30 @@ from toolkit.ingestion.converters import (
     wheels_from_twist,
     wheels_from_wheel_speeds,
 )
+from toolkit.ingestion.lidar import POINTCLOUD2, decode_clouds, lidar_from_pointcloud2
 from toolkit.ingestion.rows import Converter
 from toolkit.mcapio.msgdefs import full_type_name
 
 
 @dataclass(frozen=True)
 class RoleSpec:
-    """A role: the table it fills and a converter per accepted message type."""
+    """A role, declared once: the table it fills, a converter per accepted message type, and
+    what the readers of roles say of it.
+
+    ``word`` is what the role is to people ("no GPS compass found"); ``written`` says when
+    its table is written: ``"always"`` (a sensor table, empty when the role is absent, so the
+    stages read one layout), ``"present"`` (only when the log has the role: the 3-D lidar,
+    the truth), ``"json"`` (not a table: the static transforms). ``decoders`` gives, for a
+    type decoded by its own reader rather than :func:`~toolkit.mcapio.cdr.decode_batch`, the
+    decoder of a topic (a PointCloud2's points are viewed in its own bytes).
+    """
 
     role: str
     table: str
     converters: Mapping[str, Converter]
+    word: str
+    written: str = "always"
+    decoders: Mapping[str, Callable[[str], Decoder]] = field(default_factory=dict)
 
     @property
     def accepted_types(self) -> tuple[str, ...]:
@@ -48,11 +66,7 @@ class RoleSpec:
 
     def converter_for(self, topic: str, type_name: str) -> Converter:
         """The converter of ``type_name``; StageError naming topic, type and accepted types."""
-        try:
-            name = full_type_name(type_name)
-        except Exception:  # a schema name that is not a ROS type name at all
-            name = type_name
-        conv = self.converters.get(name)
+        conv = self.converters.get(_full_name(type_name))
         if conv is None:
             raise StageError(
                 f"topic {topic} (role {self.role}) has message type {type_name!r}; "
@@ -60,38 +74,83 @@ class RoleSpec:
             )
         return conv
 
+    def decoder_for(self, topic: str, type_name: str) -> Decoder | None:
+        """The role's own decoder of ``type_name`` for ``topic``, or None (decode_batch)."""
+        make = self.decoders.get(_full_name(type_name))
+        return None if make is None else make(topic)
 
+
+def _full_name(type_name: str) -> str:
+    try:
+        return full_type_name(type_name)
+    except Exception:  # a schema name that is not a ROS type name at all
+        return type_name
+
+
+#: A topic's decoder: payloads -> one array per dotted field path.
+Decoder = Callable[[Sequence[bytes]], dict[str, np.ndarray]]
+
+#: Every role, in the order of :data:`toolkit.config.ROLES`: adding a sensor type is a
+#: converter module and a line here (README, "Adding a sensor").
 ROLE_SPECS: dict[str, RoleSpec] = {
-    "lasers": RoleSpec("lasers", "laser", {"sensor_msgs/msg/LaserScan": laser_from_scan}),
-    "imu": RoleSpec("imu", "imu", {"sensor_msgs/msg/Imu": imu_from_imu}),
-    "gps": RoleSpec("gps", "gps", {"sensor_msgs/msg/NavSatFix": gps_from_navsatfix}),
-    "heading": RoleSpec(
-        "heading",
-        "heading",
-        {
-            "terrain_msgs/msg/GpsHeading": heading_from_gps_heading,
-            "geometry_msgs/msg/QuaternionStamped": heading_from_quaternion,
-        },
-    ),
-    "wheels": RoleSpec(
-        "wheels",
-        "wheels",
-        {
-            "terrain_msgs/msg/WheelSpeeds": wheels_from_wheel_speeds,
-            "geometry_msgs/msg/TwistStamped": wheels_from_twist,
-            "nav_msgs/msg/Odometry": wheels_from_odometry,
-        },
-    ),
-    "truth_pose": RoleSpec(
-        "truth_pose", "truth_pose", {"nav_msgs/msg/Odometry": pose_from_odometry}
-    ),
-    "truth_features": RoleSpec(
-        "truth_features",
-        "truth_features",
-        {"terrain_msgs/msg/RoughFeatureArray": features_from_array},
-    ),
-    "tf_static": RoleSpec("tf_static", "tf_static", {"tf2_msgs/msg/TFMessage": tf_from_tfmessage}),
+    spec.role: spec
+    for spec in (
+        RoleSpec("lasers", "laser", {"sensor_msgs/msg/LaserScan": laser_from_scan}, "laser"),
+        RoleSpec(
+            "lidars",
+            "lidar",
+            {POINTCLOUD2: lidar_from_pointcloud2},
+            "3-D lidar",
+            written="present",
+            decoders={POINTCLOUD2: decode_clouds},
+        ),
+        RoleSpec("imu", "imu", {"sensor_msgs/msg/Imu": imu_from_imu}, "IMU"),
+        RoleSpec("gps", "gps", {"sensor_msgs/msg/NavSatFix": gps_from_navsatfix}, "GPS"),
+        RoleSpec(
+            "heading",
+            "heading",
+            {
+                "terrain_msgs/msg/GpsHeading": heading_from_gps_heading,
+                "geometry_msgs/msg/QuaternionStamped": heading_from_quaternion,
+            },
+            "GPS compass",
+        ),
+        RoleSpec(
+            "wheels",
+            "wheels",
+            {
+                "terrain_msgs/msg/WheelSpeeds": wheels_from_wheel_speeds,
+                "geometry_msgs/msg/TwistStamped": wheels_from_twist,
+                "nav_msgs/msg/Odometry": wheels_from_odometry,
+            },
+            "wheel speed",
+        ),
+        RoleSpec(
+            "tf_static",
+            "tf_static",
+            {"tf2_msgs/msg/TFMessage": tf_from_tfmessage},
+            "static transform topic",
+            written="json",
+        ),
+        RoleSpec(
+            "truth_pose",
+            "truth_pose",
+            {"nav_msgs/msg/Odometry": pose_from_odometry},
+            "true pose (simulated logs only)",
+            written="present",
+        ),
+        RoleSpec(
+            "truth_features",
+            "truth_features",
+            {"terrain_msgs/msg/RoughFeatureArray": features_from_array},
+            "true terrain features (simulated logs only)",
+            written="present",
+        ),
+    )
 }
+
+if tuple(ROLE_SPECS) != ROLES:  # the configuration's [topics] and this list name one set
+    raise TypeError(f"ROLE_SPECS {tuple(ROLE_SPECS)} do not match toolkit.config.ROLES {ROLES}")
 
 
 def role_spec(role: str) -> RoleSpec:
@@ -99,4 +158,9 @@ def role_spec(role: str) -> RoleSpec:
     return ROLE_SPECS[role]
 
 
-__all__ = ["ROLE_SPECS", "RoleSpec", "role_spec"]
+def tables_written(when: str) -> dict[str, str]:
+    """Role -> table of the roles whose table is written ``when`` (RoleSpec.written)."""
+    return {r: s.table for r, s in ROLE_SPECS.items() if s.written == when}
+
+
+__all__ = ["ROLE_SPECS", "Decoder", "RoleSpec", "role_spec", "tables_written"]

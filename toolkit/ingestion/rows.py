@@ -20,7 +20,7 @@ import numpy as np
 import pyarrow as pa
 
 from toolkit.arrays import BoolArray, FloatArray, IntArray
-from toolkit.config import TimeConfig
+from toolkit.config import LidarConfig, TimeConfig
 from toolkit.mcapio.msgdefs import full_type_name
 
 Columns = Mapping[str, Any]
@@ -36,15 +36,28 @@ class ConvertContext:
     role: str
     type_name: str
     correction_ns: int
+    #: How far a header stamp may be from its log time (``[time] max_header_skew_ns``).
+    max_header_skew_ns: int = 0
+    #: How a 3-D lidar's clouds are read (``[lidar]``); None for the other roles.
+    lidar: LidarConfig | None = None
 
     @classmethod
-    def for_topic(cls, topic: str, role: str, type_name: str, time: TimeConfig) -> ConvertContext:
+    def for_topic(
+        cls,
+        topic: str,
+        role: str,
+        type_name: str,
+        time: TimeConfig,
+        lidar: LidarConfig | None = None,
+    ) -> ConvertContext:
         """The context of one topic under the configuration's clocks (``[time]``)."""
         return cls(
             topic=topic,
             role=role,
             type_name=full_type_name(type_name),
             correction_ns=time.correction_ns(role),
+            max_header_skew_ns=time.max_header_skew_ns,
+            lidar=lidar,
         )
 
 
@@ -58,8 +71,9 @@ class RoleRows:
     over the messages kept; ``metadata`` goes to the table's key-value metadata.
 
     Most roles give one row per message. A role whose message holds a list (tf_static,
-    truth_features) gives one row per element; ``message_of_row`` then says which message
-    each row came from, and the header-skew check does not apply (static data).
+    truth_features, a lidar's cloud) gives one row per element; ``message_of_row`` then says
+    which message each row came from, and the header-skew check applies to the messages'
+    ``message_t_ns`` when given (a cloud's stamp), not at all without (static data).
     """
 
     table: pa.Table
@@ -68,6 +82,7 @@ class RoleRows:
     counts: dict[str, IntArray] = field(default_factory=dict)
     metadata: dict[str, str] = field(default_factory=dict)
     message_of_row: IntArray | None = None
+    message_t_ns: IntArray | None = None
 
     @property
     def t_ns(self) -> IntArray:

@@ -21,11 +21,12 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from toolkit.atomic import atomic_write_json
-from toolkit.config import TimeConfig, TopicsConfig
+from toolkit.config import LidarConfig, TimeConfig, TopicsConfig
 from toolkit.ingestion.accounts import TopicAccount, count_totals, reject_warnings, usable_roles
 from toolkit.ingestion.dedup import DuplicateFilter
 from toolkit.ingestion.plans import TopicPlan, plan_topic
 from toolkit.ingestion.reorder import ReorderBuffer
+from toolkit.ingestion.roles import tables_written
 from toolkit.ingestion.screen import convert_batch
 from toolkit.ingestion.timecheck import stream_time_outliers
 from toolkit.layout import log_file_name
@@ -33,19 +34,15 @@ from toolkit.mcapio.reader import Damage, MessageBatch, ReadReport
 from toolkit.tableio import TableWriter
 
 #: Sensor tables always written, empty when their role is absent (role -> table).
-SENSOR_TABLES: dict[str, str] = {
-    "imu": "imu",
-    "gps": "gps",
-    "heading": "heading",
-    "wheels": "wheels",
-    "lasers": "laser",
-}
+SENSOR_TABLES: dict[str, str] = tables_written("always")
 
-#: Roles written as Parquet tables only when the log has them.
-TRUTH_TABLES: dict[str, str] = {"truth_pose": "truth_pose", "truth_features": "truth_features"}
+#: Roles written as Parquet tables only when the log has them (the 3-D lidar, the truth).
+PRESENT_TABLES: dict[str, str] = tables_written("present")
 
 #: Tables with a contract schema in schemas/tables (truth_features has none: written as is).
-SCHEMA_TABLES: frozenset[str] = frozenset({*SENSOR_TABLES.values(), "truth_pose"})
+SCHEMA_TABLES: frozenset[str] = frozenset(
+    {*SENSOR_TABLES.values(), "truth_pose", PRESENT_TABLES["lidars"]}
+)
 
 #: Output name of the static transforms.
 TF_STATIC_OUTPUT = log_file_name("tf_static")
@@ -68,7 +65,7 @@ def make_buffers(
     for topic, plan in plans.items():
         sources.setdefault(plan.table, []).append(topic)
     tables = list(SENSOR_TABLES.values()) + [
-        TRUTH_TABLES[r] for r in TRUTH_TABLES if any(p.role == r for p in plans.values())
+        PRESENT_TABLES[r] for r in PRESENT_TABLES if any(p.role == r for p in plans.values())
     ]
     return {
         name: ReorderBuffer(
@@ -97,6 +94,7 @@ class IngestRun:
         topics: TopicsConfig,
         time_config: TimeConfig,
         log_path: Path,
+        lidar: LidarConfig | None = None,
     ) -> None:
         self.plans = plans
         self.buffers = buffers
@@ -104,6 +102,7 @@ class IngestRun:
         self.topics = topics
         self.time = time_config
         self.log_path = log_path
+        self.lidar = lidar
         self.accounts = {t: TopicAccount(t, p.role, p.type_name, p.table) for t, p in plans.items()}
         self.dedups = {t: DuplicateFilter() for t in plans}
         self.tf_rows: list[pa.Table] = []
@@ -122,7 +121,7 @@ class IngestRun:
         key = (topic, batch.channel.schema_name)
         if key not in self.extra_plans:
             self.extra_plans[key] = plan_topic(
-                topic, plan.role, batch.channel, self.time, self.log_path
+                topic, plan.role, batch.channel, self.time, self.log_path, self.lidar
             )
         return self.extra_plans[key]
 
@@ -259,7 +258,7 @@ __all__ = [
     "SCHEMA_TABLES",
     "SENSOR_TABLES",
     "TF_STATIC_OUTPUT",
-    "TRUTH_TABLES",
+    "PRESENT_TABLES",
     "IngestRun",
     "damage_json",
     "make_buffers",

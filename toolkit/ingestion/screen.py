@@ -97,12 +97,13 @@ def _screen(rows: RoleRows, log_t: IntArray, account: TopicAccount, max_skew_ns:
     """The mask of messages kept; counts the rejected by reason and the kept's counts, and
     adds the kept to ``written``."""
     keep = rows.finite.copy()
-    if rows.message_of_row is None:
+    message_t = rows.t_ns if rows.message_of_row is None else rows.message_t_ns
+    if message_t is not None:
         # A time before 1970 comes only from a log time or stamp beyond int64 (2^63 ns) or a
         # corrupt one: no row may carry it (it would sort first and stretch the log).
-        bad_time = rows.t_ns < 0
+        bad_time = message_t < 0
         account.rejects["bad_time"] += int(bad_time.sum())
-        skew = (np.abs(rows.t_ns - log_t) > max_skew_ns) & ~rows.stamp_missing & ~bad_time
+        skew = (np.abs(message_t - log_t) > max_skew_ns) & ~rows.stamp_missing & ~bad_time
         account.rejects["clock_skew"] += int(skew.sum())
         keep &= ~skew & ~bad_time
         account.rejects["non_finite"] += int((~rows.finite & ~skew & ~bad_time).sum())

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from toolkit.config import PipelineConfig, TimeConfig, TopicsConfig
+from toolkit.config import LidarConfig, PipelineConfig, TimeConfig, TopicsConfig
 from toolkit.errors import LogReadError
 from toolkit.ingestion.accounts import lost_by_topic, reject_totals, rejects_by_topic
 from toolkit.ingestion.plans import resolve_topics
@@ -73,12 +73,14 @@ class IngestResult:
 
 @dataclass(frozen=True)
 class IngestSettings:
-    """What ingest reads of the configuration: the topics of each role and the clocks (its
+    """What ingest reads of the configuration: the topics of each role, the clocks and how a
+    3-D lidar's clouds are read (its
     up-to-date key: a pose tuning change must not make every ingest stale); and how many bytes
     each table holds back for sorting (not a configuration key)."""
 
     topics: TopicsConfig
     time: TimeConfig
+    lidar: LidarConfig
     buffer_bytes: int = DEFAULT_REORDER_BUFFER_BYTES
 
 
@@ -101,7 +103,7 @@ def ingest_log(
     LogReadError when the file cannot be read at all. ``reorder_buffer_bytes`` bounds the
     rows each table holds back for sorting.
     """
-    settings = IngestSettings(config.topics, config.time, reorder_buffer_bytes)
+    settings = IngestSettings(config.topics, config.time, config.lidar, reorder_buffer_bytes)
     return run_stage(
         SPEC, workspace, config, overwrite=overwrite, settings=settings, source=Path(log_path)
     )
@@ -204,7 +206,7 @@ def _read(
     try:
         with LogReader(source.path, topics=_configured_topics(settings)) as reader:
             plans, missing, warnings = resolve_topics(
-                settings.topics, settings.time, reader.channels(), source.path
+                settings.topics, settings.time, reader.channels(), source.path, settings.lidar
             )
             buffers = make_buffers(
                 plans,
@@ -213,7 +215,9 @@ def _read(
                 config_hash=call.config_hash,
                 buffer_bytes=settings.buffer_bytes,
             )
-            run = IngestRun(plans, buffers, settings.topics, settings.time, source.path)
+            run = IngestRun(
+                plans, buffers, settings.topics, settings.time, source.path, settings.lidar
+            )
             t_read = time.perf_counter()
             for batch in progress(
                 reader.batches(), desc=f"ingest {source.path.name}", unit="batch"

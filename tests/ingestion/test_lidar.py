@@ -1,0 +1,126 @@
+"""The 3-D lidar role on real clouds: ingest reads what the vendors' decoders read.
+
+The logs are derived from real recordings by ``tests/data/real-lidar/derive.py`` (provenance
+in that folder's README): an Ouster OS-1-128 on a moving vehicle in ouster-ros's layout, with
+what ouster-sdk decoded from its packets beside it, and one Velodyne VLP-16 cloud in nebula's
+layout, re-packed in velodyne_pointcloud's and livox_ros_driver2's.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from toolkit.config import PipelineConfig, default_config
+from toolkit.stages.ingest import ingest_log
+from toolkit.tableio import read_table
+from toolkit.workspace import Workspace
+
+REAL = Path(__file__).resolve().parents[1] / "data" / "real-lidar"
+LASER_FREE_TOPICS = {
+    "lasers": (),
+    "gps": None,
+    "heading": None,
+    "wheels": None,
+    "truth_pose": None,
+    "truth_features": None,
+}
+
+
+def _config(lidar_topic: str, imu: str | None = None, **lidar: object) -> PipelineConfig:
+    cfg = default_config()
+    topics = dataclasses.replace(cfg.topics, **LASER_FREE_TOPICS, imu=imu, lidars=(lidar_topic,))
+    return dataclasses.replace(cfg, topics=topics, lidar=dataclasses.replace(cfg.lidar, **lidar))
+
+
+def _ingest(tmp_path: Path, log: Path, cfg: PipelineConfig) -> tuple[pa.Table, dict[str, Any]]:
+    """The log's lidar table and the ingest's manifest record."""
+    result = ingest_log(log, Workspace(tmp_path / "ws"), cfg)
+    log_dir = tmp_path / "ws" / "logs" / result.log_id
+    manifest = json.loads((log_dir / "manifest.json").read_text())
+    return read_table(log_dir / "lidar.parquet", "lidar"), manifest["ingest"]
+
+
+def test_an_ouster_cloud_lands_where_the_vendors_decoder_puts_it(tmp_path: Path) -> None:
+    """Every valid return of ouster-ros's layout, at ouster-sdk's position (1 mm) and its
+    column's time (exactly), its beam as the ring; the no-returns dropped and counted."""
+    ref = np.load(REAL / "ouster-os1-128.reference.npz")
+    valid = ref["range_mm"] > 0
+    table, detail = _ingest(
+        tmp_path, REAL / "ouster-os1-128.mcap", _config("/ouster/points", "/ouster/imu")
+    )
+    assert table.num_rows == int(valid.sum())
+    got = np.stack([table.column(a).to_numpy() for a in "xyz"], axis=1).astype(np.float64)
+    t_ns = table.column("t_ns").to_numpy()
+    ring = table.column("ring").to_numpy()
+    # The table is sorted by time; the reference is in cloud order: match by (time, ring).
+    order_got = np.lexsort((ring, t_ns))
+    order_ref = np.lexsort((ref["beam"][valid], ref["time_ns"][valid]))
+    np.testing.assert_array_equal(t_ns[order_got], ref["time_ns"][valid][order_ref])
+    np.testing.assert_array_equal(ring[order_got], ref["beam"][valid][order_ref])
+    np.testing.assert_allclose(got[order_got], ref["xyz"][valid][order_ref], atol=1e-3, rtol=0)
+    counts = detail["topics"]["/ouster/points"]["counts"]
+    assert counts["lidar_zero_range"] == int((~valid).sum())
+    assert counts["lidar_no_point_time"] == 0
+    assert table.schema.metadata[b"lidar_time_presets"] == b"ouster"
+
+
+@pytest.mark.parametrize(
+    ("log", "tolerance_ns"),
+    [
+        ("vlp16-nebula.mcap", 0),
+        ("vlp16-velodyne-derived.mcap", 1_000),  # float32 seconds after the header: ~7 ns
+        ("vlp16-livox-derived.mcap", 256),  # float64 absolute ns near 1.7e18: a 256 ns grid
+    ],
+)
+def test_one_velodyne_cloud_in_three_drivers_layouts_decodes_alike(
+    tmp_path: Path, log: str, tolerance_ns: int
+) -> None:
+    """The same VLP-16 returns in nebula's, velodyne's and livox's layouts: the same points
+    (exactly: float32 in each) and the same times, each driver's preset found by 'auto'."""
+    ref = np.load(REAL / "vlp16.reference.npz")
+    table, _ = _ingest(tmp_path, REAL / log, _config("/velodyne_points"))
+    assert table.num_rows == len(ref["xyz"])
+    got = np.stack([table.column(a).to_numpy() for a in "xyz"], axis=1).astype(np.float64)
+    t_ns = table.column("t_ns").to_numpy()
+    # Match by position (the points are distinct), then compare the times.
+    key_got = np.lexsort(got.T[::-1])
+    key_ref = np.lexsort(ref["xyz"].T[::-1])
+    np.testing.assert_allclose(got[key_got], ref["xyz"][key_ref], atol=1e-6, rtol=0)
+    diff = np.abs(t_ns[key_got] - ref["time_ns"][key_ref])
+    assert int(diff.max()) <= tolerance_ns
+    np.testing.assert_array_equal(table.column("ring").to_numpy()[key_got], ref["channel"][key_ref])
+
+
+def test_a_cloud_read_without_its_time_field_is_said_and_counted(tmp_path: Path) -> None:
+    """With time = "none" every return takes its cloud's stamp: counted per cloud."""
+    table, detail = _ingest(
+        tmp_path, REAL / "ouster-os1-128.mcap", _config("/ouster/points", time="none")
+    )
+    assert np.array_equal(table.column("t_ns").to_numpy(), table.column("scan_t_ns").to_numpy())
+    assert detail["topics"]["/ouster/points"]["counts"]["lidar_no_point_time"] == 3
+
+
+def test_rings_and_ranges_select_returns_and_count_the_rest(tmp_path: Path) -> None:
+    ref = np.load(REAL / "ouster-os1-128.reference.npz")
+    valid = ref["range_mm"] > 0
+    rings = tuple(int(b) for b in ref["beams_kept"][:2])
+    table, detail = _ingest(
+        tmp_path,
+        REAL / "ouster-os1-128.mcap",
+        _config("/ouster/points", rings=rings, min_range_m=2.0, max_range_m=20.0),
+    )
+    r = np.linalg.norm(ref["xyz"], axis=1)
+    want = valid & np.isin(ref["beam"], rings) & (r >= 2.0) & (r <= 20.0)
+    assert table.num_rows == int(want.sum())
+    counts = detail["topics"]["/ouster/points"]["counts"]
+    assert counts["lidar_ring_not_kept"] == int((valid & ~np.isin(ref["beam"], rings)).sum())
+    assert counts["lidar_out_of_range"] == int(
+        (valid & np.isin(ref["beam"], rings) & ~((r >= 2.0) & (r <= 20.0))).sum()
+    )
