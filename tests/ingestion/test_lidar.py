@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import re
 from pathlib import Path
 from typing import Any
 
@@ -18,6 +19,9 @@ import pyarrow as pa
 import pytest
 
 from toolkit.config import PipelineConfig, default_config
+from toolkit.config_init import init_config
+from toolkit.errors import StageError
+from toolkit.mcapio.info import scan_log
 from toolkit.stages.ingest import ingest_log
 from toolkit.tableio import read_table
 from toolkit.workspace import Workspace
@@ -124,3 +128,31 @@ def test_rings_and_ranges_select_returns_and_count_the_rest(tmp_path: Path) -> N
     assert counts["lidar_out_of_range"] == int(
         (valid & np.isin(ref["beam"], rings) & ~((r >= 2.0) & (r <= 20.0))).sum()
     )
+
+
+def test_clouds_without_point_times_are_said_on_the_terminal(tmp_path: Path) -> None:
+    result = ingest_log(
+        REAL / "ouster-os1-128.mcap",
+        Workspace(tmp_path / "ws"),
+        _config("/ouster/points", time="none"),
+    )
+    said = [w for w in result.warnings if "no per-point time" in w]
+    assert said == [
+        "/ouster/points: 3 of 3 clouds have no per-point time: each return is at its cloud's "
+        "stamp (motion correction off); set [lidar] time if the driver writes one"
+    ]
+
+
+def test_a_log_of_lidar_packets_is_said_to_need_its_driver(tmp_path: Path) -> None:
+    """info, config init and ingest each say the lidar is packets, never a silent 'no laser'."""
+    log = REAL / "ouster-packets-only.mcap"
+    info = scan_log(log)
+    assert any(
+        p.kind == "lidar_packets" and "/os_node0/lidar_packets" in p.message for p in info.problems
+    )
+    comments = re.sub(r"\s*\n#\s*", " ", init_config(log))  # the wrapped comments, as read
+    assert "/os_node0/lidar_packets holds a lidar driver's raw packets" in comments
+    with pytest.raises(StageError, match="raw packets .*PointCloud2 first"):
+        ingest_log(log, Workspace(tmp_path / "ws"), default_config())
+    with pytest.raises(StageError, match="lidar_packets holds a lidar driver's raw packets"):
+        ingest_log(log, Workspace(tmp_path / "ws2"), _config("/os_node0/lidar_packets"))

@@ -67,6 +67,8 @@ def init_config(path: str | Path) -> str:
             summary.problems,
             summary.path,
         )
+    for note in summary.notes:
+        _log.warning("%s: %s", summary.path, note)
     text = render_config(summary, guess_roles(summary))
     try:
         parse_config(text, source=f"<configuration written for {summary.path}>")

@@ -14,6 +14,7 @@ from toolkit.config import (
 )
 from toolkit.config_init.summary import LogSummary, TopicSummary
 from toolkit.ingestion.roles import ROLE_SPECS
+from toolkit.mcapio.pointcloud2 import packets_note
 
 # --------------------------------------------------------------------------------------
 # 2. Topics to roles
@@ -136,9 +137,11 @@ def guess_role(role: str, topics: Sequence[TopicSummary]) -> RoleGuess:
             usable.append(t)
     if not usable:
         types = " or ".join(ROLE_SPECS[role].accepted_types)
-        return RoleGuess(
-            role, (), f"no {ROLE_WORDS[role]} found: no usable topic of type {types}", tuple(others)
-        )
+        why = f"no {ROLE_WORDS[role]} found: no usable topic of type {types}"
+        if role == "lidars":  # a log of packets has a lidar the toolkit cannot read yet
+            notes = [packets_note(t.topic, t.type_name) for t in topics]
+            why = "; ".join([why, *(n for n in notes if n)])
+        return RoleGuess(role, (), why, tuple(others))
     if role in MULTI_TOPIC_ROLES:  # every laser (lidar) scans terrain: all of them
         chosen = sorted(usable, key=lambda t: t.topic)
         types = " or ".join(ROLE_SPECS[role].accepted_types)

@@ -66,6 +66,8 @@ class LogSummary:
     tf_static_topic: str = ""
     transforms: tuple[StaticTransform, ...] = ()
     problems: int = 0
+    #: What the user must know of the log beyond its damage (a lidar recorded as packets).
+    notes: tuple[str, ...] = ()
 
     def topic(self, name: str) -> TopicSummary:
         """The summary of one topic (KeyError when the log has no such topic)."""
@@ -124,7 +126,8 @@ def summarize_log(path: str | Path) -> LogSummary:
         topics=tuple(topics),
         tf_static_topic=tf_topic,
         transforms=tuple(_transforms(tf_messages)),
-        problems=len(info.problems),
+        problems=sum(p.kind != "lidar_packets" for p in info.problems),
+        notes=tuple(p.message for p in info.problems if p.kind == "lidar_packets"),
     )
 
 

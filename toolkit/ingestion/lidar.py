@@ -29,7 +29,7 @@ own checks (duplicates, bad payloads) are the ingest's, as for every role.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -38,6 +38,7 @@ import pyarrow as pa
 from toolkit.arrays import IntArray
 from toolkit.config import LidarConfig
 from toolkit.errors import CloudLayoutError, StageError
+from toolkit.ingestion.accounts import TopicAccount
 from toolkit.ingestion.rows import Columns, ConvertContext, RoleRows
 from toolkit.mcapio.pointcloud2 import (
     PRESETS,
@@ -76,6 +77,39 @@ COUNTS: tuple[str, ...] = (
     "lidar_sensor_clock",
     "lidar_point_clock",
 )
+
+
+def lidar_notices(accounts: Mapping[str, TopicAccount]) -> list[str]:
+    """What a user must know of the lidars' clouds, a line per topic and kind (the terminal
+    says them; the manifest counts them)."""
+    out: list[str] = []
+    for topic, account in accounts.items():
+        if account.role != "lidars":
+            continue
+        c = account.counts
+        if c["lidar_no_point_time"]:
+            out.append(
+                f"{topic}: {c['lidar_no_point_time']} of {account.written} clouds have no "
+                "per-point time: each return is at its cloud's stamp (motion correction off); "
+                "set [lidar] time if the driver writes one"
+            )
+        if c["lidar_sensor_clock"]:
+            out.append(
+                f"{topic}: {c['lidar_sensor_clock']} clouds stamped on the sensor's own clock "
+                "(far from the log's time): re-anchored at their log time, their points' offsets "
+                "kept; set the driver to the system clock or declare [time] clock_offset_ns"
+            )
+        if c["lidar_point_clock"]:
+            out.append(
+                f"{topic}: {c['lidar_point_clock']} clouds' absolute point times are on another "
+                "clock than their stamps: anchored at the stamp, offsets kept"
+            )
+        if c["lidar_time_outside_sweep"]:
+            out.append(
+                f"{topic}: {c['lidar_time_outside_sweep']} returns stamped over "
+                f"{MAX_SWEEP_NS / 1e9:g} s from their cloud's stamp dropped"
+            )
+    return out
 
 
 def decode_clouds(topic: str) -> Any:
@@ -260,5 +294,6 @@ __all__ = [
     "POINTCLOUD2",
     "decode_clouds",
     "lidar_from_pointcloud2",
+    "lidar_notices",
     "point_time_spec",
 ]

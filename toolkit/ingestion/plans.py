@@ -15,11 +15,12 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from toolkit.config import LidarConfig, TimeConfig, TopicsConfig
-from toolkit.errors import SchemaError, StageError
+from toolkit.errors import SchemaError, StageError, ToolkitError
 from toolkit.ingestion.roles import ROLE_SPECS, Decoder
 from toolkit.ingestion.rows import ConvertContext, Converter
 from toolkit.mcapio.cdr import decode_batch
 from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_text
+from toolkit.mcapio.pointcloud2 import packets_note
 from toolkit.mcapio.reader import Channel
 
 
@@ -62,6 +63,14 @@ def channel_decoder(topic: str, channel: Channel) -> Decoder:
     raise StageError(f"topic {topic}: no message definition for {name!r} in the log or toolkit")
 
 
+def _is_ros_name(schema_name: str) -> bool:
+    try:
+        full_type_name(schema_name)
+    except ToolkitError:
+        return False
+    return True
+
+
 def _role_line(role: str, topics: Sequence[str]) -> str:
     accepts = ", ".join(ROLE_SPECS[role].accepted_types)
     return f"{role} ({', '.join(topics)}; accepts {accepts})"
@@ -101,10 +110,15 @@ def resolve_topics(
                 plans[topic] = plan_topic(topic, role, found[topic], time, log_path, lidar)
     if not plans:
         configured = "; ".join(_role_line(r, t) for r, t in by_role.items()) or "none"
+        packets = [
+            packets_note(t, full_type_name(c.schema_name))
+            for t, c in sorted(found.items())
+            if c.schema_name and _is_ros_name(c.schema_name)
+        ]
         raise StageError(
             f"none of the configured topics is in the log (configured: {configured}; topics "
             f"found: {', '.join(sorted(found)) or 'none'}); give a configuration for this "
-            "vehicle with -c",
+            "vehicle with -c" + "".join(f"; {n}" for n in packets if n),
             path=log_path,
         )
     if wholly_missing:
@@ -128,6 +142,9 @@ def plan_topic(
     does not accept its type or its messages cannot be decoded."""
     spec = ROLE_SPECS[role]
     try:
+        note = packets_note(topic, full_type_name(channel.schema_name))
+        if note and role == "lidars":
+            raise StageError(note)
         convert = spec.converter_for(topic, channel.schema_name)
         decode = spec.decoder_for(topic, channel.schema_name) or channel_decoder(topic, channel)
     except StageError as exc:

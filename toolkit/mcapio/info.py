@@ -35,7 +35,8 @@ import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
 from toolkit.errors import ToolkitError
-from toolkit.mcapio.msgdefs import parse_schema_text
+from toolkit.mcapio.msgdefs import full_type_name, parse_schema_text
+from toolkit.mcapio.pointcloud2 import packets_note
 from toolkit.mcapio.reader import Channel, LogReader, ReadReport
 
 
@@ -257,6 +258,13 @@ def _schema_problem(channel: Channel) -> str:
     return ""
 
 
+def _ros_type_name(schema_name: str) -> str:
+    try:
+        return full_type_name(schema_name)
+    except ToolkitError:
+        return schema_name
+
+
 def _content_problems(channels: dict[int, Channel], scan: _Scan, topics: list[TopicInfo]) -> None:
     """What info sees in the messages themselves (the reader reports the file's damage)."""
     late_total, first_late = 0, ""
@@ -275,6 +283,9 @@ def _content_problems(channels: dict[int, Channel], scan: _Scan, topics: list[To
         why = _schema_problem(channel)
         if why:
             scan.problem("unknown_schema", why)
+        packets = packets_note(channel.topic, _ros_type_name(channel.schema_name))
+        if packets:
+            scan.problem("lidar_packets", packets)
     if late_total:
         scan.problem(
             "out_of_order",

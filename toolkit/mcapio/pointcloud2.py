@@ -48,6 +48,36 @@ NS_PER_UNIT: dict[str, int] = {"s": 1_000_000_000, "ms": 1_000_000, "us": 1_000,
 _NS_PER_S = 1_000_000_000
 
 
+#: Message types of drivers' raw packets, by driver: a log of them holds no point cloud until
+#: the vendor's driver decodes them into ``sensor_msgs/PointCloud2`` (ouster-ros ROS 1 and 2,
+#: velodyne_driver, hesai's and robosense's drivers, livox_ros_driver2's own format).
+PACKET_TYPES: frozenset[str] = frozenset(
+    {
+        "ouster_ros/msg/PacketMsg",
+        "ouster_sensor_msgs/msg/PacketMsg",
+        "velodyne_msgs/msg/VelodyneScan",
+        "velodyne_msgs/msg/VelodynePacket",
+        "pandar_msgs/msg/PandarScan",
+        "hesai_ros_driver/msg/UdpFrame",
+        "rslidar_msg/msg/RslidarPacket",
+        "rslidar_msgs/msg/rslidarScan",
+        "livox_ros_driver2/msg/CustomMsg",
+        "nebula_msgs/msg/NebulaPackets",
+    }
+)
+
+
+def packets_note(topic: str, type_name: str) -> str:
+    """One line saying that ``topic`` holds raw lidar packets ("" when its type is not one)."""
+    if type_name not in PACKET_TYPES:
+        return ""
+    return (
+        f"topic {topic} holds a lidar driver's raw packets ({type_name}), not points: the "
+        "driver must decode them into sensor_msgs/msg/PointCloud2 first (e.g. replay the log "
+        "through it and record its cloud topic)"
+    )
+
+
 @dataclass(frozen=True)
 class PointField:
     """One field of a point: ``name``, byte ``offset`` in the point, ``datatype`` (1..8, see
