@@ -176,7 +176,7 @@ class LidarTruth:
     mount: Mount
     range_bias_m: tuple[float, ...]
     clock_offset_ns: int
-    phase_ns: float
+    phase_ns: int
 
 
 def draw_lidar_truth(p: LidarParams, seed: int, offset_max_s: float) -> LidarTruth:
@@ -188,7 +188,8 @@ def draw_lidar_truth(p: LidarParams, seed: int, offset_max_s: float) -> LidarTru
     xyz = rng.uniform(-p.mount_xyz_error_m, p.mount_xyz_error_m, 3)
     bias = rng.uniform(-p.range_bias_max_m, p.range_bias_max_m, p.beams)
     offset_ns = int(round(rng.uniform(-offset_max_s, offset_max_s) * 1e9))
-    phase_ns = float(rng.uniform(0.0, 1e9 / p.rate_hz))
+    # Whole nanoseconds: added to a log time (1e18 ns), a float's ulp would be 256 ns.
+    phase_ns = int(round(rng.uniform(0.0, 1e9 / p.rate_hz)))
     m = p.mount
     mount = Mount(
         m.frame_id,

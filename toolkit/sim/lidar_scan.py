@@ -97,7 +97,7 @@ class LidarSensor:
             return None
         k = np.arange(k_lo, k_hi + 1, dtype=np.int64)
         t_ext = (ext.t_ns - t0).astype(np.float64)
-        t = self.first_column_ns - t0 + k * col_ns
+        t = float(self.first_column_ns - t0) + k * col_ns  # ints first: ns exact
         rot, pos = pose_at(ext, t_ext, t)
         turn = rot @ flex_pitch(ext, t_ext, t, p.flex_pitch_rad_per_mps2)
         direction = np.einsum("kij,kbj->kbi", turn, self.dirs_base[k % p.columns])
@@ -147,7 +147,7 @@ class LidarSensor:
         last column is in."""
         p = self.p
         col_ns = p.column_period_ns
-        t_first = int(round(self.first_column_ns + n * p.columns * col_ns))
+        t_first = self.first_column_ns + int(round(n * p.columns * col_ns))
         mm = self.measured_mm(scan.ranges, t_first, scan.speed_mps)  # (columns, beams)
         r = mm * p.range_resolution_m
         hit = mm > 0
@@ -165,7 +165,7 @@ class LidarSensor:
         pts["range"] = mm.T
         stamp = t_first + self.truth.clock_offset_ns
         lo, hi = self.clock.latency_range_s
-        t_last = int(round(self.first_column_ns + (n * p.columns + p.columns - 1) * col_ns))
+        t_last = self.first_column_ns + int(round((n * p.columns + p.columns - 1) * col_ns))
         log_ns = t_last + int(self.rng.integers(int(lo * 1e9), int(hi * 1e9), endpoint=True))
         payload = encode_cloud(stamp, self.truth.mount.frame_id, pts)
         out.add(TOPIC_LIDAR, np.array([log_ns], dtype=np.int64), [payload])
