@@ -58,6 +58,12 @@ def _require_file(path: Path, error: type[ToolkitError] = ToolkitError) -> None:
     help="Leave the laser scans out: a fast log of the same drive and IMU, for judging "
     "the vehicle's physics and the shock labels.",
 )
+@click.option(
+    "--lidar",
+    is_flag=True,
+    help="Add a spinning 3-D lidar (an Ouster OS1-32, 512 x 10 Hz) on the roof, publishing "
+    "ouster-ros point clouds on /ouster/points (docs/simulator.md).",
+)
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUT.mcap.")
 def sim(
     out: Path,
@@ -66,6 +72,7 @@ def sim(
     seed: int,
     workers: int | None,
     no_lasers: bool,
+    lidar: bool,
     overwrite: bool,
 ) -> None:
     """Write a synthetic race log with ground truth to OUT.mcap."""
@@ -88,6 +95,7 @@ def sim(
         show_progress=True,  # a bar on a terminal, a heartbeat off it, nothing with -q
         workers=workers,
         lasers=not no_lasers,
+        lidar=lidar,
     )
     click.echo(result.summary())
 

@@ -10,11 +10,11 @@ from __future__ import annotations
 
 import contextlib
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import Future
 from dataclasses import dataclass
 from functools import partial
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,7 +22,6 @@ from numpy.typing import NDArray
 from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.pools import process_pool
 from toolkit.sim.raycast import RayCaster
-from toolkit.sim.sensors import LaserParams
 from toolkit.sim.terrain import WindowCache
 from toolkit.sim.world import WorldParams, make_world
 
@@ -35,7 +34,8 @@ MAX_DEFAULT_WORKERS = 3
 
 def default_workers(workers: int | None, lasers: bool) -> int:
     """The caster processes to use: ``workers`` if given, else one per core up to
-    :data:`MAX_DEFAULT_WORKERS` (none on one core); none without lasers (nothing to cast)."""
+    :data:`MAX_DEFAULT_WORKERS` (none on one core); none without lasers or lidar (``lasers``
+    False: nothing to cast)."""
     if workers is None:
         cores = os.cpu_count() or 1
         workers = min(cores, MAX_DEFAULT_WORKERS) if cores > 1 else 0
@@ -60,53 +60,101 @@ class LaserRays:
     s_hi_m: float
 
 
+class BeamParams(Protocol):
+    """What the ray caster needs of a scanner: the 2-D lasers'
+    :class:`~toolkit.sim.sensors.LaserParams` or the lidar's
+    :class:`~toolkit.sim.lidar.LidarParams`."""
+
+    @property
+    def range_max_m(self) -> float: ...
+    @property
+    def range_min_m(self) -> float: ...
+    @property
+    def beam_divergence_rad(self) -> float: ...
+    @property
+    def footprint_samples(self) -> int: ...
+    @property
+    def footprint_spacing_m(self) -> float: ...
+    @property
+    def occluder_samples(self) -> int: ...
+    @property
+    def occluder_spacing_m(self) -> float: ...
+    @property
+    def occluder_height_m(self) -> float: ...
+
+
+class Rays(Protocol):
+    """Rays to cast: ``origin`` and unit ``direction`` (n, 3) in ENU, and the stretch of
+    route (``s_lo_m`` .. ``s_hi_m``) they can reach, ``s_hint_m`` near their origins."""
+
+    @property
+    def origin(self) -> FloatArray: ...
+    @property
+    def direction(self) -> FloatArray: ...
+    @property
+    def s_hint_m(self) -> float: ...
+    @property
+    def s_lo_m(self) -> float: ...
+    @property
+    def s_hi_m(self) -> float: ...
+
+
 class LaserCaster:
     """Casts a block's rays into the world; lives in the main process or in a worker.
 
     A worker rebuilds the world from ``(params, seed)``, which is deterministic, so only the
-    rays and ranges cross the process boundary.
+    rays and ranges cross the process boundary. One caster per scanner kind (``laser``, and
+    ``lidar`` when the log has one), sharing the world, each with its own terrain window
+    (the lidar looks behind as far as ahead).
     """
 
-    def __init__(self, world_params: WorldParams, seed: int, laser: LaserParams) -> None:
+    def __init__(
+        self, world_params: WorldParams, seed: int, scanners: Mapping[str, BeamParams]
+    ) -> None:
         world = make_world(world_params, seed)
-        self.windows = WindowCache(world.terrain)
-        self.caster = RayCaster(
-            world.route,
-            world.terrain.crossfall,
-            max_range_m=laser.range_max_m,
-            min_range_m=laser.range_min_m,
-            divergence_rad=laser.beam_divergence_rad,
-            footprint_samples=laser.footprint_samples,
-            footprint_spacing_m=laser.footprint_spacing_m,
-            occluder_samples=laser.occluder_samples,
-            occluder_spacing_m=laser.occluder_spacing_m,
-            occluder_height_m=laser.occluder_height_m,
-        )
+        self.windows = {kind: WindowCache(world.terrain) for kind in scanners}
+        self.casters = {
+            kind: RayCaster(
+                world.route,
+                world.terrain.crossfall,
+                max_range_m=p.range_max_m,
+                min_range_m=p.range_min_m,
+                divergence_rad=p.beam_divergence_rad,
+                footprint_samples=p.footprint_samples,
+                footprint_spacing_m=p.footprint_spacing_m,
+                occluder_samples=p.occluder_samples,
+                occluder_spacing_m=p.occluder_spacing_m,
+                occluder_height_m=p.occluder_height_m,
+            )
+            for kind, p in scanners.items()
+        }
 
-    def __call__(self, rays: LaserRays) -> FloatArray:
-        window = self.windows.covering(rays.s_lo_m, rays.s_hi_m)
-        return self.caster.cast(window, rays.origin, rays.direction, rays.s_hint_m)
+    def __call__(self, kind: str, rays: Rays) -> FloatArray:
+        window = self.windows[kind].covering(rays.s_lo_m, rays.s_hi_m)
+        return self.casters[kind].cast(window, rays.origin, rays.direction, rays.s_hint_m)
 
 
 _WORKER_CASTER: LaserCaster | None = None
 
 
-def _init_caster_worker(world_params: WorldParams, seed: int, laser: LaserParams) -> None:
+def _init_caster_worker(
+    world_params: WorldParams, seed: int, scanners: Mapping[str, BeamParams]
+) -> None:
     global _WORKER_CASTER
-    _WORKER_CASTER = LaserCaster(world_params, seed, laser)
+    _WORKER_CASTER = LaserCaster(world_params, seed, scanners)
 
 
-def _cast_now(caster: LaserCaster, rays: LaserRays) -> Future[FloatArray]:
+def _cast_now(caster: LaserCaster, kind: str, rays: Rays) -> Future[FloatArray]:
     """Cast in this process; a completed future, so both paths look alike to the caller."""
     done: Future[FloatArray] = Future()
-    done.set_result(caster(rays))
+    done.set_result(caster(kind, rays))
     return done
 
 
-def _cast_in_worker(rays: LaserRays) -> FloatArray:
+def _cast_in_worker(kind: str, rays: Rays) -> FloatArray:
     if _WORKER_CASTER is None:
         raise RuntimeError("laser worker used before its initialiser ran")
-    return _WORKER_CASTER(rays)
+    return _WORKER_CASTER(kind, rays)
 
 
 def start_laser_casting(
@@ -114,20 +162,23 @@ def start_laser_casting(
     workers: int,
     world_params: WorldParams,
     seed: int,
-    laser: LaserParams,
-) -> Callable[[LaserRays], Future[FloatArray]]:
-    """A function that starts casting a block's rays and returns their ranges' future: in
-    ``workers`` processes (a pool that ``stack`` stops at once on an interrupt or error,
+    scanners: Mapping[str, BeamParams],
+) -> Callable[[str, Rays], Future[FloatArray]]:
+    """A function that starts casting a block's rays of one scanner kind (a key of
+    ``scanners``: ``laser``, ``lidar``) and returns their ranges' future: in ``workers``
+    processes (a pool that ``stack`` stops at once on an interrupt or error,
     :mod:`toolkit.pools`), or, with none, in this process."""
     if workers > 0:
         executor = stack.enter_context(
             process_pool(
-                workers, initializer=_init_caster_worker, initargs=(world_params, seed, laser)
+                workers,
+                initializer=_init_caster_worker,
+                initargs=(world_params, seed, dict(scanners)),
             )
         )
 
-        def start_cast(rays: LaserRays) -> Future[FloatArray]:
-            return executor.submit(_cast_in_worker, rays)
+        def start_cast(kind: str, rays: Rays) -> Future[FloatArray]:
+            return executor.submit(_cast_in_worker, kind, rays)
 
         return start_cast
-    return partial(_cast_now, LaserCaster(world_params, seed, laser))
+    return partial(_cast_now, LaserCaster(world_params, seed, scanners))

@@ -27,6 +27,7 @@ TOPIC_WHEELS = "/vehicle/wheel_speeds"
 TOPIC_TF_STATIC = "/tf_static"
 TOPIC_TRUTH_ODOM = "/truth/odom"
 TOPIC_TRUTH_FEATURES = "/truth/features"
+TOPIC_LIDAR = "/ouster/points"
 
 WORLD_FRAME = "enu"
 BASE_FRAME = "base_link"
@@ -38,8 +39,9 @@ COVARIANCE_TYPE_UNKNOWN = 0
 COVARIANCE_TYPE_DIAGONAL_KNOWN = 2
 
 
-def register_topics(writer: LogWriter, laser_topics: Sequence[str]) -> None:
-    """Register every topic of the log with its message type; the lasers' last."""
+def register_topics(writer: LogWriter, laser_topics: Sequence[str], lidar: bool = False) -> None:
+    """Register every topic of the log with its message type; the lasers' last, then the
+    lidar's if the log has one (so a log without it has the channels it always had)."""
     topics = {
         TOPIC_IMU: "sensor_msgs/msg/Imu",
         TOPIC_GPS: "sensor_msgs/msg/NavSatFix",
@@ -50,6 +52,8 @@ def register_topics(writer: LogWriter, laser_topics: Sequence[str]) -> None:
         TOPIC_TRUTH_FEATURES: "terrain_msgs/msg/RoughFeatureArray",
         **{t: "sensor_msgs/msg/LaserScan" for t in laser_topics},
     }
+    if lidar:
+        topics[TOPIC_LIDAR] = "sensor_msgs/msg/PointCloud2"
     for topic, type_name in topics.items():
         writer.register(topic, type_name)
 
@@ -114,10 +118,13 @@ class Outbox:
         del self._pending[:cut]
 
 
-def static_transforms(params: SensorParams, stamp_ns: int) -> dict[str, object]:
+def static_transforms(
+    params: SensorParams, stamp_ns: int, extra: Sequence[Mount] = ()
+) -> dict[str, object]:
     """``/tf_static``: ``base_link`` to every sensor frame, as published: the lasers' nominal
-    mounts, not their true (miscalibrated) ones, which only ``terrain_sim`` records."""
-    mounts: list[Mount] = [*params.laser.mounts, params.imu.mount, params.gps.mount]
+    mounts, not their true (miscalibrated) ones, which only ``terrain_sim`` records; then
+    ``extra`` (the lidar's nominal mount, when the log has one)."""
+    mounts: list[Mount] = [*params.laser.mounts, params.imu.mount, params.gps.mount, *extra]
     transforms = []
     for m in mounts:
         r, p, y = m.rpy_rad

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field, replace
 
 from toolkit.errors import SimulationError
 from toolkit.geometry.geodesy import GeodeticOrigin
+from toolkit.sim.lidar import LidarParams
 from toolkit.sim.sensors import GpsParams, SensorParams
 from toolkit.sim.speed_control import ReactiveSpeedParams
 from toolkit.sim.vehicle import VehicleParams
@@ -49,6 +50,10 @@ class SimProfile:
     # Speeds per stretch for the calibration runs: (s_from_m, speed_mps) pairs; empty means
     # the route's own segment limits.
     speed_schedule: tuple[tuple[float, float], ...] = ()
+    # The spinning 3-D lidar (``terrain sim --lidar``); None: the 2-D lasers only. Not part
+    # of ``sensors``, whose every field the ``terrain_sim`` record holds: a log without the
+    # lidar keeps the record it always had.
+    lidar: LidarParams | None = None
 
 
 def make_profile(name: str, distance_m: float | None = None) -> SimProfile:

@@ -88,6 +88,31 @@ def sim_metadata(profile: SimProfile, seed: int, suite: SensorSuite) -> dict[str
                 for m, ph in zip(suite.laser_truth.mounts, suite.laser_phase_ns, strict=True)
             }
         ),
+        **_lidar_metadata(profile, suite),
+    }
+
+
+def _lidar_metadata(profile: SimProfile, suite: SensorSuite) -> dict[str, str]:
+    """The lidar's part of the record, only when the log has one (so a log without it keeps
+    its record byte for byte): ``lidar`` (every :class:`~toolkit.sim.lidar.LidarParams`
+    field, ``mount`` the published one) and ``lidar_truth``: the true ``mount`` (``xyz_m``,
+    ``rpy_rad``), each ring's ``range_bias_m``, the clock's ``clock_offset_ns`` (a cloud's
+    stamp less it is its first column's true time) and ``phase_ns`` (scan ``n``'s first
+    column fires at ``start_time_ns + phase_ns + n / rate_hz``, column ``c`` ``c / (columns
+    rate_hz)`` later)."""
+    if profile.lidar is None or suite.lidar is None:
+        return {}
+    truth = suite.lidar.truth
+    return {
+        "lidar": json.dumps(_jsonable(profile.lidar)),
+        "lidar_truth": json.dumps(
+            {
+                "mount": {"xyz_m": truth.mount.xyz_m, "rpy_rad": truth.mount.rpy_rad},
+                "range_bias_m": truth.range_bias_m,
+                "clock_offset_ns": truth.clock_offset_ns,
+                "phase_ns": truth.phase_ns,
+            }
+        ),
     }
 
 

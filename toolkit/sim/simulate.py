@@ -30,7 +30,15 @@ from toolkit.mcapio.cdr_encode import encode_message
 from toolkit.mcapio.writer import LogWriter
 from toolkit.progress import progress
 from toolkit.sim.drive import Driver, TrueBlock, make_driven_path
-from toolkit.sim.laser_workers import LaserRays, default_workers, start_laser_casting
+from toolkit.sim.laser_workers import (
+    BeamParams,
+    LaserRays,
+    Rays,
+    default_workers,
+    start_laser_casting,
+)
+from toolkit.sim.lidar import LidarParams
+from toolkit.sim.lidar_scan import LidarRays
 from toolkit.sim.messages import (
     TOPIC_TF_STATIC,
     TOPIC_TRUTH_FEATURES,
@@ -87,6 +95,7 @@ def simulate(
     show_progress: bool = False,
     workers: int | None = None,
     lasers: bool = True,
+    lidar: bool = False,
 ) -> SimResult:
     """Simulate a drive and write it to ``out_path`` (complete, or not at all).
 
@@ -94,10 +103,14 @@ def simulate(
     to :data:`~toolkit.sim.laser_workers.MAX_DEFAULT_WORKERS`; none on one core); the log
     does not depend on it. ``lasers=False`` leaves the laser scans out: the same log less its
     scans (every other sensor draws its noise from a generator of its own), a fast log for
-    judging the physics and the labels.
+    judging the physics and the labels. ``lidar=True`` adds the spinning 3-D lidar
+    (:class:`~toolkit.sim.lidar.LidarParams`, on ``/ouster/points``); without it the log is
+    the one written before the lidar existed (it draws from generators of its own).
     """
-    workers = default_workers(workers, lasers)
     prof = make_profile(profile, distance_m)
+    if lidar and prof.lidar is None:
+        prof = dataclasses.replace(prof, lidar=LidarParams())
+    workers = default_workers(workers, lasers or prof.lidar is not None)
     world = make_world(prof.world, seed)
     driver, prev = _warmed_up_driver(prof, world, seed)
     suite = SensorSuite(prof, world, seed, prof.start_time_ns)
@@ -113,7 +126,10 @@ def simulate(
         # processes while this one drives. Every random draw happens here, in block order,
         # so the log is the same whatever the number of workers.
         with contextlib.ExitStack() as stack:
-            start_cast = start_laser_casting(stack, workers, prof.world, seed, prof.sensors.laser)
+            scanners: dict[str, BeamParams] = {"laser": prof.sensors.laser}
+            if prof.lidar is not None:
+                scanners["lidar"] = prof.lidar
+            start_cast = start_laser_casting(stack, workers, prof.world, seed, scanners)
             loop = _BlockLoop(driver, suite, out, start_cast, bar)
             meter = ShockMeter.for_imu(prof.sensors.imu.rate_hz, default_config().label)
             loop.run(prev, meter, lasers, ahead=2 * workers)
@@ -158,11 +174,12 @@ def _start_log(
 ) -> Outbox:
     """Register the topics, add the ``terrain_sim`` record and queue the once-only messages
     (``/tf_static``, ``/truth/features``) at the log's start; the outbox for the rest."""
-    register_topics(writer, suite.topics_laser if lasers else [])
+    register_topics(writer, suite.topics_laser if lasers else [], lidar=suite.lidar is not None)
     writer.add_metadata(SIM_RECORD, sim_metadata(prof, seed, suite))
     out = Outbox(writer)
     t0 = np.array([prof.start_time_ns], dtype=np.int64)
-    tf_static = static_transforms(prof.sensors, prof.start_time_ns)
+    extra = () if prof.lidar is None else (prof.lidar.mount,)
+    tf_static = static_transforms(prof.sensors, prof.start_time_ns, extra)
     out.add(TOPIC_TF_STATIC, t0, [encode_message("tf2_msgs/msg/TFMessage", tf_static)])
     features = feature_message(world, prof.start_time_ns)
     out.add(
@@ -173,7 +190,17 @@ def _start_log(
     return out
 
 
-_Pending = tuple[TrueBlock, ImuSamples | None, LaserRays | None, Future[FloatArray] | None]
+@dataclass(frozen=True)
+class _Pending:
+    """A block driven whose messages wait for its rays' ranges: the true state, its IMU
+    samples, and the lasers' and the lidar's rays with their ranges' futures."""
+
+    block: TrueBlock
+    imu: ImuSamples | None
+    rays: LaserRays | None
+    ranges: Future[FloatArray] | None
+    lidar_rays: LidarRays | None
+    lidar_ranges: Future[FloatArray] | None
 
 
 @dataclass
@@ -184,7 +211,7 @@ class _BlockLoop:
     driver: Driver
     suite: SensorSuite
     out: Outbox
-    start_cast: Callable[[LaserRays], Future[FloatArray]]
+    start_cast: Callable[[str, Rays], Future[FloatArray]]
     bar: Any
     pending: deque[_Pending] = dataclasses.field(default_factory=deque)
 
@@ -199,8 +226,10 @@ class _BlockLoop:
                 shock_g = meter.read(imu.accel_mps2[:, 2])
                 driver.controller.on_shock(shock_g, float(block.speed_mps[-1]))
             rays = suite.plan_lasers(ext, HISTORY_SAMPLES) if lasers else None
-            future = self.start_cast(rays) if rays is not None else None
-            self.pending.append((block, imu, rays, future))
+            future = self.start_cast("laser", rays) if rays is not None else None
+            lidar = suite.lidar.plan(ext, HISTORY_SAMPLES) if suite.lidar is not None else None
+            lidar_future = self.start_cast("lidar", lidar) if lidar is not None else None
+            self.pending.append(_Pending(block, imu, rays, future, lidar, lidar_future))
             if len(self.pending) > ahead:
                 self.finish_oldest()
             prev = block
@@ -209,7 +238,8 @@ class _BlockLoop:
 
     def finish_oldest(self) -> None:
         """Encode the oldest pending block's messages and release those due before its end."""
-        block, imu, rays, future = self.pending.popleft()
+        done = self.pending.popleft()
+        block, imu, rays, future = done.block, done.imu, done.rays, done.ranges
         suite, out = self.suite, self.out
         suite.imu(imu, out)
         suite.wheels(block, out)
@@ -217,6 +247,9 @@ class _BlockLoop:
         suite.truth(block, out)
         if rays is not None and future is not None:
             suite.finish_lasers(rays, future.result(), out)
+        lidar, lidar_rays, lidar_ranges = suite.lidar, done.lidar_rays, done.lidar_ranges
+        if lidar is not None and lidar_rays is not None and lidar_ranges is not None:
+            lidar.finish(lidar_rays, lidar_ranges.result(), out)
         out.flush(before_ns=int(block.t_ns[-1]) + self.driver.dt_ns)
         if self.bar is not None:
             self.bar.update(1)

@@ -12,13 +12,13 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.spatial.transform import Rotation
 
 from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.geometry.geodesy import enu_to_geodetic
 from toolkit.mcapio.cdr_encode import Column, encode_batch
-from toolkit.sim.drive import GRAVITY_MPS2, TrueBlock
+from toolkit.sim.drive import TrueBlock
 from toolkit.sim.laser_workers import LaserRays
+from toolkit.sim.lidar_scan import LidarSensor
 from toolkit.sim.messages import (
     BASE_FRAME,
     COVARIANCE_TYPE_DIAGONAL_KNOWN,
@@ -39,6 +39,7 @@ from toolkit.sim.messages import (
     vector_columns,
 )
 from toolkit.sim.profiles import SimProfile
+from toolkit.sim.sensor_pose import flex_pitch, pose_at
 from toolkit.sim.sensors import SensorParams, draw_laser_truth, gauss_markov
 from toolkit.sim.world import World
 
@@ -124,6 +125,12 @@ class SensorSuite:
         self.laser_rng = np.random.default_rng([seed, 16])
         self._dust_until_ns = np.full(len(self.p.laser.mounts), np.iinfo(np.int64).min)
         self._dust_sector = np.zeros((len(self.p.laser.mounts), 2), dtype=np.intp)
+        # The lidar draws from generators of its own too (toolkit.sim.lidar).
+        self.lidar = (
+            None
+            if profile.lidar is None
+            else LidarSensor(profile.lidar, seed, start_ns, self.p.clock)
+        )
 
     # -- schedules --------------------------------------------------------------------------
 
@@ -459,26 +466,10 @@ class SensorSuite:
         return lost
 
     def _flex_pitch(self, ext: TrueBlock, t_ext: FloatArray, t: FloatArray) -> FloatArray:
-        """The mounts' flex at times ``t`` (k,): rotations (k, 3, 3) about base_link's y by
-        ``flex_pitch_rad_per_mps2 * ((f_z - g) - f_x)`` (positive pitch is nose-down)."""
-        f = ext.specific_force_body_mps2
-        fx = np.interp(t, t_ext, f[:, 0])
-        fz = np.interp(t, t_ext, f[:, 2])
-        pitch = self.p.laser.flex_pitch_rad_per_mps2 * ((fz - GRAVITY_MPS2) - fx)
-        c, s = np.cos(pitch), np.sin(pitch)
-        out = np.zeros((t.size, 3, 3))
-        out[:, 0, 0] = c
-        out[:, 0, 2] = s
-        out[:, 1, 1] = 1.0
-        out[:, 2, 0] = -s
-        out[:, 2, 2] = c
-        return out
+        """The lasers' mounts' flex at times ``t`` (k,): rotations (k, 3, 3)."""
+        return flex_pitch(ext, t_ext, t, self.p.laser.flex_pitch_rad_per_mps2)
 
     @staticmethod
     def _pose_at(ext: TrueBlock, t_ext: FloatArray, t: FloatArray) -> tuple[FloatArray, FloatArray]:
         """``world_from_base`` rotations (k, 3, 3) and positions (k, 3) at times ``t``."""
-        pos = np.stack([np.interp(t, t_ext, ext.position_m[:, j]) for j in range(3)], axis=1)
-        ypr = np.stack(
-            [np.interp(t, t_ext, a) for a in (ext.yaw_rad, ext.pitch_rad, ext.roll_rad)], axis=1
-        )
-        return Rotation.from_euler("ZYX", ypr).as_matrix(), pos
+        return pose_at(ext, t_ext, t)
