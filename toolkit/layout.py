@@ -89,6 +89,10 @@ class LogFiles:
         return self.table("laser")
 
     @property
+    def lidar(self) -> Path:
+        return self.table("lidar")
+
+    @property
     def truth_pose(self) -> Path:
         return self.table("truth_pose")
 

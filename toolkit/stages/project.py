@@ -29,11 +29,11 @@ import logging
 import shutil
 import time
 from collections import deque
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import NamedTuple
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 import pyarrow as pa
@@ -53,6 +53,7 @@ from toolkit.layout import LogFiles, log_file_name
 from toolkit.model.projection import Counts, PoseWindow, PreparedBatch
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.project_figures import Figures, ZSample
+from toolkit.stages.project_lidar import LidarSource, lidar_frames
 from toolkit.stages.project_scans import (
     LASER_COLUMNS,
     PoseStream,
@@ -142,14 +143,31 @@ class ProjectSettings:
     model: ModelConfig
 
 
-def _require_lasers(files: LogFiles, config: ProjectSettings) -> None:
-    """StageError when the log has no laser to project."""
-    if config.topics.lasers == () or not files.laser.is_file():
+def _require_scanner(files: LogFiles, config: ProjectSettings) -> None:
+    """StageError when the log has nothing to project, or both kinds of scanner."""
+    lasers = config.topics.lasers != () and files.laser.is_file()
+    lidars = config.topics.lidars != () and files.lidar.is_file()
+    if lasers and lidars and _has_rows(files.laser):
         raise StageError(
-            "projection needs the lasers role, and this log has none (no laser.parquet; "
-            "[topics] lasers accepts sensor_msgs/msg/LaserScan topics)",
+            "this log has lasers and 3-D lidars, and project reads one kind at a time: set "
+            "[topics] lasers = [] or lidars = [] (a configuration for each, one workspace each)",
+            path=files.dir,
+        )
+    if not (lasers or lidars):
+        raise StageError(
+            "projection needs a scanner, and this log has none: [topics] lasers accepts "
+            "sensor_msgs/msg/LaserScan topics, lidars sensor_msgs/msg/PointCloud2",
             path=files.laser,
         )
+
+
+def _has_rows(path: Path) -> bool:
+    return bool(pq.ParquetFile(path).metadata.num_rows)
+
+
+def _reads_lidar(files: LogFiles, config: ProjectSettings) -> bool:
+    """Whether the log's points come from its 3-D lidars (else from its lasers)."""
+    return config.topics.lidars != () and files.lidar.is_file()
 
 
 def _recall(last: Recalled[ProjectSettings]) -> ProjectResult:
@@ -170,12 +188,15 @@ def _compute(call: Call[ProjectSettings]) -> Made[ProjectResult]:
     """Project the scans of the log in ``call.files`` (the module docstring): open the
     inputs, project and write the batches, then write the figures."""
     config = call.settings
-    _require_disk_for_cloud(call.files.laser, config)
+    lidar = _reads_lidar(call.files, config)
+    _require_disk_for_cloud(call.files.lidar if lidar else call.files.laser, config)
     timings = dict.fromkeys(("read", "project", "write", "figures"), 0.0)
-    inputs = _open_inputs(call, config)
+    inputs = _open_inputs(call, config, lidar)
     figures = Figures(call.files.dir, inputs.warnings)
-    batches = iter_table_batches(
-        call.files.laser, "laser", columns=LASER_COLUMNS, batch_rows=SCAN_BATCH
+    source: _Source = (
+        LidarSource(call.files.lidar, inputs.mounts, inputs.poses)
+        if lidar
+        else _LaserSource(call.files.laser, inputs.mounts, inputs.poses)
     )
     with TableWriter(
         call.files.points,
@@ -187,7 +208,7 @@ def _compute(call: Call[ProjectSettings]) -> Made[ProjectResult]:
         statistics=POINT_STATISTICS,
     ) as writer:
         loop = _BatchLoop(writer, figures, inputs.near_path, timings)
-        loop.run(batches, inputs.mounts, inputs.poses)
+        loop.run(source)
     t = time.perf_counter()
     fig4, figure_files = figures.write(call.files.dir, call.log_id)
     timings["figures"] += time.perf_counter() - t
@@ -208,11 +229,11 @@ class _Inputs:
     near_path: NearPath | None
 
 
-def _open_inputs(call: Call[ProjectSettings], config: ProjectSettings) -> _Inputs:
-    """The mounts of the scans' frames, the pose's frame metadata and stream, and (with
-    ``keep = "near_path"``) the tyres' paths, for the log in ``call.files``."""
+def _open_inputs(call: Call[ProjectSettings], config: ProjectSettings, lidar: bool) -> _Inputs:
+    """The mounts of the scans' (or the lidar returns') frames, the pose's frame metadata and
+    stream, and (with ``keep = "near_path"``) the tyres' paths, for the log in ``call.files``."""
     files = call.files
-    frames = laser_frames(files.laser)
+    frames = lidar_frames(files.lidar) if lidar else laser_frames(files.laser)
     mounts, mount_warnings = frame_mounts(files.tf_static, config.vehicle.base_frame, frames)
     pose_meta = read_table_metadata(files.pose)
     frame_meta: dict[str, str] = {
@@ -224,6 +245,37 @@ def _open_inputs(call: Call[ProjectSettings], config: ProjectSettings) -> _Input
     if near_path is not None:
         frame_meta[META_KEPT_WITHIN_M] = repr(near_path.distance_m)
     return _Inputs(mounts, list(mount_warnings), frame_meta, sha, poses, near_path)
+
+
+class _Source(Protocol):
+    """What the batch loop projects: record batches in time order, their sequential
+    preparation (here) and their projection (a pure function, on a worker thread)."""
+
+    batches: Iterator[pa.RecordBatch]
+
+    def prepare(self, batch: pa.RecordBatch) -> Any: ...
+
+    def project(self, prepared: Any) -> tuple[pa.Table, Counts]: ...
+
+
+class _LaserSource:
+    """The laser table's scans (:mod:`toolkit.stages.project_scans`)."""
+
+    def __init__(self, laser_path: Path, mounts: dict[str, Mount], poses: PoseStream) -> None:
+        self.batches: Iterator[pa.RecordBatch] = iter_table_batches(
+            laser_path, "laser", columns=LASER_COLUMNS, batch_rows=SCAN_BATCH
+        )
+        self._mounts = mounts
+        self._poses = poses
+        self._previous_scan_ns: dict[str, int] = {}
+
+    def prepare(self, batch: pa.RecordBatch) -> PreparedBatch:
+        scans = ScanBatch.from_record_batch(batch)
+        return prepare_batch(scans, self._mounts, self._poses, self._previous_scan_ns)
+
+    @staticmethod
+    def project(prepared: PreparedBatch) -> tuple[pa.Table, Counts]:
+        return project_prepared(prepared)
 
 
 class _Projected(NamedTuple):
@@ -258,12 +310,9 @@ class _BatchLoop:
     #: Points projected but left out, far from the tyres' paths.
     far_from_path: int = 0
 
-    def run(
-        self, batches: Iterator[pa.RecordBatch], mounts: dict[str, Mount], poses: PoseStream
-    ) -> None:
-        """Project and write every batch of scans of ``batches``."""
+    def run(self, source: _Source) -> None:
+        """Project and write every batch of ``source``."""
         loop_start = time.perf_counter()
-        previous_scan_ns: dict[str, int] = {}
         pending: deque[Future[_Projected]] = deque()
         with (
             ThreadPoolExecutor(max_workers=WORKERS, thread_name_prefix="project") as pool,
@@ -272,13 +321,12 @@ class _BatchLoop:
             try:
                 while True:
                     t = time.perf_counter()
-                    batch = next(batches, None)
+                    batch = next(source.batches, None)
                     if batch is None:
                         break
-                    scans = ScanBatch.from_record_batch(batch)
-                    prepared = prepare_batch(scans, mounts, poses, previous_scan_ns)
+                    prepared = source.prepare(batch)
                     self.timings["read"] += time.perf_counter() - t
-                    pending.append(pool.submit(self.work, prepared))
+                    pending.append(pool.submit(self.work, source.project, prepared))
                     if len(pending) > WORKERS:
                         self.finish(pending.popleft(), figure_pool)
                 while pending:
@@ -290,10 +338,10 @@ class _BatchLoop:
                 self.figures.cancel()
         self.timings["loop"] = time.perf_counter() - loop_start
 
-    def work(self, prepared: PreparedBatch) -> _Projected:
+    def work(self, project: Callable[[Any], tuple[pa.Table, Counts]], prepared: Any) -> _Projected:
         """Project a batch (on a worker thread): its points, those kept, its z-error sample."""
         t0 = time.perf_counter()
-        table, batch_counts = project_prepared(prepared)
+        table, batch_counts = project(prepared)
         sample = self.figures.sample(table)
         kept = table
         if self.near_path is not None:
@@ -387,8 +435,8 @@ CLOUD_BYTES_PER_RETURN = {"all": 9.0, "near_path": 1.6}
 def _require_disk_for_cloud(laser_path: Path, config: ProjectSettings) -> None:
     """StageError, before anything is written, when the disk cannot hold the cloud: its
     size estimated from the scans' returns (the ``ranges`` values counted in the Parquet
-    footer, not read) at :data:`CLOUD_BYTES_PER_RETURN`, against the free space beside it
-    (with the old cloud's own size, which the new one replaces)."""
+    footer, not read; a lidar table's rows) at :data:`CLOUD_BYTES_PER_RETURN`, against the
+    free space beside it (with the old cloud's own size, which the new one replaces)."""
     meta = pq.ParquetFile(laser_path).metadata
     leaf = next(
         (
@@ -398,9 +446,10 @@ def _require_disk_for_cloud(laser_path: Path, config: ProjectSettings) -> None:
         ),
         None,
     )
-    if leaf is None:
-        return
-    returns = sum(meta.row_group(i).column(leaf).num_values for i in range(meta.num_row_groups))
+    if leaf is None:  # a 3-D lidar's table: a row a return
+        returns = meta.num_rows
+    else:
+        returns = sum(meta.row_group(i).column(leaf).num_values for i in range(meta.num_row_groups))
     need = returns * CLOUD_BYTES_PER_RETURN[config.project.keep]
     old = laser_path.with_name(OUTPUT)
     free = shutil.disk_usage(laser_path.parent).free + (old.stat().st_size if old.is_file() else 0)
@@ -442,13 +491,14 @@ SPEC = Stage(
     "log",
     needs=(
         Need("laser", "ingest"),
+        Need("lidar", "ingest", optional=True),  # 3-D lidar logs only
         Need("tf_static", "ingest", optional=True),
         Need("pose", "pose"),
     ),
     makes=("points",),
     hashed=hashed_sections,  # what it reads depends on [project] keep
     settings=ProjectSettings,
-    check=_require_lasers,
+    check=_require_scanner,
     compute=_compute,
     recall=_recall,
     rows=("points",),
