@@ -18,7 +18,7 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
-from toolkit.config import PipelineConfig, default_config
+from toolkit.config import PipelineConfig, default_config, parse_config
 from toolkit.config_init import init_config
 from toolkit.errors import StageError
 from toolkit.mcapio.info import scan_log
@@ -156,3 +156,18 @@ def test_a_log_of_lidar_packets_is_said_to_need_its_driver(tmp_path: Path) -> No
         ingest_log(log, Workspace(tmp_path / "ws"), default_config())
     with pytest.raises(StageError, match="lidar_packets holds a lidar driver's raw packets"):
         ingest_log(log, Workspace(tmp_path / "ws2"), _config("/os_node0/lidar_packets"))
+
+
+def test_config_init_finds_the_lidar_its_preset_and_keeps_the_cloud_near_the_path() -> None:
+    """The Ouster log's configuration names its cloud topic, the ouster preset from the
+    fields, the mount from /tf_static, and a near-path cloud; it loads and says project can
+    run once there is a pose."""
+    text = init_config(REAL / "ouster-os1-128.mcap")
+    cfg = parse_config(text)
+    assert cfg.topics.lidars == ("/ouster/points",)
+    assert cfg.lidar.time == "ouster"
+    assert cfg.project.keep == "near_path"
+    assert "project: yes: 1 3-D lidar(s)" in text
+    assert (
+        "/ouster/points: sensor_msgs/msg/PointCloud2 at 10.0 Hz, frame os_sensor; mount in" in text
+    )

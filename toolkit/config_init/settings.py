@@ -191,7 +191,8 @@ def _pose_settings(guesses: Mapping[str, RoleGuess]) -> Settings:
 
 
 def _lidar_settings(guesses: Mapping[str, RoleGuess], summary: LogSummary) -> Settings:
-    """``[lidar] time``: the driver preset the lidars' field names say, with why."""
+    """``[lidar] time``: the driver preset the lidars' field names say, with why; and the
+    cloud kept near the tyres' paths (``[project] keep``)."""
     topics = guesses["lidars"].topics
     if not topics:
         return {}
@@ -201,17 +202,28 @@ def _lidar_settings(guesses: Mapping[str, RoleGuess], summary: LogSummary) -> Se
         f"{t}: fields {', '.join(summary.topic(t).point_fields) or 'unread'} -> {p}"
         for t, p in found.items()
     ]
+    preset = presets[0]
     if len(presets) > 1:
         comments.append(
             f"CHECK: the lidars' layouts differ ({', '.join(presets)}): 'auto' reads each"
         )
-        return {("lidar", "time"): Setting(toml_value("auto"), tuple(comments))}
+        preset = "auto"
     if presets == ["none"]:
         comments.append(
             "CHECK: no per-point time field: every return at its cloud's stamp (motion "
             'correction off); name the field with time = "custom" if the driver has one'
         )
-    return {("lidar", "time"): Setting(toml_value(presets[0]), tuple(comments))}
+    keep = Setting(
+        toml_value("near_path"),
+        (
+            "a 3-D lidar returns ~10x a laser's points, most far from the tyres: the cloud",
+            'keeps those the tables use ("all" keeps every one, at ~9 bytes a return)',
+        ),
+    )
+    return {
+        ("lidar", "time"): Setting(toml_value(preset), tuple(comments)),
+        ("project", "keep"): keep,
+    }
 
 
 def _label_settings(verdicts: StageVerdicts, guesses: Mapping[str, RoleGuess]) -> Settings:
