@@ -191,3 +191,9 @@ def test_every_number_has_a_range_and_a_value_outside_it_is_one_line(
         parse_config(dump_toml(broken), source="bad.toml")
     message = str(err.value)
     assert "\n" not in message and f"{section}.{key}" in message and "must be" in message
+
+
+def test_the_lidar_pipeline_replaces_the_lasers_with_the_simulators_lidar() -> None:
+    cfg = load_config(Path(__file__).resolve().parents[2] / "pipelines" / "lidar.toml")
+    assert cfg.topics.lasers == () and cfg.topics.lidars == ("/ouster/points",)
+    assert cfg.lidar.time == "ouster" and cfg.project.keep == "near_path"

@@ -17,7 +17,7 @@ import pytest
 from click.testing import CliRunner
 
 from toolkit.cli import main
-from toolkit.config import default_config
+from toolkit.config import config_hash, default_config
 from toolkit.errors import ToolkitError
 from toolkit.stages import registry
 from toolkit.stages.registry import Listed
@@ -148,7 +148,9 @@ def test_every_registered_stage_declares_itself_as_listed() -> None:
 #: (their changes reach it through ingest's tables); tables hashes one key of [model];
 #: project keeping every point hashes only which points it keeps of its section.
 HASHED = {
-    "ingest": ("topics", "time"),
+    # [lidar] keys nothing at its defaults (toolkit.config.UNHASHED_AT_DEFAULT), so the key
+    # of a laser vehicle's ingest is what it was before the 3-D lidar: checked below.
+    "ingest": ("topics", "time", "lidar"),
     "pose": ("pose", "time", "vehicle"),
     "project": ("vehicle", "project.keep"),
     "label": ("label", "vehicle"),
@@ -161,6 +163,8 @@ HASHED = {
 def test_every_stage_hashes_the_configuration_it_always_has() -> None:
     config = default_config()
     assert {s.name: s.hashed_sections(config) for s in registry.stages()} == HASHED
+    ingest = registry.stage("ingest")
+    assert ingest.config_hash(config) == config_hash(config, ["topics", "time"])
     near_path = dataclasses.replace(config.project, keep="near_path")
     keeping_near_path = dataclasses.replace(config, project=near_path)
     hashed = registry.stage("project").hashed_sections(keeping_near_path)

@@ -65,6 +65,16 @@ CONTRACT: dict[str, dict[str, str | None]] = {
         "time_increment": "s",
         "ranges": "m",
     },
+    "lidar": {  # the contract's "<3-D lidar table>": a row a return, in the sensor's frame
+        "t_ns": "ns",
+        "scan_t_ns": "ns",
+        "lidar": None,
+        "ring": None,
+        "x": "m",
+        "y": "m",
+        "z": "m",
+        "intensity": None,
+    },
     "pose": POSE,
     "truth_pose": POSE,
     "points": {

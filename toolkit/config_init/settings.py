@@ -216,7 +216,7 @@ def _lidar_settings(guesses: Mapping[str, RoleGuess], summary: LogSummary) -> Se
     keep = Setting(
         toml_value("near_path"),
         (
-            "a 3-D lidar returns ~10x a laser's points, most far from the tyres: the cloud",
+            "a spinning 3-D lidar sees all around, most returns far from the tyres: the cloud",
             'keeps those the tables use ("all" keeps every one, at ~9 bytes a return)',
         ),
     )
