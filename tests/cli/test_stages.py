@@ -40,7 +40,9 @@ def test_point_stages_on_a_log_without_lasers_say_why_in_one_line(
     assert runner.invoke(main, ["ingest", str(data), "-w", ws, "-c", str(config)]).exit_code == 0
     project = runner.invoke(main, ["project", "-w", ws])
     assert project.exit_code == 1
-    assert "projection needs the lasers role" in assert_one_error_line(project.stderr)
+    assert "projection needs a scanner, and this log has none" in assert_one_error_line(
+        project.stderr
+    )
     label = runner.invoke(main, ["label", "-w", ws])
     assert label.exit_code == 1
     assert "run `terrain pose` first" in assert_one_error_line(label.stderr)

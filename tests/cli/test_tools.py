@@ -116,6 +116,7 @@ def test_sim_passes_arguments_and_prints_summary(
                 "show_progress": True,
                 "workers": None,
                 "lasers": True,
+                "lidar": False,
             },
         )
     ]
@@ -127,10 +128,14 @@ def test_sim_passes_arguments_and_prints_summary(
         "show_progress": True,
         "workers": 0,
         "lasers": True,
+        "lidar": False,
     }
     result = runner.invoke(main, ["sim", str(out), "--no-lasers"])
     assert result.exit_code == 0, result.output
     assert calls[-1][1]["lasers"] is False
+    result = runner.invoke(main, ["sim", str(out), "--lidar"])
+    assert result.exit_code == 0, result.output
+    assert calls[-1][1]["lidar"] is True
 
 
 def test_sim_toolkit_error_exits_1(

@@ -227,15 +227,20 @@ def _cloud_rows(
     kept &= in_sweep
     if not kept.any():
         return None, stamp_ns
+    # In time order within the cloud (a driver lays its points out ring by ring, each ring
+    # sweeping the whole period): the clouds then arrive as sorted runs, which the table's
+    # reorder buffer writes without sorting them again.
+    rows = np.flatnonzero(kept)
+    rows = rows[np.argsort(t_ns[rows], kind="stable")]
     return {
         "message": i,
         "preset": preset,
-        "t_ns": t_ns[kept],
-        "ring": None if ring is None else ring[kept].astype(np.uint16),
-        "x": xyz[kept, 0].astype(np.float32),
-        "y": xyz[kept, 1].astype(np.float32),
-        "z": xyz[kept, 2].astype(np.float32),
-        "intensity": None if intensity is None else intensity[kept].astype(np.float32),
+        "t_ns": t_ns[rows],
+        "ring": None if ring is None else ring[rows].astype(np.uint16),
+        "x": xyz[rows, 0].astype(np.float32),
+        "y": xyz[rows, 1].astype(np.float32),
+        "z": xyz[rows, 2].astype(np.float32),
+        "intensity": None if intensity is None else intensity[rows].astype(np.float32),
     }, stamp_ns
 
 
