@@ -70,3 +70,20 @@ def pipeline(
     from tests.stages.test_learn import build_pipeline
 
     return build_pipeline(sample_projected, tmp_path_factory)
+
+
+#: Test files of the longest slow tests (minutes each, by `pytest -m slow --durations=20`),
+#: started first when several workers share the tests.
+LONGEST_FIRST = ("test_pipeline.py", "test_croissant.py", "test_race_labels.py")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """With several workers (.ci/run runs the slow set with ``-n 2 --dist loadfile``), the
+    files of the longest tests are handed out first, so that no worker starts one of them
+    when the other has nothing left to do (collected last, the killed-and-rerun pipeline
+    test alone kept one core busy for the last three minutes). The order is the same on every
+    worker, as xdist requires; alone, tests run in their usual order."""
+    if not getattr(config.option, "numprocesses", None):
+        return
+    rank = {name: k for k, name in enumerate(LONGEST_FIRST)}
+    items.sort(key=lambda item: rank.get(Path(str(item.fspath)).name, len(rank)))

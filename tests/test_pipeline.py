@@ -138,6 +138,7 @@ def test_a_second_run_does_nothing(uninterrupted: Path, logs: list[Path], tmp_pa
     assert "report: " in out.stdout
 
 
+@pytest.mark.slow  # end to end: a whole run of two logs first (43 s); run by .ci/run
 def test_from_and_to_run_only_their_stages(
     uninterrupted: Path, logs: list[Path], tmp_path: Path
 ) -> None:

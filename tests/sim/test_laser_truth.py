@@ -44,6 +44,10 @@ from toolkit.sim.sensors import LaserParams, draw_laser_truth, ideal_lasers
 from .conftest import SAMPLE_SEED
 from .logdata import LASER_FRAMES, LASER_TOPICS, SimLog, load_log, on_grid_true_times
 
+# Each check here projects hundreds of thousands of beams of logs simulated for it (the ideal
+# lasers' sample log alone takes 26 s): run by .ci/run, left out of the README's command.
+pytestmark = pytest.mark.slow
+
 SCAN_STRIDE = 4  # every 4th scan of each laser: about 100 000 beams per laser
 SLOPE_STEP_M = 0.025  # half the fine grid's spacing
 

@@ -509,6 +509,7 @@ def calibration_label(tmp_path_factory: pytest.TempPathFactory) -> tuple[Workspa
     return ws, run_stage(LABEL, ws, default_config(), log_id=ingested.log_id)
 
 
+@pytest.mark.slow  # an 800 m calibration drive simulated and labelled (28 s); run by .ci/run
 def test_calibration_log_gives_fig5(calibration_label: tuple[Workspace, LabelResult]) -> None:
     ws, result = calibration_label
     fig5 = result.fig5

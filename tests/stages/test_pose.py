@@ -78,6 +78,7 @@ def assert_race_targets(acc: dict[str, Any] | None, dropouts: Callable[[float], 
     assert all(d["horizontal_error_at_end_m"] <= 2.0 for d in drops)
 
 
+@pytest.mark.slow  # a race simulated and posed (24 s); run by .ci/run
 def test_race_pose_meets_the_accuracy_targets(race_pose: PoseResult) -> None:
     """Issue 4's targets on a race log, the 10 s dropout included."""
     assert_race_targets(race_pose.accuracy, lambda duration_s: duration_s >= 10.0)
@@ -396,6 +397,7 @@ def unseen_race_pose(
     )
 
 
+@pytest.mark.slow  # two races simulated and posed (32 s); run by .ci/run
 def test_unseen_race_seeds_meet_the_targets(unseen_race_pose: PoseResult) -> None:
     """Every dropout up to 10 s, as the issue asks."""
     assert_race_targets(unseen_race_pose.accuracy, lambda duration_s: duration_s <= 10.05)
