@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
 
 from toolkit.config import PipelineConfig, default_config, parse_config
 from toolkit.config_init import init_config
@@ -171,3 +173,44 @@ def test_config_init_finds_the_lidar_its_preset_and_keeps_the_cloud_near_the_pat
     assert (
         "/ouster/points: sensor_msgs/msg/PointCloud2 at 10.0 Hz, frame os_sensor; mount in" in text
     )
+
+
+def test_a_lidar_on_its_own_clock_is_re_anchored_at_the_log_time_and_said(
+    tmp_path: Path,
+) -> None:
+    """The real Ouster's stamps are its boot clock (991 s: a 1970 date); recorded by a host
+    whose log times are 2023's, each cloud is placed at its log time, its points keeping their
+    offsets within the sweep, counted per cloud and said on the terminal."""
+    shift_ns = 1_700_000_000 * 10**9
+    log = tmp_path / "host_clock.mcap"
+    with (REAL / "ouster-os1-128.mcap").open("rb") as f, log.open("wb") as g:
+        writer = Writer(g)
+        writer.start("ros2", "test")
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in make_reader(f).iter_messages():
+            assert schema is not None
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(
+                    schema.name, schema.encoding, schema.data
+                )
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id]
+                )
+            t = message.log_time + shift_ns
+            writer.add_message(channels[channel.id], t, message.data, t)
+        writer.finish()
+    result = ingest_log(log, Workspace(tmp_path / "ws"), _config("/ouster/points"))
+    log_dir = tmp_path / "ws" / "logs" / result.log_id
+    table = read_table(log_dir / "lidar.parquet", "lidar")
+    counts = json.loads((log_dir / "manifest.json").read_text())["ingest"]["topics"][
+        "/ouster/points"
+    ]["counts"]
+    assert counts["lidar_sensor_clock"] == 3
+    ref = np.load(REAL / "ouster-os1-128.reference.npz")
+    scan_t = np.unique(table.column("scan_t_ns").to_numpy())
+    np.testing.assert_array_equal(scan_t, ref["stamp_ns"] + shift_ns)
+    offsets = table.column("t_ns").to_numpy() - table.column("scan_t_ns").to_numpy()
+    assert offsets.min() >= 0 and offsets.max() < 100_000_000  # within the 10 Hz sweep
+    assert any("3 clouds stamped on the sensor's own clock" in w for w in result.warnings)
