@@ -27,7 +27,7 @@ from toolkit.model.lidar_projection import (
     project_returns,
 )
 from toolkit.model.projection import Counts
-from toolkit.stages.project_scans import PoseStream
+from toolkit.stages.project_scans import PoseStream, points_batch
 from toolkit.tableio import iter_table_batches
 
 #: Returns per read batch: about a second of a 32-beam lidar at 10 Hz (~30 MB of arrays in
@@ -131,20 +131,7 @@ def points_table(chunks: list[dict[str, NDArray[Any]]], lidar_names: list[str]) 
         chunks = [empty]
     return pa.Table.from_batches(
         [
-            pa.record_batch(
-                {
-                    "t_ns": pa.array(ch["t_ns"], pa.int64()),
-                    "laser": _scanners(ch, lidar_names),
-                    "beam": pa.array(ch["beam"], pa.int32()),
-                    "range": pa.array(ch["range"], pa.float32()),
-                    **{c: pa.array(ch[c], pa.float64()) for c in ("x", "y", "z")},
-                    "roll_rate": pa.array(ch["roll_rate"], pa.float64()),
-                    "pitch_rate": pa.array(ch["pitch_rate"], pa.float64()),
-                    "scan_t_ns": pa.array(ch["scan_t_ns"], pa.int64()),
-                    "scan_dt_s": pa.array(ch["scan_dt_s"], pa.float64()),
-                    "ring": pa.array(ch["beam"], pa.int32()),
-                }
-            )
+            points_batch(ch, _scanners(ch, lidar_names), ring=pa.array(ch["beam"], pa.int32()))
             for ch in chunks
         ]
     )

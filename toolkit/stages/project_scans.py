@@ -185,23 +185,33 @@ def _points_table(chunks: list[dict[str, NDArray[Any]]], scans: Scans) -> pa.Tab
     lasers = pa.array(scans.laser_names, pa.string())
     return pa.Table.from_batches(
         [
-            pa.record_batch(
-                {
-                    "t_ns": pa.array(ch["t_ns"], pa.int64()),
-                    "laser": pa.DictionaryArray.from_arrays(
-                        pa.array(np.take(scans.laser_code, ch["scan"]), pa.int32()), lasers
-                    ),
-                    "beam": pa.array(ch["beam"], pa.int32()),
-                    "range": pa.array(ch["range"], pa.float32()),
-                    **{c: pa.array(ch[c], pa.float64()) for c in ("x", "y", "z")},
-                    "roll_rate": pa.array(ch["roll_rate"], pa.float64()),
-                    "pitch_rate": pa.array(ch["pitch_rate"], pa.float64()),
-                    "scan_t_ns": pa.array(ch["scan_t_ns"], pa.int64()),
-                    "scan_dt_s": pa.array(ch["scan_dt_s"], pa.float64()),
-                }
+            points_batch(
+                ch,
+                pa.DictionaryArray.from_arrays(
+                    pa.array(np.take(scans.laser_code, ch["scan"]), pa.int32()), lasers
+                ),
             )
             for ch in chunks
         ]
+    )
+
+
+def points_batch(ch: dict[str, NDArray[Any]], laser: pa.Array, **extra: pa.Array) -> pa.RecordBatch:
+    """One chunk's points with the points schema's columns in its order (``laser`` given as
+    the caller codes it), then ``extra`` columns (a 3-D lidar's ``ring``)."""
+    return pa.record_batch(
+        {
+            "t_ns": pa.array(ch["t_ns"], pa.int64()),
+            "laser": laser,
+            "beam": pa.array(ch["beam"], pa.int32()),
+            "range": pa.array(ch["range"], pa.float32()),
+            **{c: pa.array(ch[c], pa.float64()) for c in ("x", "y", "z")},
+            "roll_rate": pa.array(ch["roll_rate"], pa.float64()),
+            "pitch_rate": pa.array(ch["pitch_rate"], pa.float64()),
+            "scan_t_ns": pa.array(ch["scan_t_ns"], pa.int64()),
+            "scan_dt_s": pa.array(ch["scan_dt_s"], pa.float64()),
+            **extra,
+        }
     )
 
 
@@ -234,6 +244,7 @@ __all__ = [
     "PoseStream",
     "ScanBatch",
     "laser_frames",
+    "points_batch",
     "prepare_batch",
     "project_batch",
     "project_prepared",
