@@ -17,8 +17,14 @@ half of each log trains, the second tests, as the paper's miles 60-70 and 70-80)
 The workspace's configuration is the toolkit's default with ``split_scope = "per_log"``;
 ``--set SECTION.KEY=VALUE`` overrides a key (a TOML value) to measure a variant.
 
+``--lidar`` runs the same on the simulator's spinning 3-D lidar instead of its five lasers
+(``terrain sim --lidar --no-lasers``; logs ``race-SEED-lidar.mcap``) with
+``pipelines/lidar.toml``'s keys over the default; the race test's "closest laser" is then the
+lidar's ring nearest the vehicle. ``--jobs N`` simulates N logs at once (one core each).
+
 Usage: python benchmarks/fig6.py --keep DIR [--seeds 901 902 903 904] [--distance-m 32187]
-       [--resamples 1000] [--set learn.accept='"objective"'] [--from STAGE]
+       [--resamples 1000] [--set learn.accept='"objective"'] [--from STAGE] [--lidar]
+       [--jobs 2]
 """
 
 from __future__ import annotations
@@ -43,6 +49,14 @@ REPO = Path(__file__).resolve().parent.parent
 METHODS = METHOD_NAMES
 REFERENCE = "baseline_closest_laser"
 FPRS = (0.05, 0.10, 0.20)
+#: ``pipelines/lidar.toml``'s keys, as overrides of the default (``--lidar``).
+LIDAR_OVERRIDES = (
+    "topics.lasers=[]",
+    'topics.lidars=["/ouster/points"]',
+    'lidar.time="ouster"',
+    'project.keep="near_path"',
+    'evaluate.baseline_closest_laser=""',
+)
 
 
 def workspace_config(overrides: list[str]) -> str:
@@ -64,17 +78,26 @@ def workspace_config(overrides: list[str]) -> str:
     return text
 
 
-def simulate(logs: Path, seed: int, distance_m: float) -> Path:
-    out = logs / f"race-{seed}.mcap"
-    if not out.exists():
-        t0 = time.perf_counter()
-        subprocess.run(
-            [sys.executable, "-m", "toolkit", "sim", str(out), "--profile", "race",
-             "--distance-m", str(distance_m), "--seed", str(seed)],
-            check=True,
-        )  # fmt: skip
+def simulate(logs: Path, seeds: list[int], distance_m: float, lidar: bool, jobs: int) -> list[Path]:
+    """One race log per seed in ``logs`` (kept when already there), ``jobs`` at a time."""
+    outs = [logs / (f"race-{s}-lidar.mcap" if lidar else f"race-{s}.mcap") for s in seeds]
+    todo = [(s, o) for s, o in zip(seeds, outs, strict=True) if not o.exists()]
+    running: list[tuple[int, float, subprocess.Popen[bytes]]] = []
+    while todo or running:
+        while todo and len(running) < jobs:
+            seed, out = todo.pop(0)
+            cmd = [sys.executable, "-m", "toolkit", "sim", str(out), "--profile", "race",
+                   "--distance-m", str(distance_m), "--seed", str(seed)]  # fmt: skip
+            if lidar:
+                cmd += ["--lidar", "--no-lasers"]
+            if jobs > 1:
+                cmd += ["--workers", "0"]
+            running.append((seed, time.perf_counter(), subprocess.Popen(cmd)))
+        seed, t0, proc = running.pop(0)
+        if proc.wait() != 0:
+            raise SystemExit(f"simulating seed {seed} failed")
         print(f"simulated seed {seed} in {time.perf_counter() - t0:.0f} s", flush=True)
-    return out
+    return outs
 
 
 def tpr_at(fpr: np.ndarray, tpr: np.ndarray, at: float) -> float:
@@ -154,13 +177,16 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], dest="overrides")
     ap.add_argument("--workspace", default="ws", help="the workspace's folder name under DIR")
     ap.add_argument("--from", dest="from_stage", default=None)
+    ap.add_argument("--lidar", action="store_true", help="the simulator's 3-D lidar alone")
+    ap.add_argument("--jobs", type=int, default=1, help="logs simulated at once")
     args = ap.parse_args()
     root = args.keep
     (root / "logs").mkdir(parents=True, exist_ok=True)
-    logs = [simulate(root / "logs", s, args.distance_m) for s in args.seeds]
+    logs = simulate(root / "logs", args.seeds, args.distance_m, args.lidar, args.jobs)
     ws = root / args.workspace
     cfg = root / f"{args.workspace}.toml"
-    cfg.write_text(workspace_config(args.overrides))
+    overrides = [*(LIDAR_OVERRIDES if args.lidar else ()), *args.overrides]
+    cfg.write_text(workspace_config(overrides))
     print(f"load average before: {os.getloadavg()}", flush=True)
     t0 = time.perf_counter()
     cmd = [sys.executable, "-m", "toolkit", "run", *map(str, logs), "-w", str(ws), "-c", str(cfg)]
@@ -204,6 +230,7 @@ def main() -> None:
     result = {
         "seeds": args.seeds,
         "distance_m": args.distance_m,
+        "lidar": args.lidar,
         "overrides": args.overrides,
         "test_events": int(test.sum()),
         "test_rough": int(rough[test].sum()),

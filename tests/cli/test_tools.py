@@ -4,6 +4,7 @@ error mapping are tested."""
 
 from __future__ import annotations
 
+import json
 import sys
 import types
 from pathlib import Path
@@ -22,6 +23,8 @@ from .helpers import FakeResult, assert_one_error_line, fake_sim_module
 
 
 class FakeInfo:
+    topics = (types.SimpleNamespace(topic="/imu/data", message_type="sensor_msgs/Imu"),)
+
     def to_dict(self) -> dict[str, Any]:
         return {"topics": [{"topic": "/imu/data", "count": 3}], "problems": []}
 
@@ -29,7 +32,9 @@ class FakeInfo:
 def fake_info_module(scan: Any) -> types.ModuleType:
     module = types.ModuleType("toolkit.mcapio.info")
     module.scan_log = scan  # type: ignore[attr-defined]
-    module.render_table = lambda info: "TOPIC /imu/data 3"  # type: ignore[attr-defined]
+    module.render_table = (  # type: ignore[attr-defined]
+        lambda info, roles: f"TOPIC /imu/data 3 {' '.join(roles['/imu/data'])}"
+    )
     return module
 
 
@@ -56,11 +61,13 @@ def test_info_prints_table_or_json(
     monkeypatch.setitem(sys.modules, "toolkit.mcapio.info", fake_info_module(scan))
     result = runner.invoke(main, ["info", str(log)])
     assert result.exit_code == 0, result.output
-    assert result.stdout.strip() == "TOPIC /imu/data 3"
+    assert result.stdout.strip() == "TOPIC /imu/data 3 imu"  # the role its type can play
     assert seen == [log]
     result = runner.invoke(main, ["info", str(log), "--json"])
     assert result.exit_code == 0
-    assert '"topic": "/imu/data"' in result.stdout
+    assert json.loads(result.stdout)["topics"] == [
+        {"topic": "/imu/data", "count": 3, "roles": ["imu"]}
+    ]
     full = tmp_path / "full.mcap"
     full.write_bytes(b"")
     assert runner.invoke(main, ["info", str(full), "--full"]).exit_code == 0

@@ -1,11 +1,15 @@
-"""Roles: which message types each accepts, by ROS 2 or ROS 1 type name."""
+"""Roles: which message types each accepts, by ROS 2 or ROS 1 type name, and what `info`
+says of them."""
 
 from __future__ import annotations
+
+import json
+from pathlib import Path
 
 import pytest
 
 from toolkit.errors import StageError
-from toolkit.ingestion.roles import ROLE_SPECS
+from toolkit.ingestion.roles import ROLE_SPECS, roles_accepting
 
 
 def test_unaccepted_type_names_topic_type_and_accepted() -> None:
@@ -20,3 +24,30 @@ def test_unaccepted_type_names_topic_type_and_accepted() -> None:
 
 def test_ros1_style_type_names_are_accepted() -> None:
     assert ROLE_SPECS["gps"].converter_for("/fix", "sensor_msgs/NavSatFix") is not None
+
+
+def test_roles_accepting_a_type_come_from_the_specs() -> None:
+    """What `terrain info` says a topic can be is read from ROLE_SPECS, any spelling."""
+    assert roles_accepting("sensor_msgs/PointCloud2") == ("lidars",)
+    assert roles_accepting("sensor_msgs/msg/LaserScan") == ("lasers",)
+    assert roles_accepting("nav_msgs/msg/Odometry") == ("wheels", "truth_pose")
+    assert roles_accepting("std_msgs/msg/String") == ()
+    every = {t for spec in ROLE_SPECS.values() for t in spec.accepted_types}
+    assert all(roles_accepting(t) for t in every)
+
+
+def test_info_names_the_roles_a_real_lidar_logs_topics_can_play() -> None:
+    """`terrain info` on the derived Ouster log: its cloud a lidar, its IMU an imu."""
+    from click.testing import CliRunner
+
+    from toolkit.cli import main
+
+    log = Path(__file__).parents[1] / "data" / "real-lidar" / "ouster-os1-128.mcap"
+    result = CliRunner().invoke(main, ["info", str(log)])
+    assert result.exit_code == 0, result.output
+    lines = result.stdout.splitlines()
+    assert lines[[i for i, ln in enumerate(lines) if ln.startswith("topic ")][0]].endswith("can be")
+    rows = {ln.split()[0]: ln.split()[-1] for ln in lines if ln.startswith("/")}
+    assert rows == {"/tf_static": "tf_static", "/ouster/points": "lidars", "/ouster/imu": "imu"}
+    doc = json.loads(CliRunner().invoke(main, ["info", str(log), "--json"]).stdout)
+    assert {t["topic"]: t["roles"] for t in doc["topics"]}["/ouster/points"] == ["lidars"]

@@ -107,15 +107,21 @@ def sim(
     "--full", is_flag=True, help="Read every record with CRC checks, even when an index exists."
 )
 def info(log: Path, as_json: bool, full: bool) -> None:
-    """Topics, types, counts, rates, duration and problems found in LOG.mcap."""
+    """Topics, types, counts, rates, duration and problems found in LOG.mcap, and which
+    roles of [topics] each topic's type can play (`config init` chooses among them)."""
     _require_file(log, LogReadError)
+    from toolkit.ingestion.roles import roles_accepting
     from toolkit.mcapio.info import render_table, scan_log
 
     log_info = scan_log(log, full=full)
+    roles = {t.topic: roles_accepting(t.message_type) for t in log_info.topics}
     if as_json:
-        click.echo(json.dumps(log_info.to_dict(), indent=2, sort_keys=False))
+        doc = log_info.to_dict()
+        for topic in doc["topics"]:
+            topic["roles"] = list(roles[topic["topic"]])
+        click.echo(json.dumps(doc, indent=2, sort_keys=False))
     else:
-        click.echo(render_table(log_info))
+        click.echo(render_table(log_info, roles))
 
 
 @main.group(cls=TerrainGroup)

@@ -158,9 +158,23 @@ def role_spec(role: str) -> RoleSpec:
     return ROLE_SPECS[role]
 
 
+def roles_accepting(type_name: str) -> tuple[str, ...]:
+    """The roles whose spec accepts ``type_name`` (any spelling of a ROS type name), in
+    :data:`ROLE_SPECS` order: what a topic of that type can be to the pipeline."""
+    full = _full_name(type_name)
+    return tuple(r for r, s in ROLE_SPECS.items() if full in s.converters)
+
+
 def tables_written(when: str) -> dict[str, str]:
     """Role -> table of the roles whose table is written ``when`` (RoleSpec.written)."""
     return {r: s.table for r, s in ROLE_SPECS.items() if s.written == when}
 
 
-__all__ = ["ROLE_SPECS", "Decoder", "RoleSpec", "role_spec", "tables_written"]
+__all__ = [
+    "ROLE_SPECS",
+    "Decoder",
+    "RoleSpec",
+    "role_spec",
+    "roles_accepting",
+    "tables_written",
+]

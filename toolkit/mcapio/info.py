@@ -26,6 +26,7 @@ or a log whose index cannot vouch for every message, reads every chunk with CRC 
 
 from __future__ import annotations
 
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -401,8 +402,10 @@ def _fmt(value: float | None, digits: int) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
-def render_table(info: LogInfo) -> str:
-    """A plain-text report of a :class:`LogInfo`, for a terminal."""
+def render_table(info: LogInfo, roles: Mapping[str, Sequence[str]] | None = None) -> str:
+    """A plain-text report of a :class:`LogInfo`, for a terminal. ``roles`` (topic -> the
+    roles of ``[topics]`` its type can play; the caller's, as this layer knows no roles) adds
+    a column, "-" for a topic no role reads."""
     lines = [
         f"file:         {info.path} ({_size(info.size_bytes)})",
         f"profile:      {info.profile or '-'}    library: {info.library or '-'}",
@@ -423,7 +426,7 @@ def render_table(info: LogInfo) -> str:
         "",
     ]
     start = info.start_time_ns or 0
-    header = (
+    header: tuple[str, ...] = (
         "topic",
         "type",
         "count",
@@ -434,7 +437,9 @@ def render_table(info: LogInfo) -> str:
         "max gap s",
         "gaps>3x",
     )
-    rows = [header]
+    if roles is not None:
+        header = (*header, "can be")
+    rows: list[tuple[str, ...]] = [header]
     for t in info.topics:
         rows.append(
             (
@@ -449,10 +454,12 @@ def render_table(info: LogInfo) -> str:
                 str(t.long_gaps),
             )
         )
+        if roles is not None:
+            rows[-1] = (*rows[-1], " or ".join(roles.get(t.topic, ())) or "-")
     widths = [max(len(r[i]) for r in rows) for i in range(len(header))]
     for k, row in enumerate(rows):
         cells = [
-            cell.ljust(w) if i < 2 else cell.rjust(w)
+            cell.ljust(w) if i < 2 or i == 9 else cell.rjust(w)
             for i, (cell, w) in enumerate(zip(row, widths, strict=True))
         ]
         lines.append("  ".join(cells).rstrip())
