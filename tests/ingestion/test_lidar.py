@@ -214,3 +214,34 @@ def test_a_lidar_on_its_own_clock_is_re_anchored_at_the_log_time_and_said(
     offsets = table.column("t_ns").to_numpy() - table.column("scan_t_ns").to_numpy()
     assert offsets.min() >= 0 and offsets.max() < 100_000_000  # within the 10 Hz sweep
     assert any("3 clouds stamped on the sensor's own clock" in w for w in result.warnings)
+
+
+@pytest.mark.parametrize(
+    ("time_settings", "what"),
+    [
+        # A field that is no time at all: the beam number read as ns spans 127 ns.
+        ({"time": "custom", "time_field": "ring", "time_unit": "ns"}, "short"),
+        # The right field in a unit 1000 times too large: the kept part spans 0.5 s.
+        ({"time": "custom", "time_field": "t", "time_unit": "us"}, "long"),
+    ],
+)
+def test_a_sweep_whose_times_do_not_span_its_period_is_counted_and_said(
+    tmp_path: Path, time_settings: dict[str, str], what: str
+) -> None:
+    """The real Ouster's clouds come every 100 ms and each spans ~100 ms of point times; read
+    with the wrong field or unit, each cloud's span is off its period, counted and said."""
+    cfg = _config("/ouster/points", **time_settings)
+    result = ingest_log(REAL / "ouster-os1-128.mcap", Workspace(tmp_path / "ws"), cfg)
+    manifest = json.loads((tmp_path / "ws" / "logs" / result.log_id / "manifest.json").read_text())
+    counts = manifest["ingest"]["topics"]["/ouster/points"]["counts"]
+    assert counts["lidar_span_off_period"] == 3, what
+    said = [w for w in result.warnings if "span more than 1.5 or less than 0.1" in w]
+    assert said and "(100.0 ms)" in said[0] and "3 of 3 clouds" in said[0]
+
+
+def test_the_real_sweeps_span_their_period(tmp_path: Path) -> None:
+    """Read as ouster-ros writes them, the three clouds each span ~1 period: none flagged."""
+    table, manifest = _ingest(tmp_path, REAL / "ouster-os1-128.mcap", _config("/ouster/points"))
+    assert manifest["topics"]["/ouster/points"]["counts"]["lidar_span_off_period"] == 0
+    t = table.column("t_ns").to_numpy() - table.column("scan_t_ns").to_numpy()
+    assert 0.9e8 < t.max() - t.min() < 1.0e8

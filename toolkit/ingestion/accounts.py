@@ -47,6 +47,11 @@ class TopicAccount:
     )
     lost: dict[str, int] = field(default_factory=dict)
     max_t_ns: int | None = None
+    #: The kept messages' (stamp, span of their rows' times) in ns, for the topics whose
+    #: messages are sweeps (a lidar's clouds): checked against the period once all are read.
+    sweeps: list[tuple[Any, Any]] = field(default_factory=list)
+    #: Their period (ns, the median step between stamps) once checked; 0 before.
+    period_ns: float = 0.0
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready (for the manifest)."""

@@ -21,6 +21,13 @@ structured view of the message's own bytes, whatever the driver's layout). Per c
   header's are anchored the same way, at the header stamp (``lidar_point_clock``). Returns
   stamped further than :data:`MAX_SWEEP_NS` from their scan's stamp (implausible times, as
   after dropped packets) are dropped and counted (``lidar_time_outside_sweep``).
+- **A sweep as long as its period.** Once every cloud is read, each cloud's span of point
+  times is set against the topic's period (the median step between its clouds' stamps): a
+  spinning lidar's sweep spans about one period. A span over :data:`SPAN_LONG` periods or
+  under :data:`SPAN_SHORT` of one (a time field in another unit than the preset's, another
+  field than the time, a driver's clock jumping within a sweep) is counted per cloud
+  (``lidar_span_off_period``) and said on the terminal: the points are kept, as the times
+  within each cloud are still ordered, but motion correction is then wrong.
 
 The table's ``t_ns`` is the return's time, ``scan_t_ns`` its cloud's, both corrected by the
 role's declared latency and clock offset. The rows of one batch are one table; the messages'
@@ -60,6 +67,14 @@ POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 #: room for a header at either end and a late packet, and no more.
 MAX_SWEEP_NS = 500_000_000
 
+#: A cloud's points spanning more than this many periods, or less than this share of one, is
+#: no sweep of a lidar turning at the clouds' rate. A spinning lidar's sweep spans ~1 period
+#: (ouster-ros: 1023/1024 of it; velodyne_pointcloud: one turn); 1.5 leaves room for a cloud
+#: that closed late; 0.1 lets a driver crop its field of view to 36 degrees before being
+#: questioned, while a unit read 1000 times too small (us as ns) always is.
+SPAN_LONG = 1.5
+SPAN_SHORT = 0.1
+
 #: Fields that number a return's beam, by driver: ouster, velodyne, rslidar "ring"; nebula
 #: "channel"; livox "line".
 RING_FIELDS: tuple[str, ...] = ("ring", "channel", "line")
@@ -76,7 +91,28 @@ COUNTS: tuple[str, ...] = (
     "lidar_no_point_time",
     "lidar_sensor_clock",
     "lidar_point_clock",
+    "lidar_span_off_period",
 )
+
+
+def check_sweeps(accounts: Mapping[str, TopicAccount]) -> None:
+    """Count, per lidar topic, the clouds whose span of point times is off the topic's period
+    (``lidar_span_off_period``; the module docstring), from the (stamp, span) pairs ingest
+    kept of each cloud, and free them. A topic of fewer than two clouds has no period."""
+    for account in accounts.values():
+        if not account.sweeps:
+            continue
+        stamps = np.concatenate([s for s, _ in account.sweeps])
+        spans = np.concatenate([d for _, d in account.sweeps])
+        account.sweeps.clear()
+        steps = np.diff(np.unique(stamps))
+        if not len(steps):
+            continue
+        period = float(np.median(steps))
+        known = spans >= 0
+        off = known & ((spans > SPAN_LONG * period) | (spans < SPAN_SHORT * period))
+        account.counts["lidar_span_off_period"] += int(np.count_nonzero(off))
+        account.period_ns = period
 
 
 def lidar_notices(accounts: Mapping[str, TopicAccount]) -> list[str]:
@@ -103,6 +139,13 @@ def lidar_notices(accounts: Mapping[str, TopicAccount]) -> list[str]:
             out.append(
                 f"{topic}: {c['lidar_point_clock']} clouds' absolute point times are on another "
                 "clock than their stamps: anchored at the stamp, offsets kept"
+            )
+        if c["lidar_span_off_period"]:
+            out.append(
+                f"{topic}: {c['lidar_span_off_period']} of {account.written} clouds' point "
+                f"times span more than {SPAN_LONG:g} or less than {SPAN_SHORT:g} of the clouds' "
+                f"period ({account.period_ns / 1e6:.1f} ms): motion correction will be wrong; "
+                "check [lidar] time (its field and unit) against the driver"
             )
         if c["lidar_time_outside_sweep"]:
             out.append(
@@ -147,6 +190,7 @@ def lidar_from_pointcloud2(cols: Columns, log_time_ns: IntArray, ctx: ConvertCon
     counts = {key: np.zeros(n, dtype=np.int64) for key in COUNTS}
     missing = np.zeros(n, dtype=bool)
     scan_t = np.zeros(n, dtype=np.int64)
+    span = np.full(n, -1, dtype=np.int64)
     pieces: list[dict[str, Any]] = []
     for i, cloud in enumerate(clouds):
         log_t = int(log_time_ns[i])
@@ -162,6 +206,8 @@ def lidar_from_pointcloud2(cols: Columns, log_time_ns: IntArray, ctx: ConvertCon
             if not missing[i]:
                 piece["t_ns"] += ctx.correction_ns
             piece["scan_t_ns"] = np.full(len(piece["t_ns"]), scan_t[i], dtype=np.int64)
+            if counts["lidar_no_point_time"][i] == 0 and len(piece["t_ns"]) > 1:
+                span[i] = int(piece["t_ns"][-1] - piece["t_ns"][0])  # in time order
             pieces.append(piece)
     message_of_row = np.concatenate(
         [np.full(len(p["t_ns"]), p["message"], dtype=np.int64) for p in pieces]
@@ -177,6 +223,7 @@ def lidar_from_pointcloud2(cols: Columns, log_time_ns: IntArray, ctx: ConvertCon
         metadata=metadata if pieces else {},
         message_of_row=message_of_row,
         message_t_ns=scan_t,
+        span_ns=span,
     )
 
 
@@ -296,6 +343,9 @@ def _table(pieces: list[dict[str, Any]], topics: Sequence[str], frames: Sequence
 __all__ = [
     "COUNTS",
     "MAX_SWEEP_NS",
+    "SPAN_LONG",
+    "SPAN_SHORT",
+    "check_sweeps",
     "POINTCLOUD2",
     "decode_clouds",
     "lidar_from_pointcloud2",

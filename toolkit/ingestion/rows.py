@@ -74,6 +74,8 @@ class RoleRows:
     truth_features, a lidar's cloud) gives one row per element; ``message_of_row`` then says
     which message each row came from, and the header-skew check applies to the messages'
     ``message_t_ns`` when given (a cloud's stamp), not at all without (static data).
+    ``span_ns`` is, for a message whose rows each have their own time (a lidar's sweep), the
+    span of those times (-1 when unknown): ingest checks it against the topic's period.
     """
 
     table: pa.Table
@@ -83,6 +85,7 @@ class RoleRows:
     metadata: dict[str, str] = field(default_factory=dict)
     message_of_row: IntArray | None = None
     message_t_ns: IntArray | None = None
+    span_ns: IntArray | None = None
 
     @property
     def t_ns(self) -> IntArray:

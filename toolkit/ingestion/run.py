@@ -24,7 +24,7 @@ from toolkit.atomic import atomic_write_json
 from toolkit.config import LidarConfig, TimeConfig, TopicsConfig
 from toolkit.ingestion.accounts import TopicAccount, count_totals, reject_warnings, usable_roles
 from toolkit.ingestion.dedup import DuplicateFilter
-from toolkit.ingestion.lidar import lidar_notices
+from toolkit.ingestion.lidar import check_sweeps, lidar_notices
 from toolkit.ingestion.plans import TopicPlan, plan_topic
 from toolkit.ingestion.reorder import ReorderBuffer
 from toolkit.ingestion.roles import tables_written
@@ -156,6 +156,7 @@ class IngestRun:
                 self.accounts[topic].lost = {k: int(v) for k, v in by_reason.items() if v}
         self.warnings = usable_roles(self.accounts, self.log_path)
         self.warnings += reject_warnings(self.accounts)
+        check_sweeps(self.accounts)
         self.warnings += lidar_notices(self.accounts)
         t0 = time.perf_counter()
         for buffer in self.buffers.values():

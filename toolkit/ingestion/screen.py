@@ -112,6 +112,8 @@ def _screen(rows: RoleRows, log_t: IntArray, account: TopicAccount, max_skew_ns:
     account.counts["stamp_missing"] += int((rows.stamp_missing & keep).sum())
     for key, per_msg in rows.counts.items():
         account.counts[key] += int(per_msg[keep].sum())
+    if rows.span_ns is not None and rows.message_t_ns is not None:
+        account.sweeps.append((rows.message_t_ns[keep], rows.span_ns[keep]))
     account.written += int(keep.sum())
     return keep
 
