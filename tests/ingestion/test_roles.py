@@ -48,6 +48,11 @@ def test_info_names_the_roles_a_real_lidar_logs_topics_can_play() -> None:
     lines = result.stdout.splitlines()
     assert lines[[i for i, ln in enumerate(lines) if ln.startswith("topic ")][0]].endswith("can be")
     rows = {ln.split()[0]: ln.split()[-1] for ln in lines if ln.startswith("/")}
-    assert rows == {"/tf_static": "tf_static", "/ouster/points": "lidars", "/ouster/imu": "imu"}
+    assert rows == {
+        "/tf_static": "tf_static",
+        "/ouster/points": "lidars",
+        "/ouster/imu": "imu",
+        "/derived/odom": "wheels",
+    }
     doc = json.loads(CliRunner().invoke(main, ["info", str(log), "--json"]).stdout)
     assert {t["topic"]: t["roles"] for t in doc["topics"]}["/ouster/points"] == ["lidars"]

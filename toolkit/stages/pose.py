@@ -323,9 +323,10 @@ def _dead_reckoning(
     if est.heading_source != "local":
         return {}
     distance_m, duration_s = tally.distance_m, tally.duration_s
+    digits_m, digits_s = (2 if v < 10 else 0 for v in (distance_m, duration_s))  # no "0 s"
     warnings.append(
-        f"dead reckoning ({config.pose.dead_reckoning}) over {distance_m:.0f} m in "
-        f"{duration_s:.0f} s: nothing absolute bounds its drift"
+        f"dead reckoning ({config.pose.dead_reckoning}) over {distance_m:.{digits_m}f} m in "
+        f"{duration_s:.{digits_s}f} s: nothing absolute bounds its drift"
     )
     return {
         "mode": config.pose.dead_reckoning,

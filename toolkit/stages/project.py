@@ -381,6 +381,11 @@ def _made(
             + ", ".join(f"{k} {v}" for k, v in dropped.items())
             + ")"
         )
+    if far_from_path and far_from_path == counts.points:
+        warnings.append(
+            f"none of the {counts.points} projected returns lies near the tyres' paths "
+            '([project] keep = "near_path"): the cloud is empty; keep = "all" keeps them'
+        )
     timings["total"] = time.perf_counter() - call.start
     outcome = ProjectResult(
         call.log_id,

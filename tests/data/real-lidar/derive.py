@@ -14,7 +14,11 @@ It writes, beside itself:
 
 - ``ouster-os1-128.mcap``: 3 scans of an Ouster OS-1-128 pcap decoded with ouster-sdk into
   PointCloud2 messages in ouster-ros's layout (every 16th beam kept), its IMU packets as
-  sensor_msgs/Imu and its metadata's transforms on ``/tf_static``; and
+  sensor_msgs/Imu and its metadata's transforms on ``/tf_static``; plus, derived, what the
+  pose stage needs and the recording lacks: ``/derived/odom`` (geometry_msgs/TwistStamped at
+  the IMU's stamps: the speed and yaw rate between the recording's per-scan poses) and a
+  ``base_link`` on the ground under the sensor (the height: the median z of the returns
+  below it within 12 m); and
   ``ouster-os1-128.reference.npz``, the vendor decoder's values for the kept points.
 - ``vlp16-nebula.mcap``: nebula's decoded VLP-16 PCD wrapped unchanged as one PointCloud2; its
   re-packings in velodyne_pointcloud's and livox_ros_driver2's layouts
@@ -73,6 +77,7 @@ INT8, UINT8, INT16, UINT16, INT32, UINT32, FLOAT32, FLOAT64 = range(1, 9)
 OUSTER_BEAMS = tuple(range(0, 128, 16))
 OUSTER_PCAP = "OS-1-128_v2.3.0_1024x10_lb_n3.pcap"
 OUSTER_JSON = "OS-1-128_v2.3.0_1024x10.json"
+OUSTER_POSES = "OS-1-128_v2.3.0_1024x10_lb_n3_poses_kitti.txt"
 VLP16_PCD = "1673400472138016708.pcd"
 VLP16_STAMP_NS = 1673400472138016708
 
@@ -336,6 +341,53 @@ def ouster_imu_msgs(pcap: Path, meta: Path) -> list[tuple[int, dict]]:
     return out
 
 
+def kitti_poses(path: Path) -> np.ndarray:
+    """(n, 4, 4) poses of a KITTI pose file (a row of 12 numbers: a 3x4 [R | t] per scan)."""
+    rows = np.loadtxt(path).reshape(-1, 3, 4)
+    out = np.tile(np.eye(4), (len(rows), 1, 1))
+    out[:, :3, :] = rows
+    return out
+
+
+def ground_height_m(ref: dict) -> float:
+    """The ground's height in os_sensor (m, negative): the median z of the returns below the
+    sensor within 12 m horizontally (the kept beams that look down hit the road at 6-10 m)."""
+    xyz = ref["xyz"][ref["range_mm"] > 0]
+    near = (np.hypot(xyz[:, 0], xyz[:, 1]) < 12.0) & (xyz[:, 2] < -1.0)
+    return float(np.median(xyz[near, 2]))
+
+
+def derived_odometry(
+    poses: np.ndarray, scan_ns: list[int], at_ns: list[int]
+) -> list[tuple[int, dict]]:
+    """Wheel odometry derived from the recording's poses: (stamp ns, TwistStamped dict).
+
+    The recording has no wheel encoders; its poses (one per scan, os_sensor's, KITTI layout)
+    give the speed along the sensor's x and the yaw rate between consecutive scans, held over
+    each interval and beyond the ends, published at ``at_ns`` (the IMU's stamps) in frame
+    base_link (placed under the sensor, so its velocity is the sensor's horizontal one).
+    """
+    dt = np.diff(np.asarray(scan_ns, np.int64)) * 1e-9
+    step = np.einsum("nji,nj->ni", poses[:-1, :3, :3], poses[1:, :3, 3] - poses[:-1, :3, 3])
+    speed = step[:, 0] / dt
+    rel = np.einsum("nji,njk->nik", poses[:-1, :3, :3], poses[1:, :3, :3])
+    yaw_rate = np.arctan2(rel[:, 1, 0], rel[:, 0, 0]) / dt
+    which = np.clip(np.searchsorted(scan_ns, at_ns, side="right") - 1, 0, len(dt) - 1)
+    return [
+        (
+            t,
+            {
+                "header": {"stamp": stamp(t), "frame_id": "base_link"},
+                "twist": {
+                    "linear": {"x": float(speed[k]), "y": 0.0, "z": 0.0},
+                    "angular": {"x": 0.0, "y": 0.0, "z": float(yaw_rate[k])},
+                },
+            },
+        )
+        for t, k in zip(at_ns, which.tolist(), strict=True)
+    ]
+
+
 def derive_ouster(src: Path, out: Path) -> None:
     """Write ``ouster-os1-128.mcap`` and ``ouster-os1-128.reference.npz``."""
     from ouster.sdk import core, open_source
@@ -354,11 +406,21 @@ def derive_ouster(src: Path, out: Path) -> None:
         refs.append(ref)
         stamps.append(ts)
         records.append((ts, "/ouster/points", "sensor_msgs/msg/PointCloud2", msg))
-    for ts, msg in ouster_imu_msgs(pcap, meta):
+    imu = ouster_imu_msgs(pcap, meta)
+    for ts, msg in imu:
         records.append((ts, "/ouster/imu", "sensor_msgs/msg/Imu", msg))
+    # Derived: the wheel odometry and base_link the pose stage needs, which the recording
+    # lacks (README: "derived").
+    odometry = derived_odometry(kitti_poses(src / OUSTER_POSES), stamps, [t for t, _ in imu])
+    for ts, msg in odometry:
+        records.append((ts, "/derived/odom", "geometry_msgs/msg/TwistStamped", msg))
     first = min(r[0] for r in records)
+    ground = ground_height_m({k: np.concatenate([r[k] for r in refs]) for k in refs[0]})
+    sensor_on_base = np.eye(4)
+    sensor_on_base[2, 3] = -ground * 1e3  # mm, as the metadata's transforms
     tf = {
         "transforms": [
+            transform_msg(sensor_on_base, "base_link", "os_sensor", first),
             transform_msg(info.lidar_to_sensor_transform, "os_sensor", "os_lidar", first),
             transform_msg(info.imu_to_sensor_transform, "os_sensor", "os_imu", first),
         ]
