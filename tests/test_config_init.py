@@ -295,9 +295,17 @@ def test_tf_static_gives_the_mounts(tmp_path: Path) -> None:
     assert cfg.topics.lasers == ("/scan", "/scan_rear")
 
 
-def test_apply_settings_refuses_a_key_the_default_lacks() -> None:
+def test_apply_settings_adds_a_key_its_section_lacks_and_refuses_a_section() -> None:
+    """A role declared since the default was written has no line there: its key goes at the
+    end of its section; a section the default lacks, or a new key without a value, is a
+    programming error."""
+    default = 'name = "x"\n\n[topics]\nimu = "/imu"\n\n[time]\nskew = 1\n'
+    text = apply_settings(default, [], {("topics", "barometer"): Setting('"/baro"', ("why",))})
+    assert text.endswith('[topics]\nimu = "/imu"\n# why\nbarometer = "/baro"\n\n[time]\nskew = 1\n')
     with pytest.raises(ValueError, match="bogus"):
-        apply_settings('name = "x"\n', [], {("", "bogus"): Setting("1")})
+        apply_settings(default, [], {("bogus", "key"): Setting("1")})
+    with pytest.raises(ValueError, match="without a value"):
+        apply_settings(default, [], {("topics", "barometer"): Setting(None)})
 
 
 # -- the command line -----------------------------------------------------------------------

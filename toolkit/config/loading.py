@@ -129,14 +129,23 @@ def _check_known_keys(cls: type, data: Mapping[str, Any], prefix: str, source: s
 
 
 def _build(cls: type[_T], data: Any, prefix: str, source: str | Path) -> _T:
-    """Convert one TOML table into ``cls``, naming the dotted key of any problem."""
+    """Convert one TOML table into ``cls``, naming the dotted key of any problem. A key
+    missing from ``data`` (the user's keys over the default file's) takes its field's
+    default where it has one (a role declared since the default file was written)."""
     if not isinstance(data, Mapping):
         raise ConfigError(f"{prefix}: expected a table (got {data!r})", path=source)
     _check_known_keys(cls, data, prefix, source)
     kwargs: dict[str, Any] = {}
+    defaults = {
+        f.name
+        for f in dataclasses.fields(typing.cast(Any, cls))
+        if f.default is not dataclasses.MISSING or f.default_factory is not dataclasses.MISSING
+    }
     for name, (tp, rule) in _fields(cls).items():
         dotted = dotted_key(prefix, name)
         if name not in data:
+            if name in defaults:
+                continue
             raise ConfigError(f"{dotted}: missing key", path=source)
         kwargs[name] = _convert(tp, data[name], dotted, rule, source)
     return cls(**kwargs)

@@ -90,21 +90,26 @@ class TopicsConfig:
         default=(), metadata=UNHASHED_AT_DEFAULT
     )
 
+    def roles(self) -> tuple[str, ...]:
+        """Every role: each field is one (a role added as a field is read too), in the order
+        of :data:`ROLES`, any other after them."""
+        names = [f.name for f in dataclasses.fields(self)]
+        return tuple(sorted(names, key=lambda r: ROLES.index(r) if r in ROLES else len(ROLES)))
+
     def by_role(self) -> dict[str, tuple[str, ...]]:
-        """Role -> topics (lasers and lidars may be several), leaving out absent roles, in
-        the order of :data:`ROLES`."""
+        """Role -> topics (a role of several topics, a tuple field, may have several),
+        leaving out absent roles, in the order of :meth:`roles`."""
         out: dict[str, tuple[str, ...]] = {}
-        for role in ROLES:
+        for role in self.roles():
             value = getattr(self, role)
-            topics = tuple(value) if role in MULTI_TOPIC_ROLES else (value,)
             if value:
-                out[role] = topics
+                out[role] = tuple(value) if isinstance(value, tuple) else (value,)
         return out
 
     def absent_roles(self) -> tuple[str, ...]:
         """Roles the configuration says the vehicle does not have."""
         present = self.by_role()
-        return tuple(role for role in ROLES if role not in present)
+        return tuple(role for role in self.roles() if role not in present)
 
     def role_of(self, topic: str) -> str | None:
         """The role a topic plays, or None if the configuration does not use it."""

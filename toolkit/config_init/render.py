@@ -56,22 +56,43 @@ _CONTINUATION = re.compile(r"^\s+#")
 def apply_settings(default_text: str, head: Sequence[str], settings: Settings) -> str:
     """The default's text with ``head`` replacing its opening comments and each key of
     ``settings`` preceded by its comments and, where it gives a value, rewritten (the
-    default's comments on a rewritten key, which describe Stanley, are dropped).
+    default's comments on a rewritten key, which describe Stanley, are dropped). A setting
+    whose key the default's section lacks (a role declared since, with no line in the
+    default) is written at the end of its section.
 
-    Raises ValueError for a setting whose key the default does not have (a programming
-    error: the default lists every key)."""
+    Raises ValueError for a setting of a section the default does not have, or a new key
+    without a value (a programming error)."""
     lines = default_text.splitlines()
     start = next(i for i, line in enumerate(lines) if _KEY.match(line))
     out = [*comment_lines(head), ""]
     section = ""
+    sections = {m.group(1) for m in map(_SECTION.match, lines) if m}
     used: set[tuple[str, str]] = set()
     skipping = False
+
+    def close(section: str) -> None:
+        """Write the section's settings the default has no line for."""
+        extra = [k for k in settings if k[0] == section and k not in used]
+        if not extra:
+            return
+        while out and not out[-1].strip():
+            out.pop()
+        for key in extra:
+            setting = settings[key]
+            if setting.value is None:
+                raise ValueError(f"a setting for a new key without a value: {key}")
+            out.extend(comment_lines(setting.comments))
+            out.append(f"{key[1]} = {setting.value}")
+            used.add(key)
+        out.append("")
+
     for line in lines[start:]:
         if skipping and _CONTINUATION.match(line):
             continue
         skipping = False
         header = _SECTION.match(line)
         if header:
+            close(section)
             section = header.group(1)
         key = _KEY.match(line)
         setting = settings.get((section, key.group(1))) if key else None
@@ -85,7 +106,8 @@ def apply_settings(default_text: str, head: Sequence[str], settings: Settings) -
         else:
             out.append(f"{key.group(1)} = {setting.value}")
             skipping = True
-    unknown = set(settings) - used
+    close(section)
+    unknown = {k for k in set(settings) - used if k[0] not in sections}
     if unknown:
-        raise ValueError(f"settings for keys the default does not have: {sorted(unknown)}")
+        raise ValueError(f"settings for sections the default does not have: {sorted(unknown)}")
     return "\n".join(out).rstrip("\n") + "\n"

@@ -8,10 +8,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from toolkit.config import (
-    MULTI_TOPIC_ROLES,
-    ROLES,
-)
 from toolkit.config_init.summary import LogSummary, TopicSummary
 from toolkit.ingestion.roles import ROLE_SPECS
 from toolkit.mcapio.pointcloud2 import packets_note
@@ -142,7 +138,7 @@ def guess_role(role: str, topics: Sequence[TopicSummary]) -> RoleGuess:
             notes = [packets_note(t.topic, t.type_name) for t in topics]
             why = "; ".join([why, *(n for n in notes if n)])
         return RoleGuess(role, (), why, tuple(others))
-    if role in MULTI_TOPIC_ROLES:  # every laser (lidar) scans terrain: all of them
+    if ROLE_SPECS[role].multi:  # every laser (lidar) scans terrain: all of them
         chosen = sorted(usable, key=lambda t: t.topic)
         types = " or ".join(ROLE_SPECS[role].accepted_types)
         return RoleGuess(
@@ -169,10 +165,10 @@ def guess_role(role: str, topics: Sequence[TopicSummary]) -> RoleGuess:
 
 def guess_roles(summary: LogSummary) -> dict[str, RoleGuess]:
     """A guess for every role of ``[topics]``; a topic plays at most one role (the first
-    role in :data:`ROLES` order that chose it)."""
+    role in :data:`~toolkit.ingestion.roles.ROLE_SPECS` order that chose it)."""
     taken: set[str] = set()
     guesses: dict[str, RoleGuess] = {}
-    for role in ROLES:
+    for role in ROLE_SPECS:
         free = [t for t in summary.topics if t.topic not in taken]
         guess = guess_role(role, free)
         taken.update(guess.topics)

@@ -10,18 +10,13 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 
-from toolkit.config import (
-    MULTI_TOPIC_ROLES,
-    ROLES,
-    PipelineConfig,
-    default_config,
-    toml_value,
-)
+from toolkit.config import PipelineConfig, default_config, toml_value
 from toolkit.config_init.mounts import base_frame, mount_of, vehicle_settings
 from toolkit.config_init.render import Setting, Settings
 from toolkit.config_init.roles import RoleGuess, describe_topic
 from toolkit.config_init.summary import LogSummary, TopicSummary
 from toolkit.errors import ToolkitError
+from toolkit.ingestion.roles import ROLE_SPECS
 from toolkit.mcapio.pointcloud2 import preset_for_fields
 from toolkit.model.shock import MIN_PASSBAND_HZ, design_shock_fir
 
@@ -29,10 +24,10 @@ from toolkit.model.shock import MIN_PASSBAND_HZ, design_shock_fir
 def _topic_settings(guesses: Mapping[str, RoleGuess], summary: LogSummary) -> Settings:
     """The ``[topics]`` keys: every role's topic(s) with why, and the alternatives."""
     out: Settings = {}
-    for role in ROLES:
+    for role, spec in ROLE_SPECS.items():
         guess = guesses[role]
         comments: list[str] = []
-        if role in MULTI_TOPIC_ROLES:
+        if spec.multi:
             value = toml_value(list(guess.topics))
             comments.append(guess.why if guess.topics else f"{guess.why}")
             for topic in guess.topics:
@@ -137,8 +132,8 @@ def file_head(
     summary: LogSummary, guesses: Mapping[str, RoleGuess], verdicts: StageVerdicts
 ) -> list[str]:
     """The comments at the top of the file: where it came from and what the log can feed."""
-    found = ", ".join(r for r in ROLES if guesses[r].topics) or "none"
-    missing = ", ".join(r for r in ROLES if not guesses[r].topics) or "none"
+    found = ", ".join(r for r in ROLE_SPECS if guesses[r].topics) or "none"
+    missing = ", ".join(r for r in ROLE_SPECS if not guesses[r].topics) or "none"
     lines = [
         f"{summary.path.name}: a starting configuration written by `terrain config init`",
         f"from the log itself ({summary.duration_s:.1f} s, {len(summary.topics)} topics).",

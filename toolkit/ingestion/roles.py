@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from toolkit.config import ROLES
+from toolkit.config import MULTI_TOPIC_ROLES, ROLES
 from toolkit.errors import StageError
 from toolkit.ingestion.converters import (
     features_from_array,
@@ -58,6 +58,8 @@ class RoleSpec:
     word: str
     written: str = "always"
     decoders: Mapping[str, Callable[[str], Decoder]] = field(default_factory=dict)
+    #: The role takes several topics (a list in ``[topics]``: every laser, every lidar).
+    multi: bool = False
 
     @property
     def accepted_types(self) -> tuple[str, ...]:
@@ -91,11 +93,14 @@ def _full_name(type_name: str) -> str:
 Decoder = Callable[[Sequence[bytes]], dict[str, np.ndarray]]
 
 #: Every role, in the order of :data:`toolkit.config.ROLES`: adding a sensor type is a
-#: converter module and a line here (README, "Adding a sensor").
+#: converter module and a line here (README, "Adding a sensor"). Ingest, ``config init`` and
+#: ``info`` read the roles from this mapping when they run, not from a copy made at import.
 ROLE_SPECS: dict[str, RoleSpec] = {
     spec.role: spec
     for spec in (
-        RoleSpec("lasers", "laser", {"sensor_msgs/msg/LaserScan": laser_from_scan}, "laser"),
+        RoleSpec(
+            "lasers", "laser", {"sensor_msgs/msg/LaserScan": laser_from_scan}, "laser", multi=True
+        ),
         RoleSpec(
             "lidars",
             "lidar",
@@ -103,6 +108,7 @@ ROLE_SPECS: dict[str, RoleSpec] = {
             "3-D lidar",
             written="present",
             decoders={POINTCLOUD2: decode_clouds},
+            multi=True,
         ),
         RoleSpec("imu", "imu", {"sensor_msgs/msg/Imu": imu_from_imu}, "IMU"),
         RoleSpec("gps", "gps", {"sensor_msgs/msg/NavSatFix": gps_from_navsatfix}, "GPS"),
@@ -149,7 +155,9 @@ ROLE_SPECS: dict[str, RoleSpec] = {
     )
 }
 
-if tuple(ROLE_SPECS) != ROLES:  # the configuration's [topics] and this list name one set
+if tuple(ROLE_SPECS) != ROLES or {r for r, s in ROLE_SPECS.items() if s.multi} != set(
+    MULTI_TOPIC_ROLES
+):  # the configuration's [topics] and this list name one set
     raise TypeError(f"ROLE_SPECS {tuple(ROLE_SPECS)} do not match toolkit.config.ROLES {ROLES}")
 
 

@@ -32,18 +32,14 @@ from toolkit.ingestion.screen import convert_batch
 from toolkit.ingestion.timecheck import stream_time_outliers
 from toolkit.layout import log_file_name
 from toolkit.mcapio.reader import Damage, MessageBatch, ReadReport
-from toolkit.tableio import TableWriter
+from toolkit.tableio import TableWriter, table_schema_names
 
-#: Sensor tables always written, empty when their role is absent (role -> table).
-SENSOR_TABLES: dict[str, str] = tables_written("always")
 
-#: Roles written as Parquet tables only when the log has them (the 3-D lidar, the truth).
-PRESENT_TABLES: dict[str, str] = tables_written("present")
+def schema_tables() -> frozenset[str]:
+    """Tables with a contract schema in schemas/tables; any other (truth_features) is
+    written as its converter builds it."""
+    return frozenset(table_schema_names())
 
-#: Tables with a contract schema in schemas/tables (truth_features has none: written as is).
-SCHEMA_TABLES: frozenset[str] = frozenset(
-    {*SENSOR_TABLES.values(), "truth_pose", PRESENT_TABLES["lidars"]}
-)
 
 #: Output name of the static transforms.
 TF_STATIC_OUTPUT = log_file_name("tf_static")
@@ -60,19 +56,23 @@ def make_buffers(
     config_hash: str,
     buffer_bytes: int,
 ) -> dict[str, ReorderBuffer]:
-    """A writer behind a reorder buffer per sensor table (always) and per truth table the
-    log has."""
+    """A writer behind a reorder buffer per table a role always writes (the sensors',
+    empty when absent) and per table of a role written when present that the log has
+    (:func:`~toolkit.ingestion.roles.tables_written`, read now: a role added since import
+    counts)."""
     sources: dict[str, list[str]] = {}
     for topic, plan in plans.items():
         sources.setdefault(plan.table, []).append(topic)
-    tables = list(SENSOR_TABLES.values()) + [
-        PRESENT_TABLES[r] for r in PRESENT_TABLES if any(p.role == r for p in plans.values())
+    present = tables_written("present")
+    tables = list(tables_written("always").values()) + [
+        present[r] for r in present if any(p.role == r for p in plans.values())
     ]
+    with_schema = schema_tables()
     return {
         name: ReorderBuffer(
             TableWriter(
                 log_dir / log_file_name(name),
-                name if name in SCHEMA_TABLES else None,
+                name if name in with_schema else None,
                 table_name=name,
                 source_sha256=source_sha256,
                 config_hash=config_hash,
@@ -162,7 +162,7 @@ class IngestRun:
         for buffer in self.buffers.values():
             buffer.flush()
         self.outputs = [name for name, w in self.writers.items() if w.finish()]
-        for name in SENSOR_TABLES.values():
+        for name in tables_written("always").values():
             if name in self.outputs and self.writers[name].rows:
                 self._drop_time_outliers(name)
         self.timings["finish"] = time.perf_counter() - t0
@@ -258,10 +258,8 @@ def tf_json(tables: Sequence[pa.Table]) -> dict[str, Any]:
 
 __all__ = [
     "MCAP_METADATA_OUTPUT",
-    "SCHEMA_TABLES",
-    "SENSOR_TABLES",
     "TF_STATIC_OUTPUT",
-    "PRESENT_TABLES",
+    "schema_tables",
     "IngestRun",
     "damage_json",
     "make_buffers",
