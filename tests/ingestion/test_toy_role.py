@@ -27,20 +27,20 @@ from toolkit.stages.ingest import ingest_log
 from toolkit.workspace import Workspace
 
 SEPARATOR = "=" * 80
+#: The definitions every stamped message's schema ends with (ros2msg: dependencies after
+#: a line of 80 "=").
+HEADER = [
+    SEPARATOR,
+    "MSG: std_msgs/Header",
+    "builtin_interfaces/Time stamp",
+    "string frame_id",
+    SEPARATOR,
+    "MSG: builtin_interfaces/Time",
+    "int32 sec",
+    "uint32 nanosec",
+]
 FLUID_PRESSURE = "\n".join(
-    [
-        "std_msgs/Header header",
-        "float64 fluid_pressure",
-        "float64 variance",
-        SEPARATOR,
-        "MSG: std_msgs/Header",
-        "builtin_interfaces/Time stamp",
-        "string frame_id",
-        SEPARATOR,
-        "MSG: builtin_interfaces/Time",
-        "int32 sec",
-        "uint32 nanosec",
-    ]
+    ["std_msgs/Header header", "float64 fluid_pressure", "float64 variance", *HEADER]
 )
 IMU = "\n".join(
     [
@@ -51,14 +51,7 @@ IMU = "\n".join(
         "float64[9] angular_velocity_covariance",
         "geometry_msgs/Vector3 linear_acceleration",
         "float64[9] linear_acceleration_covariance",
-        SEPARATOR,
-        "MSG: std_msgs/Header",
-        "builtin_interfaces/Time stamp",
-        "string frame_id",
-        SEPARATOR,
-        "MSG: builtin_interfaces/Time",
-        "int32 sec",
-        "uint32 nanosec",
+        *HEADER,
         SEPARATOR,
         "MSG: geometry_msgs/Quaternion",
         "float64 x",
