@@ -83,3 +83,15 @@ def test_lidar_points_sit_where_the_lasers_do(projected: dict[str, Path]) -> Non
     lidar = _near_z_error(projected["lidar"], "/ouster/points")
     laser = _near_z_error(projected["lasers"], "/laser/front_1")
     assert abs(lidar - laser) < 0.05
+
+
+def test_fig4_is_drawn_from_the_lidars_own_revisits(projected: dict[str, Path]) -> None:
+    """The rings' sweeps read as scan lines: flat ground found and paired between clouds,
+    the |dz| growing with the time between them, as the lasers' do."""
+    fig4 = {
+        name: json.loads((d / "manifest.json").read_text())["project"]["fig4"]
+        for name, d in projected.items()
+    }
+    assert fig4["lidar"]["flat_points"] > 10_000
+    assert fig4["lidar"]["pairs"] > 10_000
+    assert fig4["lidar"]["slope_m_per_s"] > 0 and fig4["lasers"]["slope_m_per_s"] > 0

@@ -81,6 +81,8 @@ class Figures:
             else Z_ERROR_TILE_EVERY
         )
         self.fig4_until_ns: int | None = None
+        #: A lidar's last cloud of the batch before, which the next batch may continue.
+        self.pending: pa.Table | None = None
         self.jobs: deque[Future[None]] = deque()
         self.lock = threading.Lock()  # the simulated world builds its tiles lazily
 
@@ -100,7 +102,9 @@ class Figures:
             if self.fig4_until_ns is None:
                 self.fig4_until_ns = first_ns + int(FIG4_SECONDS * 1e9)
             if first_ns < self.fig4_until_ns:
-                self.jobs.append(pool.submit(self.agreement.feed, table))
+                if "ring" in table.column_names:  # a lidar's: its rings' sweeps, whole
+                    table, self.pending = whole_clouds(self.pending, table)
+                self.jobs.append(pool.submit(self.agreement.feed, lidar_sweeps(table)))
                 while len(self.jobs) > FIGURE_QUEUE:
                     self.jobs.popleft().result()
         if self.z_error is not None and sample is not None:
@@ -119,12 +123,45 @@ class Figures:
     def write(self, log_dir: Path, log_id: str) -> tuple[ScanAgreementResult, list[str]]:
         """Fig. 4 and (with the true terrain) the z error written into ``log_dir``: Fig. 4's
         result and the names of the files written."""
+        if self.pending is not None:  # the lidar's last cloud
+            self.agreement.feed(lidar_sweeps(self.pending))
+            self.pending = None
         fig4 = self.agreement.result()
         figure_files = [p.name for p in write_fig4(fig4, log_dir, log_id)]
         if self.z_error is not None:
             z_files = write_z_error(self.z_error.result(), log_dir, title=log_id)
             figure_files += [p.name for p in z_files]
         return fig4, figure_files
+
+
+def whole_clouds(pending: pa.Table | None, table: pa.Table) -> tuple[pa.Table, pa.Table | None]:
+    """A lidar batch's points (``pending``, the cloud held back before, first) without its
+    last cloud, which the next batch may continue, and that cloud (None when empty)."""
+    if pending is not None:
+        table = pa.concat_tables([pending, table.cast(pending.schema)])
+    scan = table.column("scan_t_ns").to_numpy()
+    last = scan == scan.max()
+    return table.filter(pa.array(~last)), table.filter(pa.array(last))
+
+
+def lidar_sweeps(table: pa.Table) -> pa.Table:
+    """A lidar's points laid out as Fig. 4 reads a laser's scans: each ring's sweep of one
+    cloud contiguous and in time order, its ``beam`` the return's place along that sweep
+    (0, 1, ...), so the flatness test's neighbouring beams are neighbours on the ring's
+    line across the ground. A laser's points (no ``ring``) are returned as they are."""
+    if "ring" not in table.column_names or not table.num_rows:
+        return table
+    laser = pc.dictionary_encode(pc.cast(table.column("laser"), pa.string())).combine_chunks()
+    names = np.asarray(laser.dictionary.to_pylist(), dtype=object)
+    code = np.argsort(np.argsort(names))[laser.indices.to_numpy()]  # rings by name
+    scan = table.column("scan_t_ns").to_numpy()
+    order = np.lexsort((table.column("t_ns").to_numpy(), code, scan))
+    code, scan = code[order], scan[order]
+    start = np.r_[True, (code[1:] != code[:-1]) | (scan[1:] != scan[:-1])]
+    place = np.arange(order.size) - np.flatnonzero(start)[np.cumsum(start) - 1]
+    out = table.take(pa.array(order))
+    column = out.schema.get_field_index("beam")
+    return out.set_column(column, "beam", pa.array(place.astype(np.int32)))
 
 
 class ZSample(NamedTuple):
