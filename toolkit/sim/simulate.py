@@ -115,13 +115,13 @@ def simulate(
     driver, prev = _warmed_up_driver(prof, world, seed)
     suite = SensorSuite(prof, world, seed, prof.start_time_ns)
     start_sigma = driver.sigma_m
-    expected_blocks = int(
-        (driver.end_sigma_m - start_sigma) / max(float(np.mean(prev.speed_mps)), 1.0) / 0.1
-    )
+    # Progress in metres of route, known exactly (blocks depend on the speeds to come: an
+    # estimate from the warm-up's speed ran past 100 % on races that sped up).
+    route_m = int(np.ceil(driver.end_sigma_m - start_sigma))
 
     with LogWriter(out_path) as writer:
         out = _start_log(writer, prof, world, seed, suite, lasers)
-        bar = progress(total=expected_blocks, desc="sim", unit="block") if show_progress else None
+        bar = progress(total=route_m, desc="sim", unit="m") if show_progress else None
         # Laser casting is most of the work; with workers it runs a few blocks ahead in other
         # processes while this one drives. Every random draw happens here, in block order,
         # so the log is the same whatever the number of workers.
@@ -130,7 +130,7 @@ def simulate(
             if prof.lidar is not None:
                 scanners["lidar"] = prof.lidar
             start_cast = start_laser_casting(stack, workers, prof.world, seed, scanners)
-            loop = _BlockLoop(driver, suite, out, start_cast, bar)
+            loop = _BlockLoop(driver, suite, out, start_cast, bar, start_sigma)
             meter = ShockMeter.for_imu(prof.sensors.imu.rate_hz, default_config().label)
             loop.run(prev, meter, lasers, ahead=2 * workers)
         out.flush(before_ns=None)
@@ -213,6 +213,8 @@ class _BlockLoop:
     out: Outbox
     start_cast: Callable[[str, Rays], Future[FloatArray]]
     bar: Any
+    #: Where along the route the log starts (m): the bar counts metres from it.
+    start_sigma_m: float = 0.0
     pending: deque[_Pending] = dataclasses.field(default_factory=deque)
 
     def run(self, prev: TrueBlock, meter: ShockMeter, lasers: bool, ahead: int) -> None:
@@ -251,5 +253,5 @@ class _BlockLoop:
         if lidar is not None and lidar_rays is not None and lidar_ranges is not None:
             lidar.finish(lidar_rays, lidar_ranges.result(), out)
         out.flush(before_ns=int(block.t_ns[-1]) + self.driver.dt_ns)
-        if self.bar is not None:
-            self.bar.update(1)
+        if self.bar is not None:  # metres driven by the end of this block
+            self.bar.update(max(0, int(block.sigma_m[-1] - self.start_sigma_m) - self.bar.n))
