@@ -100,6 +100,14 @@ def simulate(logs: Path, seeds: list[int], distance_m: float, lidar: bool, jobs:
     return outs
 
 
+def lowest_for_nan(v: np.ndarray) -> np.ndarray:
+    """``v`` with its unscored (non-finite) events ranked below every scored one, by a finite
+    value (scikit-learn refuses infinities)."""
+    finite = np.isfinite(v)
+    floor = float(v[finite].min()) - 1.0 if finite.any() else 0.0
+    return np.where(finite, v, floor)
+
+
 def tpr_at(fpr: np.ndarray, tpr: np.ndarray, at: float) -> float:
     """The ROC polyline's TPR at FPR ``at`` (linear between its points: ties are diagonal)."""
     return float(np.interp(at, fpr, tpr))
@@ -120,7 +128,7 @@ def summarise(scores: dict[str, np.ndarray], rough: np.ndarray, resamples: int) 
     difference to :data:`REFERENCE`. An unscored event (NaN) ranks lowest."""
     rng = np.random.default_rng(0)
     draws = stratified_indices(rng, rough, resamples)
-    ranked = {n: np.where(np.isfinite(v), v, -np.inf) for n, v in scores.items()}
+    ranked = {n: lowest_for_nan(v) for n, v in scores.items()}
     boot = {n: np.array([roc_auc_score(rough[i], v[i]) for i in draws]) for n, v in ranked.items()}
     out: dict[str, dict] = {}
     for name, v in ranked.items():
@@ -154,9 +162,7 @@ def draw(scores: dict[str, np.ndarray], rough: np.ndarray, path: Path) -> None:
 
     fig, ax = plt.subplots(figsize=(6, 5))
     for name, v in scores.items():
-        fpr, tpr, _ = roc_curve(
-            rough, np.where(np.isfinite(v), v, -np.inf), drop_intermediate=False
-        )
+        fpr, tpr, _ = roc_curve(rough, lowest_for_nan(v), drop_intermediate=False)
         ax.plot(fpr, tpr, label=name, lw=2 if name in ("self_supervised", REFERENCE) else 1)
     ax.plot([0, 1], [0, 1], color="0.7", lw=0.5)
     ax.set_xlabel("false-positive rate")
@@ -218,9 +224,7 @@ def main() -> None:
             "train_rough": int((rough & ~test & (log_ids == log_id)).sum()),
             "rough_rate": float(rough[log_ids == log_id].mean()),
             "auc": {
-                n: float(
-                    roc_auc_score(rough[mine], np.where(np.isfinite(v[mine]), v[mine], -np.inf))
-                )
+                n: float(roc_auc_score(rough[mine], lowest_for_nan(v[mine])))
                 for n, v in scores.items()
             }
             if 0 < rough[mine].sum() < mine.sum()
