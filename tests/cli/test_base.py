@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import logging
+import re
 import subprocess
 import sys
 import types
@@ -223,7 +224,10 @@ def test_off_a_terminal_long_work_logs_progress_lines(tmp_path: Path) -> None:
     )
     assert proc.returncode == 0, proc.stderr
     beats = [line for line in proc.stderr.splitlines() if line.startswith("terrain: sim: ")]
-    assert beats and all(" block (" in b and ", after " in b for b in beats), proc.stderr
+    # Metres of route driven out of the route's length, never past it.
+    done = [re.fullmatch(r"terrain: sim: (\d+)/(\d+) m \((\d+) %\), after \d+ s", b) for b in beats]
+    assert beats and all(done), proc.stderr
+    assert all(int(m[1]) <= int(m[2]) and int(m[3]) <= 100 for m in done if m), proc.stderr
     assert "terrain: sim" not in proc.stdout
     proc = subprocess.run(
         [sys.executable, "-m", "toolkit", "ingest", str(out), "-w", str(tmp_path / "ws")],
