@@ -60,6 +60,9 @@ class RoleSpec:
     decoders: Mapping[str, Callable[[str], Decoder]] = field(default_factory=dict)
     #: The role takes several topics (a list in ``[topics]``: every laser, every lidar).
     multi: bool = False
+    #: Its table is a row per return, hundreds of millions of rows (the lidar's): written as
+    #: the point cloud is (:class:`~toolkit.tableio.TableWriter` ``bulk``).
+    bulk: bool = False
 
     @property
     def accepted_types(self) -> tuple[str, ...]:
@@ -109,6 +112,7 @@ ROLE_SPECS: dict[str, RoleSpec] = {
             written="present",
             decoders={POINTCLOUD2: decode_clouds},
             multi=True,
+            bulk=True,
         ),
         RoleSpec("imu", "imu", {"sensor_msgs/msg/Imu": imu_from_imu}, "IMU"),
         RoleSpec("gps", "gps", {"sensor_msgs/msg/NavSatFix": gps_from_navsatfix}, "GPS"),

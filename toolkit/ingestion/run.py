@@ -27,7 +27,7 @@ from toolkit.ingestion.dedup import DuplicateFilter
 from toolkit.ingestion.lidar import check_sweeps, lidar_notices
 from toolkit.ingestion.plans import TopicPlan, plan_topic
 from toolkit.ingestion.reorder import ReorderBuffer
-from toolkit.ingestion.roles import tables_written
+from toolkit.ingestion.roles import ROLE_SPECS, tables_written
 from toolkit.ingestion.screen import convert_batch
 from toolkit.ingestion.timecheck import stream_time_outliers
 from toolkit.layout import log_file_name
@@ -68,6 +68,7 @@ def make_buffers(
         present[r] for r in present if any(p.role == r for p in plans.values())
     ]
     with_schema = schema_tables()
+    bulk = {spec.table for spec in ROLE_SPECS.values() if spec.bulk}
     return {
         name: ReorderBuffer(
             TableWriter(
@@ -77,6 +78,7 @@ def make_buffers(
                 source_sha256=source_sha256,
                 config_hash=config_hash,
                 sort_by="t_ns",
+                bulk=name in bulk,
             ),
             sources.get(name, []),
             buffer_bytes=buffer_bytes,
