@@ -245,3 +245,19 @@ def test_the_real_sweeps_span_their_period(tmp_path: Path) -> None:
     assert manifest["topics"]["/ouster/points"]["counts"]["lidar_span_off_period"] == 0
     t = table.column("t_ns").to_numpy() - table.column("scan_t_ns").to_numpy()
     assert 0.9e8 < t.max() - t.min() < 1.0e8
+
+
+def test_the_lidar_table_is_written_as_a_bulk_table(tmp_path: Path) -> None:
+    """A row per return: written as the point cloud is, floats byte-stream-split and times
+    delta-encoded (12 % smaller on a simulated lidar log), the values unchanged."""
+    import pyarrow.parquet as pq
+
+    _ingest(tmp_path, REAL / "ouster-os1-128.mcap", _config("/ouster/points"))
+    (path,) = (p for p in (tmp_path / "ws" / "logs").glob("*/lidar.parquet") if "/." not in str(p))
+    meta = pq.ParquetFile(path).metadata.row_group(0)
+    encodings = {
+        meta.column(j).path_in_schema: set(meta.column(j).encodings)
+        for j in range(meta.num_columns)
+    }
+    assert "BYTE_STREAM_SPLIT" in encodings["x"]
+    assert "DELTA_BINARY_PACKED" in encodings["t_ns"]
