@@ -75,6 +75,7 @@ def test_default_has_the_papers_settings() -> None:
         "tables",
         "evaluate",
         "lidar",
+        "imu",
     )
 
 

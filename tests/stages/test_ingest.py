@@ -574,7 +574,7 @@ def test_screening_nan_skew_no_fix_and_zero_speed(tmp_path: Path, ws: Workspace)
     info = detail(ws, result)["topics"]
     assert info["/imu"]["rejects"] == {
         "bad_payload": 0, "bad_time": 0, "clock_skew": 1, "duplicate": 0, "non_finite": 4,
-        "time_outlier": 0,
+        "time_outlier": 0, "imu_beyond_range": 0, "imu_spike": 0,
     }  # fmt: skip
     assert result.row_counts["imu"] == 195
     # 5 of 200 (2.5 %) rejected: above 1 %, so said on the terminal with the reasons.

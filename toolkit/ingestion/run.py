@@ -21,9 +21,10 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from toolkit.atomic import atomic_write_json
-from toolkit.config import LidarConfig, TimeConfig, TopicsConfig
+from toolkit.config import ImuConfig, LidarConfig, TimeConfig, TopicsConfig
 from toolkit.ingestion.accounts import TopicAccount, count_totals, reject_warnings, usable_roles
 from toolkit.ingestion.dedup import DuplicateFilter
+from toolkit.ingestion.imucheck import IMU_REJECT_REASONS, stream_imu_check
 from toolkit.ingestion.lidar import check_sweeps, lidar_notices
 from toolkit.ingestion.plans import TopicPlan, plan_topic
 from toolkit.ingestion.reorder import ReorderBuffer
@@ -98,6 +99,7 @@ class IngestRun:
         time_config: TimeConfig,
         log_path: Path,
         lidar: LidarConfig | None = None,
+        imu: ImuConfig | None = None,
     ) -> None:
         self.plans = plans
         self.buffers = buffers
@@ -106,7 +108,11 @@ class IngestRun:
         self.time = time_config
         self.log_path = log_path
         self.lidar = lidar
+        self.imu = imu if imu is not None else ImuConfig()
         self.accounts = {t: TopicAccount(t, p.role, p.type_name, p.table) for t, p in plans.items()}
+        for account in self.accounts.values():
+            if account.table == "imu":  # checked once the table is finished (imucheck)
+                account.rejects.update(dict.fromkeys(IMU_REJECT_REASONS, 0))
         self.dedups = {t: DuplicateFilter() for t in plans}
         self.tf_rows: list[pa.Table] = []
         self.mcap_metadata: dict[str, dict[str, str]] = {}
@@ -167,7 +173,44 @@ class IngestRun:
         for name in tables_written("always").values():
             if name in self.outputs and self.writers[name].rows:
                 self._drop_time_outliers(name)
+        if "imu" in self.outputs and self.writers["imu"].rows:
+            self.warnings += self._drop_impossible_imu()
         self.timings["finish"] = time.perf_counter() - t0
+
+    def _drop_impossible_imu(self) -> list[str]:
+        """Rewrite the finished IMU table without the samples no sensor produces
+        (:mod:`toolkit.ingestion.imucheck`), counted per reason; a warning per reason, since
+        each one would have moved the pose."""
+        old = self.writers["imu"]
+        verdict = stream_imu_check(old.finished_path, self.imu)
+        if verdict is None:
+            return []
+        topic = next(t for t, plan in self.plans.items() if plan.table == "imu")
+        account = self.accounts[topic]
+        masks = dict(zip(IMU_REJECT_REASONS, (verdict.beyond_range, verdict.spike), strict=True))
+        why = {
+            "imu_beyond_range": (
+                f"beyond the sensor's full scale ([imu] gyro_range_radps "
+                f"{self.imu.gyro_range_radps:g}, accel_range_mps2 {self.imu.accel_range_mps2:g})"
+            ),
+            "imu_spike": (
+                f"gyro spikes no vehicle makes ([imu] max_angular_accel_radps2 "
+                f"{self.imu.max_angular_accel_radps2:g})"
+            ),
+        }
+        lines = []
+        for reason, mask in masks.items():
+            n = int(np.count_nonzero(mask))
+            if n:
+                account.rejects[reason] += n
+                account.written -= n
+                account.rows -= n
+                lines.append(f"topic {topic}: {n} IMU samples rejected, {why[reason]}")
+        keep = pa.array(~(verdict.beyond_range | verdict.spike))
+        self.writers["imu"] = old.rewrite(
+            lambda piece, first: piece.filter(keep.slice(first, piece.num_rows))
+        )
+        return lines
 
     def _drop_time_outliers(self, name: str) -> None:
         """Rewrite a finished table without the rows :mod:`toolkit.ingestion.timecheck` finds

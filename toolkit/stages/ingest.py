@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from toolkit.config import LidarConfig, PipelineConfig, TimeConfig, TopicsConfig
+from toolkit.config import ImuConfig, LidarConfig, PipelineConfig, TimeConfig, TopicsConfig
 from toolkit.errors import LogReadError
 from toolkit.ingestion.accounts import lost_by_topic, reject_totals, rejects_by_topic
 from toolkit.ingestion.plans import resolve_topics
@@ -81,6 +81,7 @@ class IngestSettings:
     topics: TopicsConfig
     time: TimeConfig
     lidar: LidarConfig
+    imu: ImuConfig
     buffer_bytes: int = DEFAULT_REORDER_BUFFER_BYTES
 
 
@@ -103,7 +104,9 @@ def ingest_log(
     LogReadError when the file cannot be read at all. ``reorder_buffer_bytes`` bounds the
     rows each table holds back for sorting.
     """
-    settings = IngestSettings(config.topics, config.time, config.lidar, reorder_buffer_bytes)
+    settings = IngestSettings(
+        config.topics, config.time, config.lidar, config.imu, reorder_buffer_bytes
+    )
     return run_stage(
         SPEC, workspace, config, overwrite=overwrite, settings=settings, source=Path(log_path)
     )
@@ -216,7 +219,13 @@ def _read(
                 buffer_bytes=settings.buffer_bytes,
             )
             run = IngestRun(
-                plans, buffers, settings.topics, settings.time, source.path, settings.lidar
+                plans,
+                buffers,
+                settings.topics,
+                settings.time,
+                source.path,
+                settings.lidar,
+                settings.imu,
             )
             t_read = time.perf_counter()
             for batch in progress(
