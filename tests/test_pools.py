@@ -130,7 +130,8 @@ def test_a_signal_ends_the_command_and_its_busy_worker(
 
 BUSY_SCRIPT = """
 import multiprocessing, sys, numpy as np
-from toolkit.pools import process_pool, sigterm_as_exit
+from toolkit.pools import process_pool
+from toolkit.stopping import stop_on_signals
 
 def busy(n):
     x = np.random.default_rng(0).random(4_000_000)
@@ -140,7 +141,7 @@ def busy(n):
 if __name__ == "__main__":
     workers = []
     try:
-        with sigterm_as_exit(), process_pool(2) as pool:
+        with stop_on_signals(), process_pool(2) as pool:
             futures = [pool.submit(busy, i) for i in range(4)]
             workers = multiprocessing.active_children()
             for f in futures:

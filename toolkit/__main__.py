@@ -1,5 +1,5 @@
 """Entry point for ``python -m toolkit``."""
 
-from toolkit.cli import entry
+from toolkit.launch import entry
 
 entry()

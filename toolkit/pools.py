@@ -56,7 +56,7 @@ def _init_worker(
     """Every worker: Ctrl-C ignored (the parent stops the workers), exit with the parent,
     then the pool user's own initializer."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    # A forked worker inherits the parent's SIGTERM handler (sigterm_as_exit); the parent's
+    # A forked worker inherits the parent's SIGTERM handler (toolkit.stopping); the parent's
     # terminate must end it wherever it is, as SIGTERM's default action does.
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _exit_when_orphaned(parent_pid)
@@ -122,28 +122,3 @@ def exit_without_waiting(code: int) -> None:
         with contextlib.suppress(Exception):
             stream.flush()
     os._exit(code)
-
-
-class Terminated(SystemExit):
-    """Raised where the main thread is when SIGTERM arrives (:func:`sigterm_as_exit`); its
-    code is 128 + 15, as a shell reports a process ended by SIGTERM."""
-
-
-@contextlib.contextmanager
-def sigterm_as_exit() -> Iterator[None]:
-    """Within the block, SIGTERM (``kill``, a CI's timeout, a scheduler) raises
-    :class:`Terminated` where the main thread is: every ``with`` unwinds, so pools stop their
-    workers and temporary files go. Python's default would end the process on the spot and
-    leave its pool workers running. A second SIGTERM during that unwinding is ignored (it
-    would cut the cleanup short); SIGKILL still ends everything. The previous handler is
-    restored after. Main thread only."""
-
-    def stop(signum: int, _frame: object) -> None:
-        signal.signal(signal.SIGTERM, signal.SIG_IGN)
-        raise Terminated(128 + signum)
-
-    previous = signal.signal(signal.SIGTERM, stop)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)

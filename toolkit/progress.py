@@ -15,10 +15,12 @@ import os
 import sys
 import threading
 import time
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sized
 from typing import Any
 
 from tqdm import tqdm
+
+from toolkit.stopping import checked
 
 _quiet = False
 
@@ -153,11 +155,16 @@ def progress(
     Off a terminal it is a :class:`Heartbeat` with the same interface; when quiet, a
     disabled bar (a pass-through).
     """
+    sized_total = len(iterable) if isinstance(iterable, Sized) else None  # as tqdm would take
+    if iterable is not None:
+        # Each step is a checkpoint: a stop whose exception was swallowed where the signal
+        # landed is raised here (toolkit.stopping).
+        iterable = checked(iterable)
     if logging_progress():
         return Heartbeat(iterable, total, desc, unit, _heartbeat_s())
     return tqdm(
         iterable,
-        total=total,
+        total=total if total is not None else sized_total,
         desc=desc,
         unit=unit,
         unit_scale=unit_scale,

@@ -15,8 +15,8 @@ from typing import Any
 import click
 
 from toolkit.errors import ToolkitError
-from toolkit.pools import Terminated
 from toolkit.progress import set_quiet
+from toolkit.stopping import Stopped
 
 PROG = "terrain"
 
@@ -97,8 +97,9 @@ class TerrainGroup(click.Group):
             return super().invoke(ctx)
         except (click.exceptions.ClickException, click.exceptions.Exit, click.Abort):
             raise  # usage errors (exit 2), explicit exits, Ctrl-C: click handles them
-        except Terminated:
-            error_line("stopped (SIGTERM)")  # said here, not in the signal handler
+        except Stopped as exc:
+            error_line(exc.line)  # said here, not in the signal handler
+            exc.said = True
             raise
         except ToolkitError as exc:
             if debug_on(ctx):

@@ -3,15 +3,14 @@ Ctrl-C, and the stages' commands next to its own."""
 
 from __future__ import annotations
 
-import threading
-
 import click
 
 from toolkit import __version__
 from toolkit.cli.base import PROG, CliOptions, TerrainGroup, apply_global_flags
 from toolkit.cli.stages import stage_command
-from toolkit.pools import exit_without_waiting, sigterm_as_exit
+from toolkit.pools import exit_without_waiting
 from toolkit.stages import registry
+from toolkit.stopping import stop_on_signals
 
 
 class StagesGroup(TerrainGroup):
@@ -39,14 +38,10 @@ def main(ctx: click.Context, verbose: int, quiet: bool, debug: bool) -> None:
     """Self-supervised terrain roughness estimation (Stavens & Thrun, 2006) over MCAP logs."""
     ctx.obj = CliOptions(verbose=verbose, quiet=quiet, debug=debug)
     apply_global_flags(ctx.obj)
-    _stop_on_sigterm(ctx)
-
-
-def _stop_on_sigterm(ctx: click.Context) -> None:
-    """SIGTERM ends the command as Ctrl-C does, every ``with`` unwound (pool workers
-    stopped, temporary files removed, locks released); restored when the command ends."""
-    if threading.current_thread() is threading.main_thread():  # (not in a test's thread)
-        ctx.with_resource(sigterm_as_exit())
+    # Ctrl-C and SIGTERM stop the command, every ``with`` unwound (pool workers stopped,
+    # temporary files removed, locks released). The launcher (toolkit.launch) has set this
+    # up already; a command run in-process (a test's CliRunner) gets it here.
+    ctx.with_resource(stop_on_signals())
 
 
 def entry() -> None:

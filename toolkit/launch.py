@@ -1,0 +1,30 @@
+"""The process's entry point (``terrain``, ``python -m toolkit``).
+
+The stop on Ctrl-C and SIGTERM (:mod:`toolkit.stopping`) is set up before anything else is
+imported: importing the command line takes a few tenths of a second, and a signal there
+would otherwise end the process with a traceback (Ctrl-C) or without a word (SIGTERM).
+"""
+
+from __future__ import annotations
+
+import sys
+
+from toolkit.stopping import Stopped, stop_on_signals
+
+
+def entry() -> None:
+    """Run the command line (:func:`toolkit.cli.group.entry`) with the stop on signals; a
+    stop it did not report itself (one during start-up) is one line here."""
+    try:
+        with stop_on_signals():
+            from toolkit.cli.group import entry as command_line
+
+            command_line()
+    except Stopped as exc:
+        if not exc.said:
+            sys.stderr.write(f"terrain: error: {exc.line}\n")
+            sys.stderr.flush()
+        raise SystemExit(exc.code) from None
+
+
+__all__ = ["entry"]
