@@ -23,7 +23,9 @@ from .helpers import FakeResult, assert_one_error_line, fake_sim_module
 
 
 class FakeInfo:
-    topics = (types.SimpleNamespace(topic="/imu/data", message_type="sensor_msgs/Imu"),)
+    topics = (
+        types.SimpleNamespace(topic="/imu/data", message_type="sensor_msgs/Imu", layout=None),
+    )
 
     def to_dict(self) -> dict[str, Any]:
         return {"topics": [{"topic": "/imu/data", "count": 3}], "problems": []}

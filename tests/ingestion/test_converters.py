@@ -19,6 +19,7 @@ from toolkit.ingestion.roles import ROLE_SPECS
 from toolkit.ingestion.rows import ConvertContext, RoleRows
 from toolkit.mcapio.cdr import decode_batch
 from toolkit.mcapio.cdr_encode import encode_batch, encode_message
+from toolkit.mcapio.cdr_layout import plan_for
 from toolkit.tableio import conform_table, load_table_schema
 
 SEC = 1_128_783_600
@@ -330,3 +331,58 @@ def test_truth_features_and_tf_explode_into_rows() -> None:
     assert rows.table.column("kind").to_pylist() == ["rock", "pothole"]
     assert rows.table.column("x_m").to_pylist() == [3.0, 0.0]
     assert rows.message_of_row is not None and rows.message_of_row.tolist() == [0, 0]
+
+
+def _one_message(type_name: str) -> dict[str, Any]:
+    """A message of ``type_name`` with a stamp, a frame and one element in each array of
+    messages: every field a converter may read has a value."""
+    spec = plan_for(type_name).spec
+    msg: dict[str, Any] = {}
+    for f in spec.fields:
+        if f.name == "header":
+            msg["header"] = {"stamp": {"sec": SEC, "nanosec": 5}, "frame_id": "base_link"}
+        elif f.nested is not None and f.is_array and f.array_length is None:
+            msg[f.name] = [
+                {"header": {"stamp": {"sec": SEC}}} if f.nested.fields[0].name == "header" else {}
+            ]
+    return msg
+
+
+def _only(cols: dict[str, Any], paths: tuple[str, ...]) -> dict[str, Any]:
+    """The columns a converter declares it reads, and no other: inside an array of messages
+    (a column of per-message dicts), only the declared paths of its elements."""
+    out: dict[str, Any] = {}
+    for key, value in cols.items():
+        if key in paths:
+            out[key] = value
+        inner = tuple(p[len(key) + 1 :] for p in paths if p.startswith(f"{key}."))
+        if inner and value.dtype == object:
+            out[key] = np.array(
+                [{k: v for k, v in m.items() if k in inner} for m in value], dtype=object
+            )
+    return out
+
+
+@pytest.mark.parametrize(
+    ("role", "type_name"),
+    [
+        (role, type_name)
+        for role, spec in ROLE_SPECS.items()
+        for type_name in spec.accepted_types
+        if type_name not in spec.decoders
+    ],
+)
+def test_each_converter_reads_only_the_fields_it_declares(role: str, type_name: str) -> None:
+    """``RoleSpec.reads`` is what decides whether a log's own schema can serve a role
+    (docs/ingest.md): a converter handed only those columns gives the same rows."""
+    reads = ROLE_SPECS[role].reads.get(type_name, ())
+    assert reads, f"role {role} declares no fields it reads of {type_name}"
+    decoded = decode_batch(type_name, [encode_message(type_name, _one_message(type_name))])
+    log_t = np.array([SEC * 10**9], dtype=np.int64)
+    ctx = ConvertContext("/t", role, type_name, 0)
+    convert = ROLE_SPECS[role].converter_for("/t", type_name)
+    full = convert(decoded, log_t, ctx)
+    assert full.table.num_rows >= 1
+    only = convert(_only(decoded, reads), log_t, ctx)
+    assert only.table.equals(full.table)
+    assert only.metadata == full.metadata

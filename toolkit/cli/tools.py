@@ -114,7 +114,7 @@ def info(log: Path, as_json: bool, full: bool) -> None:
     from toolkit.mcapio.info import render_table, scan_log
 
     log_info = scan_log(log, full=full)
-    roles = {t.topic: roles_accepting(t.message_type) for t in log_info.topics}
+    roles = {t.topic: roles_accepting(t.message_type, t.layout) for t in log_info.topics}
     if as_json:
         doc = log_info.to_dict()
         for topic in doc["topics"]:

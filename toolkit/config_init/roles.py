@@ -95,6 +95,10 @@ def describe_topic(t: TopicSummary) -> str:
 
 def _excluded(role: str, t: TopicSummary) -> str:
     """Why ``t`` cannot play ``role`` although its type is accepted ("" when it can)."""
+    if t.layout is not None:
+        unreadable = ROLE_SPECS[role].schema_problem(t.layout)
+        if unreadable:
+            return f"its schema {t.layout.difference}: {unreadable}"
     name = t.topic.lower()
     for hint in EXCLUDE.get(role, ()):
         if hint.word in name:

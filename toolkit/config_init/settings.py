@@ -41,9 +41,16 @@ def _topic_settings(guesses: Mapping[str, RoleGuess], summary: LogSummary) -> Se
         for topic, why in guess.others:
             comments.append(f"  also {topic}: {why}")
         for topic in guess.topics:
-            problem = summary.topic(topic).problem
-            if problem:
-                comments.append(f"  CHECK: {topic}'s first messages did not decode: {problem}")
+            chosen = summary.topic(topic)
+            if chosen.problem:
+                comments.append(
+                    f"  CHECK: {topic}'s first messages did not decode: {chosen.problem}"
+                )
+            if chosen.layout is not None and chosen.layout.difference is not None:
+                comments.append(
+                    f"  NOTE: {topic}'s schema {chosen.layout.difference}: ingest decodes it "
+                    "by the log's own schema"
+                )
         out[("topics", role)] = Setting(value, tuple(comments))
     return out
 

@@ -18,6 +18,7 @@ from toolkit.errors import ToolkitError
 from toolkit.geometry.mounts import StaticTransform
 from toolkit.ingestion.roles import ROLE_SPECS
 from toolkit.mcapio.info import LogInfo, scan_log
+from toolkit.mcapio.layout_check import ChannelLayout
 from toolkit.mcapio.msgdefs import full_type_name
 from toolkit.mcapio.reader import LogReader
 
@@ -27,6 +28,10 @@ FRAMED_ROLES: tuple[str, ...] = ("lasers", "lidars", "imu", "gps")
 MAX_MOUNT_M = 100.0
 #: An IMU tilted less than this (deg) at the start is taken as level (the robot on a slope).
 LEVEL_DEG = 20.0
+
+#: Kinds of `terrain info` problems that are no damage: said as notes (a lidar recorded as
+#: packets, a schema departing from the toolkit's layout of its type).
+NOTE_KINDS: frozenset[str] = frozenset({"lidar_packets", "nonstandard_schema"})
 
 IMU_TYPE = "sensor_msgs/msg/Imu"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
@@ -53,6 +58,8 @@ class TopicSummary:
     problem: str = ""
     #: A point cloud's field names (its driver's layout), from its first message.
     point_fields: tuple[str, ...] = ()
+    #: Its schema compared with the toolkit's layout of its type (None: not parsed).
+    layout: ChannelLayout | None = None
 
 
 @dataclass(frozen=True)
@@ -118,6 +125,7 @@ def summarize_log(path: str | Path) -> LogSummary:
                 accel_mean=_accel_mean(cols) if types[t.topic] == IMU_TYPE else None,
                 problem=problems.get(t.topic, ""),
                 point_fields=_point_fields(cols),
+                layout=t.layout,
             )
         )
     return LogSummary(
@@ -126,8 +134,8 @@ def summarize_log(path: str | Path) -> LogSummary:
         topics=tuple(topics),
         tf_static_topic=tf_topic,
         transforms=tuple(_transforms(tf_messages)),
-        problems=sum(p.kind != "lidar_packets" for p in info.problems),
-        notes=tuple(p.message for p in info.problems if p.kind == "lidar_packets"),
+        problems=sum(p.kind not in NOTE_KINDS for p in info.problems),
+        notes=tuple(p.message for p in info.problems if p.kind in NOTE_KINDS),
     )
 
 

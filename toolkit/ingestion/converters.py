@@ -61,6 +61,60 @@ NAVSAT_STATUS_NO_FIX = -1
 #: NavSatFix.COVARIANCE_TYPE_UNKNOWN
 COVARIANCE_TYPE_UNKNOWN = 0
 
+# The dotted field paths each converter reads. A log whose schema of a type departs from the
+# toolkit's layout is decoded by its own schema when every path its role's converter reads is
+# there, by name and with its standard type (``RoleSpec.reads``; docs/ingest.md).
+# ``tests/ingestion/test_converters.py`` checks each converter needs no other field.
+
+#: The header stamp, which every stamped message's converter reads.
+STAMP_READS: tuple[str, ...] = ("header.stamp.sec", "header.stamp.nanosec")
+IMU_READS: tuple[str, ...] = (
+    *STAMP_READS,
+    *(f"linear_acceleration.{a}" for a in "xyz"),
+    *(f"angular_velocity.{a}" for a in "xyz"),
+    *(f"orientation.{a}" for a in "xyzw"),
+    "orientation_covariance",
+)
+GPS_READS: tuple[str, ...] = (
+    *STAMP_READS,
+    "latitude",
+    "longitude",
+    "altitude",
+    "status.status",
+    "position_covariance_type",
+    "position_covariance",
+)
+GPS_HEADING_READS: tuple[str, ...] = (*STAMP_READS, "yaw", "yaw_std")
+QUATERNION_READS: tuple[str, ...] = (*STAMP_READS, *(f"quaternion.{a}" for a in "xyzw"))
+WHEEL_SPEEDS_READS: tuple[str, ...] = (
+    *STAMP_READS,
+    "front_left",
+    "front_right",
+    "rear_left",
+    "rear_right",
+)
+TWIST_READS: tuple[str, ...] = (*STAMP_READS, "twist.linear.x")
+ODOMETRY_SPEED_READS: tuple[str, ...] = (*STAMP_READS, "twist.twist.linear.x")
+SCAN_READS: tuple[str, ...] = (
+    *STAMP_READS,
+    "header.frame_id",
+    "angle_min",
+    "angle_increment",
+    "time_increment",
+    "range_min",
+    "range_max",
+    "ranges",
+)
+ODOMETRY_POSE_READS: tuple[str, ...] = (
+    *STAMP_READS,
+    "header.frame_id",
+    "child_frame_id",
+    *(f"pose.pose.position.{a}" for a in "xyz"),
+    *(f"pose.pose.orientation.{a}" for a in "xyzw"),
+    *(f"twist.twist.linear.{a}" for a in "xyz"),
+    *(f"twist.twist.angular.{a}" for a in "xyz"),
+)
+
 
 def imu_from_imu(cols: Columns, log_time_ns: IntArray, ctx: ConvertContext) -> RoleRows:
     """sensor_msgs/Imu -> t_ns, accel_* (m/s^2, IMU frame), gyro_* (rad/s), and the
@@ -302,6 +356,13 @@ _FEATURE_FIELDS: dict[str, str] = {
 }
 
 
+FEATURES_READS: tuple[str, ...] = (
+    *STAMP_READS,
+    "header.frame_id",
+    *(f"features.{path}" for path in _FEATURE_FIELDS.values()),
+)
+
+
 def features_from_array(cols: Columns, log_time_ns: IntArray, ctx: ConvertContext) -> RoleRows:
     """terrain_msgs/RoughFeatureArray -> one row per feature: t_ns (the message's), kind and
     the feature's geometry (m, in the message's frame)."""
@@ -339,6 +400,9 @@ _TF_FIELDS: dict[str, str] = {
 }
 
 
+TF_READS: tuple[str, ...] = tuple(f"transforms.{path}" for path in _TF_FIELDS.values())
+
+
 def tf_from_tfmessage(cols: Columns, log_time_ns: IntArray, ctx: ConvertContext) -> RoleRows:
     """tf2_msgs/TFMessage -> one row per transform: t_ns (its stamp), parent_frame,
     child_frame, translation tx, ty, tz (m) and rotation quaternion qx, qy, qz, qw."""
@@ -364,6 +428,18 @@ def tf_from_tfmessage(cols: Columns, log_time_ns: IntArray, ctx: ConvertContext)
 
 __all__ = [
     "COVARIANCE_TYPE_UNKNOWN",
+    "FEATURES_READS",
+    "GPS_HEADING_READS",
+    "GPS_READS",
+    "IMU_READS",
+    "ODOMETRY_POSE_READS",
+    "ODOMETRY_SPEED_READS",
+    "QUATERNION_READS",
+    "SCAN_READS",
+    "STAMP_READS",
+    "TF_READS",
+    "TWIST_READS",
+    "WHEEL_SPEEDS_READS",
     "NAVSAT_STATUS_NO_FIX",
     "features_from_array",
     "gps_from_navsatfix",

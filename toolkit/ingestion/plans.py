@@ -5,6 +5,13 @@ bound to the channel's type) and the role's converter for that type
 (:mod:`toolkit.ingestion.roles`). Any role may be missing from a log (its table is written
 empty); a log holding none of the configured topics, or a type a role does not accept, is a
 StageError that says what the log does hold and what the role accepts.
+
+The log's schema decides how its bytes are read. Once per channel, its schema is compared
+with the toolkit's layout of the type (:mod:`toolkit.mcapio.layout_check`): when they agree
+(comments, constants and spacing aside) the fast decoder lays the bytes out by the toolkit's
+definition; when they differ, the topic is decoded by the log's own schema if every field its
+role reads is there by name with its standard type (one line on the terminal), and refused
+with one line naming the topic and the first differing field otherwise.
 """
 
 from __future__ import annotations
@@ -19,7 +26,8 @@ from toolkit.errors import SchemaError, StageError, ToolkitError
 from toolkit.ingestion.roles import ROLE_SPECS, Decoder
 from toolkit.ingestion.rows import ConvertContext, Converter
 from toolkit.mcapio.cdr import decode_batch
-from toolkit.mcapio.msgdefs import full_type_name, known_types, parse_schema_text
+from toolkit.mcapio.layout_check import ChannelLayout, channel_layout
+from toolkit.mcapio.msgdefs import full_type_name
 from toolkit.mcapio.pointcloud2 import packets_note
 from toolkit.mcapio.reader import Channel
 
@@ -36,31 +44,66 @@ class TopicPlan:
     decode: Decoder
     convert: Converter
     context: ConvertContext
-
-
-@functools.cache
-def _known_types() -> frozenset[str]:
-    return frozenset(known_types())
+    #: The channel planned (another channel of the topic is planned on its own).
+    channel_id: int = 0
+    #: The terminal's line when the topic's schema departs from the standard layout and is
+    #: decoded by the log's own schema ("" otherwise).
+    notice: str = ""
 
 
 def channel_decoder(topic: str, channel: Channel) -> Decoder:
-    """decode_batch bound to the channel's type: by name for a type the toolkit ships,
-    else by the schema text the log carries (parsed once)."""
+    """decode_batch bound to the channel's type, by the layout its bytes follow: the
+    toolkit's own (fast, by name) when the log's schema agrees with it, else the log's own
+    schema (parsed once here). StageError when the messages are not CDR or the log's schema
+    is unusable or missing for a type the toolkit does not ship."""
+    return _decoder(topic, _layout(topic, channel))
+
+
+def _layout(topic: str, channel: Channel) -> ChannelLayout:
+    """The channel's schema compared with the toolkit's layout (StageError naming the topic
+    when its messages are not CDR or its schema cannot be parsed)."""
     if channel.message_encoding != "cdr":
         raise StageError(
             f"topic {topic} has message encoding {channel.message_encoding!r}; only ROS 2 "
             "'cdr' messages can be ingested"
         )
-    name = full_type_name(channel.schema_name)
-    if name in _known_types():
-        return functools.partial(decode_batch, name)
-    if channel.schema_encoding == "ros2msg" and channel.schema_data:
-        try:
-            spec = parse_schema_text(name, bytes(channel.schema_data).decode("utf-8"))
-        except (SchemaError, UnicodeDecodeError, ValueError) as exc:
-            raise StageError(f"topic {topic}: unusable schema {name!r}: {exc}") from exc
-        return functools.partial(decode_batch, spec)
-    raise StageError(f"topic {topic}: no message definition for {name!r} in the log or toolkit")
+    try:
+        return channel_layout(channel)
+    except SchemaError as exc:
+        raise StageError(f"topic {topic}: unusable schema {channel.schema_name!r}: {exc}") from exc
+
+
+def _decoder(topic: str, layout: ChannelLayout) -> Decoder:
+    """decode_batch bound to the type's name (the fast layout) when the schema is standard,
+    else to the log's own definition and its text; StageError when there is neither."""
+    if layout.is_standard:
+        return functools.partial(decode_batch, layout.type_name)
+    if layout.log is not None:
+        return functools.partial(decode_batch, layout.log, schema_text=layout.log_text)
+    raise StageError(
+        f"topic {topic}: no message definition for {layout.type_name!r} in the log or toolkit"
+    )
+
+
+def schema_notice(topic: str, layout: ChannelLayout, role: str) -> str:
+    """The terminal's line for a topic whose schema departs from the standard layout but
+    holds every field ``role`` reads ("" for a standard one)."""
+    if layout.difference is None:
+        return ""
+    return (
+        f"topic {topic}: its schema {layout.type_name} {layout.difference}: decoded by "
+        f"the log's own schema, which has every field role {role} reads"
+    )
+
+
+def _check_schema(topic: str, role: str, layout: ChannelLayout) -> None:
+    """StageError when the log's schema departs from the standard layout in a way the role
+    cannot read (a field its converter reads is missing or of another type)."""
+    problem = ROLE_SPECS[role].schema_problem(layout)
+    if problem is not None:
+        raise StageError(
+            f"topic {topic}: its schema {layout.type_name} {layout.difference}; {problem}"
+        )
 
 
 def _is_ros_name(schema_name: str) -> bool:
@@ -108,6 +151,8 @@ def resolve_topics(
         for topic in role_topics:
             if topic in found:
                 plans[topic] = plan_topic(topic, role, found[topic], time, log_path, lidar)
+                if plans[topic].notice:
+                    warnings.append(plans[topic].notice)
     if not plans:
         configured = "; ".join(_role_line(r, t) for r, t in by_role.items()) or "none"
         packets = [
@@ -146,7 +191,9 @@ def plan_topic(
         if note and role == "lidars":
             raise StageError(note)
         convert = spec.converter_for(topic, channel.schema_name)
-        decode = spec.decoder_for(topic, channel.schema_name) or channel_decoder(topic, channel)
+        layout = _layout(topic, channel)
+        _check_schema(topic, role, layout)
+        decode = spec.decoder_for(topic, channel.schema_name) or _decoder(topic, layout)
     except StageError as exc:
         raise StageError(str(exc), path=log_path) from None
     return TopicPlan(
@@ -160,7 +207,16 @@ def plan_topic(
         context=ConvertContext.for_topic(
             topic, role, channel.schema_name, time, lidar if role == "lidars" else None
         ),
+        channel_id=channel.id,
+        notice=schema_notice(topic, layout, role),
     )
 
 
-__all__ = ["Decoder", "TopicPlan", "channel_decoder", "plan_topic", "resolve_topics"]
+__all__ = [
+    "Decoder",
+    "TopicPlan",
+    "channel_decoder",
+    "plan_topic",
+    "resolve_topics",
+    "schema_notice",
+]

@@ -22,6 +22,17 @@ import numpy as np
 from toolkit.config import MULTI_TOPIC_ROLES, ROLES
 from toolkit.errors import StageError
 from toolkit.ingestion.converters import (
+    FEATURES_READS,
+    GPS_HEADING_READS,
+    GPS_READS,
+    IMU_READS,
+    ODOMETRY_POSE_READS,
+    ODOMETRY_SPEED_READS,
+    QUATERNION_READS,
+    SCAN_READS,
+    TF_READS,
+    TWIST_READS,
+    WHEEL_SPEEDS_READS,
     features_from_array,
     gps_from_navsatfix,
     heading_from_gps_heading,
@@ -36,6 +47,7 @@ from toolkit.ingestion.converters import (
 )
 from toolkit.ingestion.lidar import POINTCLOUD2, decode_clouds, lidar_from_pointcloud2
 from toolkit.ingestion.rows import Converter
+from toolkit.mcapio.layout_check import ChannelLayout, field_mismatch
 from toolkit.mcapio.msgdefs import full_type_name
 
 
@@ -63,6 +75,8 @@ class RoleSpec:
     #: Its table is a row per return, hundreds of millions of rows (the lidar's): written as
     #: the point cloud is (:class:`~toolkit.tableio.TableWriter` ``bulk``).
     bulk: bool = False
+    #: Per accepted type, the dotted field paths its converter reads (:meth:`schema_problem`).
+    reads: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
 
     @property
     def accepted_types(self) -> tuple[str, ...]:
@@ -84,6 +98,27 @@ class RoleSpec:
         make = self.decoders.get(_full_name(type_name))
         return None if make is None else make(topic)
 
+    def schema_problem(self, layout: ChannelLayout) -> str | None:
+        """Why this role cannot read a topic whose schema is ``layout`` (None: it can).
+
+        A schema that agrees with the standard layout is always read (by the fast decoder).
+        One that departs from it is read by the log's own definition, except for a type the
+        role reads by its own decoder (a point cloud: standard layout only); the fields its
+        converter reads (``reads``, else every field of the standard layout) must be there by
+        name, with their standard types, in any order.
+        """
+        standard, log = layout.standard, layout.log
+        if layout.difference is None or standard is None or log is None:
+            return None
+        name = standard.name
+        if name in self.decoders:
+            return f"role {self.role} reads {name} by its standard layout only"
+        paths = self.reads.get(name) or tuple(f.name for f in standard.fields)
+        mismatch = field_mismatch(standard, log, paths)
+        if mismatch is None:
+            return None
+        return f"role {self.role} cannot read it: the schema {mismatch}"
+
 
 def _full_name(type_name: str) -> str:
     try:
@@ -102,7 +137,12 @@ ROLE_SPECS: dict[str, RoleSpec] = {
     spec.role: spec
     for spec in (
         RoleSpec(
-            "lasers", "laser", {"sensor_msgs/msg/LaserScan": laser_from_scan}, "laser", multi=True
+            "lasers",
+            "laser",
+            {"sensor_msgs/msg/LaserScan": laser_from_scan},
+            "laser",
+            multi=True,
+            reads={"sensor_msgs/msg/LaserScan": SCAN_READS},
         ),
         RoleSpec(
             "lidars",
@@ -114,8 +154,20 @@ ROLE_SPECS: dict[str, RoleSpec] = {
             multi=True,
             bulk=True,
         ),
-        RoleSpec("imu", "imu", {"sensor_msgs/msg/Imu": imu_from_imu}, "IMU"),
-        RoleSpec("gps", "gps", {"sensor_msgs/msg/NavSatFix": gps_from_navsatfix}, "GPS"),
+        RoleSpec(
+            "imu",
+            "imu",
+            {"sensor_msgs/msg/Imu": imu_from_imu},
+            "IMU",
+            reads={"sensor_msgs/msg/Imu": IMU_READS},
+        ),
+        RoleSpec(
+            "gps",
+            "gps",
+            {"sensor_msgs/msg/NavSatFix": gps_from_navsatfix},
+            "GPS",
+            reads={"sensor_msgs/msg/NavSatFix": GPS_READS},
+        ),
         RoleSpec(
             "heading",
             "heading",
@@ -124,6 +176,10 @@ ROLE_SPECS: dict[str, RoleSpec] = {
                 "geometry_msgs/msg/QuaternionStamped": heading_from_quaternion,
             },
             "GPS compass",
+            reads={
+                "terrain_msgs/msg/GpsHeading": GPS_HEADING_READS,
+                "geometry_msgs/msg/QuaternionStamped": QUATERNION_READS,
+            },
         ),
         RoleSpec(
             "wheels",
@@ -134,6 +190,11 @@ ROLE_SPECS: dict[str, RoleSpec] = {
                 "nav_msgs/msg/Odometry": wheels_from_odometry,
             },
             "wheel speed",
+            reads={
+                "terrain_msgs/msg/WheelSpeeds": WHEEL_SPEEDS_READS,
+                "geometry_msgs/msg/TwistStamped": TWIST_READS,
+                "nav_msgs/msg/Odometry": ODOMETRY_SPEED_READS,
+            },
         ),
         RoleSpec(
             "tf_static",
@@ -141,6 +202,7 @@ ROLE_SPECS: dict[str, RoleSpec] = {
             {"tf2_msgs/msg/TFMessage": tf_from_tfmessage},
             "static transform topic",
             written="json",
+            reads={"tf2_msgs/msg/TFMessage": TF_READS},
         ),
         RoleSpec(
             "truth_pose",
@@ -148,6 +210,7 @@ ROLE_SPECS: dict[str, RoleSpec] = {
             {"nav_msgs/msg/Odometry": pose_from_odometry},
             "true pose (simulated logs only)",
             written="present",
+            reads={"nav_msgs/msg/Odometry": ODOMETRY_POSE_READS},
         ),
         RoleSpec(
             "truth_features",
@@ -155,6 +218,7 @@ ROLE_SPECS: dict[str, RoleSpec] = {
             {"terrain_msgs/msg/RoughFeatureArray": features_from_array},
             "true terrain features (simulated logs only)",
             written="present",
+            reads={"terrain_msgs/msg/RoughFeatureArray": FEATURES_READS},
         ),
     )
 }
@@ -170,11 +234,17 @@ def role_spec(role: str) -> RoleSpec:
     return ROLE_SPECS[role]
 
 
-def roles_accepting(type_name: str) -> tuple[str, ...]:
+def roles_accepting(type_name: str, layout: ChannelLayout | None = None) -> tuple[str, ...]:
     """The roles whose spec accepts ``type_name`` (any spelling of a ROS type name), in
-    :data:`ROLE_SPECS` order: what a topic of that type can be to the pipeline."""
+    :data:`ROLE_SPECS` order: what a topic of that type can be to the pipeline. With the
+    topic's ``layout`` (its schema compared with the standard one), less the roles that
+    cannot read it (:meth:`RoleSpec.schema_problem`)."""
     full = _full_name(type_name)
-    return tuple(r for r, s in ROLE_SPECS.items() if full in s.converters)
+    return tuple(
+        r
+        for r, s in ROLE_SPECS.items()
+        if full in s.converters and (layout is None or s.schema_problem(layout) is None)
+    )
 
 
 def tables_written(when: str) -> dict[str, str]:

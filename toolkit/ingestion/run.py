@@ -116,7 +116,11 @@ class IngestRun:
         self.dedups = {t: DuplicateFilter() for t in plans}
         self.tf_rows: list[pa.Table] = []
         self.mcap_metadata: dict[str, dict[str, str]] = {}
-        self.extra_plans: dict[tuple[str, str], TopicPlan] = {}
+        self.extra_plans: dict[tuple[str, int], TopicPlan] = {}
+        #: Lines for the terminal from the channels planned while reading (schema notices;
+        #: those of the first channels are said by resolve_topics).
+        self.notices: list[str] = []
+        self._said = {p.notice for p in plans.values() if p.notice}
         self.timings: defaultdict[str, float] = defaultdict(float)
         self.outputs: list[str] = []
         self.warnings: list[str] = []
@@ -124,14 +128,19 @@ class IngestRun:
     def _plan(self, batch: MessageBatch) -> TopicPlan | None:
         topic = batch.channel.topic
         plan = self.plans.get(topic)
-        if plan is None or batch.channel.schema_name == plan.schema_name:
+        if plan is None or batch.channel.id == plan.channel_id:
             return plan
-        # Another channel on the same topic with another type: plan it as well.
-        key = (topic, batch.channel.schema_name)
+        # Another channel on the same topic, with another type or another schema of it: plan
+        # it as well (its schema checked as the first channel's was).
+        key = (topic, batch.channel.id)
         if key not in self.extra_plans:
-            self.extra_plans[key] = plan_topic(
+            extra = plan_topic(
                 topic, plan.role, batch.channel, self.time, self.log_path, self.lidar
             )
+            self.extra_plans[key] = extra
+            if extra.notice and extra.notice not in self._said:
+                self._said.add(extra.notice)
+                self.notices.append(extra.notice)
         return self.extra_plans[key]
 
     def consume(self, batch: MessageBatch) -> None:
@@ -162,7 +171,7 @@ class IngestRun:
         for topic, by_reason in report.lost.items():
             if topic in self.accounts:
                 self.accounts[topic].lost = {k: int(v) for k, v in by_reason.items() if v}
-        self.warnings = usable_roles(self.accounts, self.log_path)
+        self.warnings = [*self.notices, *usable_roles(self.accounts, self.log_path)]
         self.warnings += reject_warnings(self.accounts)
         check_sweeps(self.accounts)
         self.warnings += lidar_notices(self.accounts)

@@ -75,11 +75,16 @@ def decode_batch(
     dict of columns of its elements.
 
     ``type_name`` names a toolkit type, or pass a :class:`MessageSpec`, or pass the log's own
-    ``schema_text`` to decode by the definition the log carries. Truncated or inconsistent
-    payloads raise :class:`CdrError` naming the payload and field.
+    ``schema_text`` to decode by the definition the log carries (with a spec parsed from it,
+    pass the text too: a type without a fixed layout is decoded message by message from the
+    text, and a spec alone is refused as :class:`SchemaError` rather than decoded by the
+    toolkit's own text). Truncated or inconsistent payloads raise :class:`CdrError` naming the
+    payload and field.
     """
     plan = plan_for(type_name, schema_text)
     if not plan.has_fixed_layout:
+        if isinstance(type_name, MessageSpec) and schema_text is None:
+            raise SchemaError(f"{plan.name}: decoding a parsed definition needs its schema text")
         return _decode_per_message(plan, payloads, schema_text)
     n = len(payloads)
     lengths = np.fromiter(map(len, payloads), dtype=np.int64, count=n)

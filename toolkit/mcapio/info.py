@@ -13,8 +13,10 @@ Damage` the reader finds becomes a problem whose kind is the damage's reason (``
 topic as lost, exactly as ingest's manifest counts them. To those, ``info`` adds what it sees in
 the messages themselves: ``out_of_order`` (a message of a topic earlier in log time than one
 before it in the file), ``duplicates`` (same topic, log time and bytes), ``empty_topic``,
-``unknown_schema`` (not decodable as ROS 2 CDR) and ``summary_mismatch`` (the summary's
-message count disagrees with the data).
+``unknown_schema`` (not decodable as ROS 2 CDR), ``nonstandard_schema`` (the log's schema of a
+type the toolkit ships departs from the toolkit's layout of it: the first differing field,
+:mod:`toolkit.mcapio.layout_check`) and ``summary_mismatch`` (the summary's message count
+disagrees with the data).
 
 When the log has a complete summary with chunk and message indexes the scan reads only those
 (``scan == "index"``: fast, no chunk is decompressed, so chunk CRCs are not checked; chunks
@@ -36,7 +38,8 @@ import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 
 from toolkit.errors import ToolkitError
-from toolkit.mcapio.msgdefs import full_type_name, parse_schema_text
+from toolkit.mcapio.layout_check import ChannelLayout, channel_layout
+from toolkit.mcapio.msgdefs import full_type_name
 from toolkit.mcapio.pointcloud2 import packets_note
 from toolkit.mcapio.reader import Channel, LogReader, ReadReport
 
@@ -46,7 +49,8 @@ class Problem:
     """One thing wrong with a log: a short machine-readable ``kind`` and a readable message.
 
     Kinds: the reader's damage reasons (see :mod:`toolkit.mcapio.reader`) and ``out_of_order``,
-    ``duplicates``, ``empty_topic``, ``unknown_schema``, ``summary_mismatch``.
+    ``duplicates``, ``empty_topic``, ``unknown_schema``, ``nonstandard_schema``,
+    ``summary_mismatch``.
     """
 
     kind: str
@@ -61,6 +65,9 @@ class TopicInfo:
     consecutive log times; ``long_gaps`` the number of steps longer than three times the median
     (non-zero) step. Rate and gap are None with fewer than two messages. ``messages_lost`` is
     what the reader knows it could not salvage from a damaged file (not in ``message_count``).
+    ``layout`` is its schema compared with the toolkit's layout of its type (None when the
+    schema cannot be parsed or is no ROS 2 ``ros2msg``/``cdr`` one), for the callers that
+    know which fields a role reads.
     """
 
     topic: str
@@ -74,6 +81,7 @@ class TopicInfo:
     max_gap_s: float | None
     long_gaps: int
     messages_lost: int = 0
+    layout: ChannelLayout | None = field(default=None, compare=False, repr=False)
 
     def to_dict(self) -> dict[str, Any]:
         """A JSON-able dict."""
@@ -208,7 +216,9 @@ def _out_of_order(times: np.ndarray) -> tuple[int, int]:
     return n, (int(np.flatnonzero(behind)[0]) + 1 if n else -1)
 
 
-def _topic_info(channel: Channel, times: np.ndarray, lost: int) -> TopicInfo:
+def _topic_info(
+    channel: Channel, times: np.ndarray, lost: int, layout: ChannelLayout | None
+) -> TopicInfo:
     count = len(times)
     first = int(times.min()) if count else None
     last = int(times.max()) if count else None
@@ -234,15 +244,17 @@ def _topic_info(channel: Channel, times: np.ndarray, lost: int) -> TopicInfo:
         max_gap_s=gap,
         long_gaps=long_gaps,
         messages_lost=lost,
+        layout=layout,
     )
 
 
-def _schema_problem(channel: Channel) -> str:
-    """Why a channel's messages cannot be decoded as ROS 2 CDR, or "" when they can."""
+def _schema_check(channel: Channel) -> tuple[str, ChannelLayout | None]:
+    """Why a channel's messages cannot be decoded as ROS 2 CDR ("" when they can), and its
+    schema compared with the toolkit's layout (None when it cannot be)."""
     if channel.schema_id == 0:
-        return f"topic {channel.topic} has no schema"
+        return f"topic {channel.topic} has no schema", None
     if not channel.schema_name and not channel.schema_encoding:
-        return f"topic {channel.topic} refers to undefined schema id {channel.schema_id}"
+        return f"topic {channel.topic} refers to undefined schema id {channel.schema_id}", None
     if (
         channel.schema_encoding != SchemaEncoding.ROS2
         or channel.message_encoding != MessageEncoding.CDR
@@ -251,12 +263,15 @@ def _schema_problem(channel: Channel) -> str:
             f"topic {channel.topic}: schema {channel.schema_name!r} "
             f"({channel.schema_encoding or 'none'}) with message encoding "
             f"{channel.message_encoding!r} is not ROS 2 ros2msg/cdr"
-        )
+        ), None
     try:
-        parse_schema_text(channel.schema_name, channel.schema_data.decode("utf-8"))
-    except (ToolkitError, UnicodeDecodeError) as exc:
-        return f"topic {channel.topic}: schema {channel.schema_name!r} cannot be parsed: {exc}"
-    return ""
+        layout = channel_layout(channel)
+    except ToolkitError as exc:
+        return (
+            f"topic {channel.topic}: schema {channel.schema_name!r} cannot be parsed: {exc}",
+            None,
+        )
+    return "", layout
 
 
 def _ros_type_name(schema_name: str) -> str:
@@ -266,7 +281,12 @@ def _ros_type_name(schema_name: str) -> str:
         return schema_name
 
 
-def _content_problems(channels: dict[int, Channel], scan: _Scan, topics: list[TopicInfo]) -> None:
+def _content_problems(
+    channels: dict[int, Channel],
+    scan: _Scan,
+    topics: list[TopicInfo],
+    schema_problems: Mapping[int, str],
+) -> None:
     """What info sees in the messages themselves (the reader reports the file's damage)."""
     late_total, first_late = 0, ""
     dup_total = 0
@@ -281,9 +301,16 @@ def _content_problems(channels: dict[int, Channel], scan: _Scan, topics: list[To
             dup_total += _duplicates(times, digests)
         if info.message_count == 0 and info.messages_lost == 0:
             scan.problem("empty_topic", f"topic {channel.topic} has no messages")
-        why = _schema_problem(channel)
+        why = schema_problems.get(channel_id, "")
         if why:
             scan.problem("unknown_schema", why)
+        if info.layout is not None and info.layout.difference is not None:
+            scan.problem(
+                "nonstandard_schema",
+                f"topic {channel.topic}: its schema {info.layout.type_name} "
+                f"{info.layout.difference}: ingest decodes it by the log's own schema if its "
+                "role's fields are all there, and refuses it otherwise",
+            )
         packets = packets_note(channel.topic, _ros_type_name(channel.schema_name))
         if packets:
             scan.problem("lidar_packets", packets)
@@ -307,15 +334,17 @@ def _findings(
     if report is not None:
         for d in report.damage:
             scan.problem(d.reason, d.detail)
+    checks = {channel_id: _schema_check(channel) for channel_id, channel in channels.items()}
     topics = [
         _topic_info(
             channel,
             scan.channel_times(channel_id),
             sum(lost_by_topic.get(channel.topic, {}).values()),
+            checks[channel_id][1],
         )
         for channel_id, channel in channels.items()
     ]
-    _content_problems(channels, scan, topics)
+    _content_problems(channels, scan, topics, {c: why for c, (why, _) in checks.items()})
     delivered = sum(t.message_count for t in topics)
     lost = sum(sum(r.values()) for r in lost_by_topic.values())
     stats = reader.statistics
