@@ -4,6 +4,7 @@ on tiny logs built here (two IMUs, fused odometry, /tf_static)."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -246,9 +247,18 @@ def test_fused_odometry_alone_is_no_wheels_and_no_gps_dead_reckons_on_odometry(
 
 def _tf_static(transforms: list[tuple[str, str, tuple[float, ...], tuple[float, ...]]]):
     """One TFMessage: (parent, child, xyz, rpy) each."""
+    return _tf_message(
+        [
+            (parent, child, xyz, tuple(Rotation.from_euler("ZYX", [y, p, r]).as_quat()))
+            for parent, child, xyz, (r, p, y) in transforms
+        ]
+    )
+
+
+def _tf_message(transforms: list[tuple[str, str, tuple[float, ...], tuple[float, ...]]]):
+    """One TFMessage: (parent, child, xyz, quaternion xyzw) each, as given."""
     out = []
-    for parent, child, xyz, (r, p, y) in transforms:
-        qx, qy, qz, qw = Rotation.from_euler("ZYX", [y, p, r]).as_quat()
+    for parent, child, xyz, (qx, qy, qz, qw) in transforms:
         out.append(
             {
                 "header": {"stamp": {"sec": T0 // NS, "nanosec": 0}, "frame_id": parent},
@@ -293,6 +303,57 @@ def test_tf_static_gives_the_mounts(tmp_path: Path) -> None:
     assert "/scan: " in lasers and "mount in /tf_static" in lasers
     assert "/scan_rear: " in lasers and "project drops its scans without a mount" in lasers
     assert cfg.topics.lasers == ("/scan", "/scan_rear")
+
+
+def test_unusable_static_transforms_are_dropped_by_the_rule_ingest_keeps(tmp_path: Path) -> None:
+    """A NaN in /tf_static: config init said "pose: yes" and ingest then died writing
+    tf_static.json; a zero quaternion was dropped here but kept by ingest and refused by
+    pose. Now config init, ingest and pose keep the same transforms, by one rule, and say
+    the same lines; the whole path runs (exit 0)."""
+    identity = (0.0, 0.0, 0.0, 1.0)
+    log = _write(
+        tmp_path / "bad_tf.mcap",
+        {
+            "/tf_static": _tf_message(
+                [
+                    ("base_link", "imu_link", (math.nan, 0.0, 0.4), identity),
+                    ("base_link", "gps_link", (-0.3, 0.0, 1.2), (0.0, 0.0, 0.0, 0.0)),
+                    ("base_link", "laser_front", (1.0, 0.0, 1.5), identity),
+                    ("base_link", "laser_front", (1.0, 0.0, 1.6), identity),
+                ]
+            ),
+            "/imu/data": _imu("imu_link"),
+            "/gps/fix": _fix("gps_link"),
+            "/wheel/odom": _odom(),
+        },
+    )
+    runner = CliRunner()
+    config = tmp_path / "robot.toml"
+    result = runner.invoke(main, ["config", "init", str(log), "--out", str(config)])
+    assert result.exit_code == 0, result.output
+    said = [ln for ln in result.stderr.splitlines() if "/tf_static: " in ln]
+    assert len(said) == 2
+    assert "2 unusable static transform(s) dropped" in said[0]
+    assert "'imu_link' (NaN or inf in its translation)" in said[0]
+    assert "'gps_link' (a rotation quaternion of zero norm)" in said[0]
+    assert "child frame 'laser_front' has conflicting static transforms" in said[1]
+    text = config.read_text()
+    assert "pose: yes" in text and "CHECK: /tf_static: 2 unusable" in text
+    cfg = load_config(config)
+    assert cfg.vehicle.imu_position_m == (0.0, 0.0, 0.0)  # not from the dropped transform
+    assert "'imu_link' is not below 'base_link'" in _comments_of(text, "imu_position_m")
+    ws = tmp_path / "ws"
+    result = runner.invoke(main, ["ingest", str(log), "-w", str(ws), "-c", str(config)])
+    assert result.exit_code == 0, result.output
+    for line in said:  # ingest says what config init said, word for word
+        assert line.split("] ", 1)[1].split(": ", 1)[1] in result.stderr
+    (log_id,) = Workspace(ws).log_ids()
+    kept = json.loads(Workspace(ws).log_dir(log_id).joinpath("tf_static.json").read_text())
+    assert [t["child_frame"] for t in kept["transforms"]] == ["laser_front"]
+    assert kept["transforms"][0]["translation_m"] == [1.0, 0.0, 1.6]
+    result = runner.invoke(main, ["pose", "-w", str(ws)])
+    assert result.exit_code == 0, result.output
+    assert "Traceback" not in result.stderr
 
 
 def test_apply_settings_adds_a_key_its_section_lacks_and_refuses_a_section() -> None:

@@ -67,7 +67,7 @@ def init_config(path: str | Path) -> str:
             summary.problems,
             summary.path,
         )
-    for note in summary.notes:
+    for note in (*summary.notes, *summary.tf_warnings):
         _log.warning("%s: %s", summary.path, note)
     text = render_config(summary, guess_roles(summary))
     try:

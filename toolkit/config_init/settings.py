@@ -159,6 +159,7 @@ def file_head(
         lines.append(
             f"`terrain info` finds {summary.problems} problem(s) in this log: read them first"
         )
+    lines.extend(f"CHECK: {warning}" for warning in summary.tf_warnings)
     return lines
 
 
