@@ -228,6 +228,56 @@ def test_two_imus_pick_by_name_and_fused_odometry_is_refused(tmp_path: Path) -> 
     assert cfg.topics.gps == "/gps/fix"
 
 
+def _empty(type_name: str):
+    """A topic registered in the log without any message."""
+    return type_name, np.array([], dtype=np.int64), []
+
+
+def test_a_topic_without_messages_never_wins(tmp_path: Path) -> None:
+    """An empty /imu/data won over a 100 Hz /imu/data_raw by its name, and the head said
+    "pose: yes": ingest then found no IMU message. A topic with no messages is now passed
+    over, said on the terminal with what was chosen instead; one of a single message (no
+    rate) ranks below one with a rate."""
+    log = _write(
+        tmp_path / "empty_imu.mcap",
+        {
+            "/imu/data": _empty("sensor_msgs/msg/Imu"),
+            "/imu/data_raw": _imu("imu_link"),
+            "/gps/fix": _fix(),
+        },
+    )
+    result = CliRunner().invoke(main, ["config", "init", str(log)])
+    assert result.exit_code == 0, result.output
+    cfg = parse_config(result.stdout)
+    assert cfg.topics.imu == "/imu/data_raw"
+    notes = _comments_of(result.stdout, "imu")
+    assert (
+        "also /imu/data: sensor_msgs/msg/Imu, 0 message(s): not used, it has no messages" in notes
+    )
+    assert (
+        "[topics] imu: '/imu/data' (sensor_msgs/msg/Imu) not used, it has no messages in the "
+        "log; '/imu/data_raw' chosen"
+    ) in result.stderr
+    assert "pose: yes" in result.stdout
+    # The only IMU empty: no IMU, and the head says pose cannot run.
+    log = _write(
+        tmp_path / "no_imu.mcap",
+        {"/imu/data": _empty("sensor_msgs/msg/Imu"), "/gps/fix": _fix()},
+    )
+    result = CliRunner().invoke(main, ["config", "init", str(log)])
+    assert result.exit_code == 0, result.output
+    assert parse_config(result.stdout).topics.imu is None
+    assert "pose: NO: no IMU" in result.stdout
+    assert "'/imu/data' (sensor_msgs/msg/Imu) not used" in result.stderr
+    assert "no IMU topic left" in result.stderr
+    # One message has no rate: a 100 Hz topic wins over it whatever the names.
+    log = _write(
+        tmp_path / "one_message.mcap",
+        {"/imu/data": _imu("imu_link", n=1), "/imu/data_raw": _imu("imu_link")},
+    )
+    assert parse_config(init_config(log)).topics.imu == "/imu/data_raw"
+
+
 def test_fused_odometry_alone_is_no_wheels_and_no_gps_dead_reckons_on_odometry(
     tmp_path: Path,
 ) -> None:
