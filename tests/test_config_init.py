@@ -278,6 +278,27 @@ def test_a_topic_without_messages_never_wins(tmp_path: Path) -> None:
     assert parse_config(init_config(log)).topics.imu == "/imu/data_raw"
 
 
+def test_a_topic_named_empty_plays_no_role_and_is_said(tmp_path: Path) -> None:
+    """An IMU on a topic named "" was written ``imu = ""``, which means no IMU, under a head
+    saying "pose: yes". A configuration cannot name it: it is passed over, said on the
+    terminal and in the comments, and the head says what the written file means."""
+    log = _write(tmp_path / "blank.mcap", {"": _imu("imu_link"), "/gps/fix": _fix()})
+    result = CliRunner().invoke(main, ["config", "init", str(log)])
+    assert result.exit_code == 0, result.output
+    cfg = parse_config(result.stdout)
+    assert cfg.topics.imu is None
+    assert "pose: NO: no IMU" in result.stdout
+    assert 'also "": sensor_msgs/msg/Imu at 100.0 Hz' in _comments_of(result.stdout, "imu")
+    assert (
+        "[topics] imu: '' (sensor_msgs/msg/Imu) not used, its name is empty, and a "
+        'configuration cannot name it ("" is no topic); no IMU topic left'
+    ) in result.stderr
+    log = _write(
+        tmp_path / "blank_and_named.mcap", {"": _imu("imu_link"), "/imu": _imu("imu_link")}
+    )
+    assert parse_config(init_config(log)).topics.imu == "/imu"
+
+
 def test_fused_odometry_alone_is_no_wheels_and_no_gps_dead_reckons_on_odometry(
     tmp_path: Path,
 ) -> None:

@@ -11,9 +11,10 @@ Three pure steps and one that reads the log:
    (the types :data:`~toolkit.ingestion.roles.ROLE_SPECS` accepts), then, when several topics
    share a type, by name (``/imu/data`` over ``/imu/data_raw``; a wheel controller's odometry,
    never ``/odometry/filtered``, which is a fusion's output and not a sensor). A topic with
-   no messages plays no role (said on the terminal with what was chosen instead), and one
-   with a rate comes before one without. Each guess keeps why it was made and the
-   alternatives; a role nothing matches says so.
+   no messages, or named ``""`` (an absent role in ``[topics]``), plays no role (said on
+   the terminal with what was chosen instead), and one with a rate comes before one
+   without. Each guess keeps why it was made and the alternatives; a role nothing matches
+   says so.
 3. :func:`render_config` writes the TOML text: the built-in default's text (every key, every
    comment) with the values the log decides replaced, each replaced value preceded by
    comments saying why, and a head saying which stages the log can feed. The result is

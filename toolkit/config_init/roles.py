@@ -90,6 +90,11 @@ class RoleGuess:
     notices: tuple[str, ...] = ()
 
 
+def topic_label(topic: str) -> str:
+    """A topic's name as the comments show it (``""`` for the empty name)."""
+    return topic if topic else '""'
+
+
 def describe_topic(t: TopicSummary) -> str:
     """The topic's type, rate (its count under two messages) and frame, for the comments."""
     rate = f" at {t.rate_hz:.1f} Hz" if t.rate_hz is not None else f", {t.count} message(s)"
@@ -111,8 +116,11 @@ def _excluded(role: str, t: TopicSummary) -> str:
 
 def _unusable(t: TopicSummary) -> str:
     """Why ``t`` can play no role whatever its name and type say ("" when it can): the log
-    holds nothing of it. A topic with no messages would make an empty table (and a stage
-    verdict that lies), so it never wins over one with messages."""
+    holds nothing of it, or nothing a configuration can name. A topic with no messages would
+    make an empty table (and a stage verdict that lies), so it never wins over one with
+    messages; a topic named "" would be written as an absent role."""
+    if not t.topic:
+        return 'its name is empty, and a configuration cannot name it ("" is no topic)'
     if t.count == 0:
         return "it has no messages in the log"
     return ""
