@@ -427,6 +427,46 @@ def test_unusable_static_transforms_are_dropped_by_the_rule_ingest_keeps(tmp_pat
     assert "Traceback" not in result.stderr
 
 
+#: Topic names a log may hold that TOML must escape, or that break a comment or a line.
+ODD_NAMES = {
+    "imu": '/imu\x01"quoted"\\back',
+    "gps": "/gps\nfix\r\t€ü",
+    "wheels": "/wheel/odom\x7f\x85",
+    "lasers": ("/scan\u2028a", "/scan\x1fb\u2029"),
+}
+
+
+def test_odd_topic_and_frame_names_round_trip(tmp_path: Path) -> None:
+    """A control character in a topic name made a configuration that does not load. Every
+    string is now written as a TOML string escape and every comment with such characters
+    escaped: the file config init writes loads with the project's loader and names the
+    log's own topics and frames."""
+    lasers = ODD_NAMES["lasers"]
+    log = _write(
+        tmp_path / "odd\x01name\n.mcap",
+        {
+            ODD_NAMES["imu"]: _imu("imu\x02\nlink"),
+            ODD_NAMES["gps"]: _fix('gps"link\\'),
+            ODD_NAMES["wheels"]: _odom(),
+            lasers[0]: _sensor("sensor_msgs/msg/LaserScan", 10, 10.0, "laser", {}),
+            lasers[1]: _sensor("sensor_msgs/msg/LaserScan", 10, 10.0, "laser", {}),
+        },
+    )
+    config = tmp_path / "odd.toml"
+    result = CliRunner().invoke(main, ["config", "init", str(log), "--out", str(config)])
+    assert result.exit_code == 0, result.output
+    cfg = load_config(config)
+    assert cfg.topics.imu == ODD_NAMES["imu"]
+    assert cfg.topics.gps == ODD_NAMES["gps"]
+    assert cfg.topics.wheels == ODD_NAMES["wheels"]
+    assert cfg.topics.lasers == tuple(sorted(lasers))
+    assert cfg.vehicle.imu_frame == "imu\x02\nlink" and cfg.vehicle.gps_frame == 'gps"link\\'
+    text = config.read_text(encoding="utf-8")
+    assert text.splitlines() == text.split("\n")[:-1]  # no line break but the file's own
+    comments = "\n".join(ln for ln in text.splitlines() if ln.lstrip().startswith("#"))
+    assert "/imu\\u0001" in comments and "/gps\\u000afix" in comments  # said, escaped
+
+
 def test_apply_settings_adds_a_key_its_section_lacks_and_refuses_a_section() -> None:
     """A role declared since the default was written has no line there: its key goes at the
     end of its section; a section the default lacks, or a new key without a value, is a
