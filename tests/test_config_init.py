@@ -4,6 +4,7 @@ on tiny logs built here (two IMUs, fused odometry, /tf_static)."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -227,6 +228,77 @@ def test_two_imus_pick_by_name_and_fused_odometry_is_refused(tmp_path: Path) -> 
     assert cfg.topics.gps == "/gps/fix"
 
 
+def _empty(type_name: str):
+    """A topic registered in the log without any message."""
+    return type_name, np.array([], dtype=np.int64), []
+
+
+def test_a_topic_without_messages_never_wins(tmp_path: Path) -> None:
+    """An empty /imu/data won over a 100 Hz /imu/data_raw by its name, and the head said
+    "pose: yes": ingest then found no IMU message. A topic with no messages is now passed
+    over, said on the terminal with what was chosen instead; one of a single message (no
+    rate) ranks below one with a rate."""
+    log = _write(
+        tmp_path / "empty_imu.mcap",
+        {
+            "/imu/data": _empty("sensor_msgs/msg/Imu"),
+            "/imu/data_raw": _imu("imu_link"),
+            "/gps/fix": _fix(),
+        },
+    )
+    result = CliRunner().invoke(main, ["config", "init", str(log)])
+    assert result.exit_code == 0, result.output
+    cfg = parse_config(result.stdout)
+    assert cfg.topics.imu == "/imu/data_raw"
+    notes = _comments_of(result.stdout, "imu")
+    assert (
+        "also /imu/data: sensor_msgs/msg/Imu, 0 message(s): not used, it has no messages" in notes
+    )
+    assert (
+        "[topics] imu: '/imu/data' (sensor_msgs/msg/Imu) not used, it has no messages in the "
+        "log; '/imu/data_raw' chosen"
+    ) in result.stderr
+    assert "pose: yes" in result.stdout
+    # The only IMU empty: no IMU, and the head says pose cannot run.
+    log = _write(
+        tmp_path / "no_imu.mcap",
+        {"/imu/data": _empty("sensor_msgs/msg/Imu"), "/gps/fix": _fix()},
+    )
+    result = CliRunner().invoke(main, ["config", "init", str(log)])
+    assert result.exit_code == 0, result.output
+    assert parse_config(result.stdout).topics.imu is None
+    assert "pose: NO: no IMU" in result.stdout
+    assert "'/imu/data' (sensor_msgs/msg/Imu) not used" in result.stderr
+    assert "no IMU topic left" in result.stderr
+    # One message has no rate: a 100 Hz topic wins over it whatever the names.
+    log = _write(
+        tmp_path / "one_message.mcap",
+        {"/imu/data": _imu("imu_link", n=1), "/imu/data_raw": _imu("imu_link")},
+    )
+    assert parse_config(init_config(log)).topics.imu == "/imu/data_raw"
+
+
+def test_a_topic_named_empty_plays_no_role_and_is_said(tmp_path: Path) -> None:
+    """An IMU on a topic named "" was written ``imu = ""``, which means no IMU, under a head
+    saying "pose: yes". A configuration cannot name it: it is passed over, said on the
+    terminal and in the comments, and the head says what the written file means."""
+    log = _write(tmp_path / "blank.mcap", {"": _imu("imu_link"), "/gps/fix": _fix()})
+    result = CliRunner().invoke(main, ["config", "init", str(log)])
+    assert result.exit_code == 0, result.output
+    cfg = parse_config(result.stdout)
+    assert cfg.topics.imu is None
+    assert "pose: NO: no IMU" in result.stdout
+    assert 'also "": sensor_msgs/msg/Imu at 100.0 Hz' in _comments_of(result.stdout, "imu")
+    assert (
+        "[topics] imu: '' (sensor_msgs/msg/Imu) not used, its name is empty, and a "
+        'configuration cannot name it ("" is no topic); no IMU topic left'
+    ) in result.stderr
+    log = _write(
+        tmp_path / "blank_and_named.mcap", {"": _imu("imu_link"), "/imu": _imu("imu_link")}
+    )
+    assert parse_config(init_config(log)).topics.imu == "/imu"
+
+
 def test_fused_odometry_alone_is_no_wheels_and_no_gps_dead_reckons_on_odometry(
     tmp_path: Path,
 ) -> None:
@@ -246,9 +318,18 @@ def test_fused_odometry_alone_is_no_wheels_and_no_gps_dead_reckons_on_odometry(
 
 def _tf_static(transforms: list[tuple[str, str, tuple[float, ...], tuple[float, ...]]]):
     """One TFMessage: (parent, child, xyz, rpy) each."""
+    return _tf_message(
+        [
+            (parent, child, xyz, tuple(Rotation.from_euler("ZYX", [y, p, r]).as_quat()))
+            for parent, child, xyz, (r, p, y) in transforms
+        ]
+    )
+
+
+def _tf_message(transforms: list[tuple[str, str, tuple[float, ...], tuple[float, ...]]]):
+    """One TFMessage: (parent, child, xyz, quaternion xyzw) each, as given."""
     out = []
-    for parent, child, xyz, (r, p, y) in transforms:
-        qx, qy, qz, qw = Rotation.from_euler("ZYX", [y, p, r]).as_quat()
+    for parent, child, xyz, (qx, qy, qz, qw) in transforms:
         out.append(
             {
                 "header": {"stamp": {"sec": T0 // NS, "nanosec": 0}, "frame_id": parent},
@@ -293,6 +374,97 @@ def test_tf_static_gives_the_mounts(tmp_path: Path) -> None:
     assert "/scan: " in lasers and "mount in /tf_static" in lasers
     assert "/scan_rear: " in lasers and "project drops its scans without a mount" in lasers
     assert cfg.topics.lasers == ("/scan", "/scan_rear")
+
+
+def test_unusable_static_transforms_are_dropped_by_the_rule_ingest_keeps(tmp_path: Path) -> None:
+    """A NaN in /tf_static: config init said "pose: yes" and ingest then died writing
+    tf_static.json; a zero quaternion was dropped here but kept by ingest and refused by
+    pose. Now config init, ingest and pose keep the same transforms, by one rule, and say
+    the same lines; the whole path runs (exit 0)."""
+    identity = (0.0, 0.0, 0.0, 1.0)
+    log = _write(
+        tmp_path / "bad_tf.mcap",
+        {
+            "/tf_static": _tf_message(
+                [
+                    ("base_link", "imu_link", (math.nan, 0.0, 0.4), identity),
+                    ("base_link", "gps_link", (-0.3, 0.0, 1.2), (0.0, 0.0, 0.0, 0.0)),
+                    ("base_link", "laser_front", (1.0, 0.0, 1.5), identity),
+                    ("base_link", "laser_front", (1.0, 0.0, 1.6), identity),
+                ]
+            ),
+            "/imu/data": _imu("imu_link"),
+            "/gps/fix": _fix("gps_link"),
+            "/wheel/odom": _odom(),
+        },
+    )
+    runner = CliRunner()
+    config = tmp_path / "robot.toml"
+    result = runner.invoke(main, ["config", "init", str(log), "--out", str(config)])
+    assert result.exit_code == 0, result.output
+    said = [ln for ln in result.stderr.splitlines() if "/tf_static: " in ln]
+    assert len(said) == 2
+    assert "2 unusable static transform(s) dropped" in said[0]
+    assert "'imu_link' (NaN or inf in its translation)" in said[0]
+    assert "'gps_link' (a rotation quaternion of zero norm)" in said[0]
+    assert "child frame 'laser_front' has conflicting static transforms" in said[1]
+    text = config.read_text()
+    assert "pose: yes" in text and "CHECK: /tf_static: 2 unusable" in text
+    cfg = load_config(config)
+    assert cfg.vehicle.imu_position_m == (0.0, 0.0, 0.0)  # not from the dropped transform
+    assert "'imu_link' is not below 'base_link'" in _comments_of(text, "imu_position_m")
+    ws = tmp_path / "ws"
+    result = runner.invoke(main, ["ingest", str(log), "-w", str(ws), "-c", str(config)])
+    assert result.exit_code == 0, result.output
+    for line in said:  # ingest says what config init said, word for word
+        assert line.split("] ", 1)[1].split(": ", 1)[1] in result.stderr
+    (log_id,) = Workspace(ws).log_ids()
+    kept = json.loads(Workspace(ws).log_dir(log_id).joinpath("tf_static.json").read_text())
+    assert [t["child_frame"] for t in kept["transforms"]] == ["laser_front"]
+    assert kept["transforms"][0]["translation_m"] == [1.0, 0.0, 1.6]
+    result = runner.invoke(main, ["pose", "-w", str(ws)])
+    assert result.exit_code == 0, result.output
+    assert "Traceback" not in result.stderr
+
+
+#: Topic names a log may hold that TOML must escape, or that break a comment or a line.
+ODD_NAMES = {
+    "imu": '/imu\x01"quoted"\\back',
+    "gps": "/gps\nfix\r\t€ü",
+    "wheels": "/wheel/odom\x7f\x85",
+    "lasers": ("/scan\u2028a", "/scan\x1fb\u2029"),
+}
+
+
+def test_odd_topic_and_frame_names_round_trip(tmp_path: Path) -> None:
+    """A control character in a topic name made a configuration that does not load. Every
+    string is now written as a TOML string escape and every comment with such characters
+    escaped: the file config init writes loads with the project's loader and names the
+    log's own topics and frames."""
+    lasers = ODD_NAMES["lasers"]
+    log = _write(
+        tmp_path / "odd\x01name\n.mcap",
+        {
+            ODD_NAMES["imu"]: _imu("imu\x02\nlink"),
+            ODD_NAMES["gps"]: _fix('gps"link\\'),
+            ODD_NAMES["wheels"]: _odom(),
+            lasers[0]: _sensor("sensor_msgs/msg/LaserScan", 10, 10.0, "laser", {}),
+            lasers[1]: _sensor("sensor_msgs/msg/LaserScan", 10, 10.0, "laser", {}),
+        },
+    )
+    config = tmp_path / "odd.toml"
+    result = CliRunner().invoke(main, ["config", "init", str(log), "--out", str(config)])
+    assert result.exit_code == 0, result.output
+    cfg = load_config(config)
+    assert cfg.topics.imu == ODD_NAMES["imu"]
+    assert cfg.topics.gps == ODD_NAMES["gps"]
+    assert cfg.topics.wheels == ODD_NAMES["wheels"]
+    assert cfg.topics.lasers == tuple(sorted(lasers))
+    assert cfg.vehicle.imu_frame == "imu\x02\nlink" and cfg.vehicle.gps_frame == 'gps"link\\'
+    text = config.read_text(encoding="utf-8")
+    assert text.splitlines() == text.split("\n")[:-1]  # no line break but the file's own
+    comments = "\n".join(ln for ln in text.splitlines() if ln.lstrip().startswith("#"))
+    assert "/imu\\u0001" in comments and "/gps\\u000afix" in comments  # said, escaped
 
 
 def test_apply_settings_adds_a_key_its_section_lacks_and_refuses_a_section() -> None:

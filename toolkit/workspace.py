@@ -60,9 +60,10 @@ def log_id_for(path: str | Path) -> str:
 
 def workspace_around(path: str | Path) -> Path | None:
     """The workspace ``path`` lies in or is (a folder holding ``config.toml`` and ``logs/``,
-    found among its real path's ancestors), or None. An output of export, viz or sim may not
-    go there: it would replace the workspace's own files (a model, a manifest, a log's
-    table inside its generation) or pass for one of its logs."""
+    found among its real path's ancestors), or None. An output of export, viz, sim or
+    config init may not go there: it would replace the workspace's own files (its
+    configuration, a model, a manifest, a log's table inside its generation) or pass for
+    one of its logs."""
     real = Path(os.path.realpath(path))
     for folder in (real, *real.parents):
         if (folder / Workspace.CONFIG_NAME).is_file() and (folder / "logs").is_dir():

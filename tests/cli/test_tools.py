@@ -1,6 +1,6 @@
-"""The verbs around the stages (toolkit/cli/tools.py): info and sim. Their implementations
-belong to other modules; here they are replaced by fakes so only argument handling and
-error mapping are tested."""
+"""The verbs around the stages (toolkit/cli/tools.py): info, sim and config init. Their
+implementations belong to other modules; here they are replaced by fakes (or never reached)
+so only argument handling and error mapping are tested."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from toolkit.cli import main
 from toolkit.errors import LogReadError, SimulationError
 from toolkit.workspace import Workspace
 
-from .helpers import FakeResult, assert_one_error_line, fake_sim_module
+from .helpers import SAMPLE_LOG, FakeResult, assert_one_error_line, fake_sim_module
 
 # -- info -------------------------------------------------------------------------------
 
@@ -194,3 +194,26 @@ def test_sim_writes_no_log_inside_a_workspace(runner: CliRunner, tmp_path: Path)
     assert result.exit_code == 1
     assert "lies inside the workspace" in assert_one_error_line(result.stderr)
     assert not (ws.logs_dir / "x.mcap").exists()
+
+
+# -- config init ----------------------------------------------------------------------------
+
+
+def test_config_init_writes_nothing_inside_a_workspace(runner: CliRunner, tmp_path: Path) -> None:
+    """``--out WS/config.toml --overwrite`` replaced the workspace's configuration (and a
+    manifest the same way): refused as viz and sim refuse, one line, exit 1, nothing
+    touched, whatever the flags."""
+    ws = Workspace(tmp_path / "ws").create()
+    ws.config_path.write_text("# the workspace's own\n")
+    manifest = ws.logs_dir / "log-1" / "manifest.json"
+    manifest.parent.mkdir()
+    manifest.write_text("{}")
+    for out in (ws.config_path, manifest, ws.root / "mine.toml"):
+        for flags in ([], ["--overwrite"]):
+            args = ["config", "init", str(SAMPLE_LOG), "--out", str(out), *flags]
+            result = runner.invoke(main, args)
+            assert result.exit_code == 1, result.output
+            line = assert_one_error_line(result.stderr)
+            assert f"{out}: lies inside the workspace " in line
+    assert ws.config_path.read_text() == "# the workspace's own\n"
+    assert manifest.read_text() == "{}" and not (ws.root / "mine.toml").exists()

@@ -20,7 +20,9 @@ from toolkit.config import (
     config_hash,
     default_config,
     dump_toml,
+    escape_controls,
     parse_config,
+    toml_value,
 )
 
 
@@ -98,6 +100,29 @@ def test_dump_round_trips_unusual_values() -> None:
     back = parse_config(dump_toml(odd))
     assert back == odd
     assert isinstance(back, PipelineConfig)
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        "\x00\x01\x1f",
+        "nl \n cr \r tab \t",
+        'q " b \\ \\u0041',
+        "\x7f \x85 \x9f",
+        "\u2028\u2029",
+        "é 🚙 €",
+        "",
+    ],
+)
+def test_every_written_string_loads_back_and_holds_no_line_break(text: str) -> None:
+    """A TOML string escape for every character a TOML string may not hold raw, and for
+    those a reader takes for a line break (C1 controls, U+2028, U+2029) though TOML allows
+    them: the value loads back as it was and its line stays one line."""
+    line = f"key = {toml_value(text)}"
+    assert tomllib.loads(line) == {"key": text}
+    assert line.splitlines() == [line]
+    comment = f"# {escape_controls(text)}"
+    assert tomllib.loads(comment) == {} and comment.splitlines() == [comment]
 
 
 def test_dump_is_complete_without_defaults(tmp_path: Path) -> None:

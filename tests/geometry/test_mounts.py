@@ -93,3 +93,38 @@ def test_malformed_tf_static_is_one_stage_error(tmp_path: Path, text: str) -> No
     path.write_text(text)
     with pytest.raises(StageError, match="tf_static.json: unreadable static transforms"):
         sensor_mounts(path, default_config().vehicle)
+
+
+@pytest.mark.parametrize(
+    ("transforms", "problem"),
+    [
+        (
+            [{**_tf("base_link", "imu_link", [0, 0, 0], [0, 0, 0]), "rotation_xyzw": [0] * 4}],
+            "'base_link' -> 'imu_link': zero_rotation",
+        ),
+        (
+            [
+                _tf("base_link", "imu_link", [0.1, 0, 0], [0, 0, 0]),
+                _tf("chassis", "imu_link", [0.2, 0, 0], [0, 0, 0]),
+            ],
+            "child frame 'imu_link' twice",
+        ),
+    ],
+)
+def test_a_tf_static_json_ingest_would_not_write_is_refused_by_the_same_rule(
+    tmp_path: Path, transforms: list[dict[str, object]], problem: str
+) -> None:
+    """The stages read tf_static.json by the rule ingest writes it by: a transform it drops
+    or a child frame given twice (the first silently lost before) is no file of ingest's."""
+    path = _write(tmp_path / "tf_static.json", *transforms)
+    with pytest.raises(StageError, match="ingest the log again") as err:
+        sensor_mounts(path, default_config().vehicle)
+    assert problem in str(err.value)
+
+
+def test_a_tf_static_json_of_dropped_transforms_says_so(tmp_path: Path) -> None:
+    """Ingest dropped every transform the log had: the fallback says the log's ones were
+    unusable, not that the log had none."""
+    path = _write(tmp_path / "tf_static.json")
+    mounts = sensor_mounts(path, default_config().vehicle)
+    assert "the log's /tf_static has no usable transform" in mounts.warnings[0]

@@ -25,9 +25,10 @@ from scipy.spatial.transform import Rotation
 from toolkit.config import PipelineConfig, default_config, load_config, parse_config
 from toolkit.errors import ConfigError, LogReadError, StageError, ToolkitError
 from toolkit.geometry.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.geometry.mounts import sensor_mounts
 from toolkit.ingestion.roles import ROLE_SPECS
 from toolkit.manifest import file_sha256
-from toolkit.mcapio.cdr_encode import encode_batch
+from toolkit.mcapio.cdr_encode import encode_batch, encode_message
 from toolkit.mcapio.info import scan_log
 from toolkit.mcapio.writer import Batch, LogWriter, Record, merge_by_time
 from toolkit.sim.record import sim_origin
@@ -538,6 +539,98 @@ def test_exact_duplicates_are_dropped_and_counted(tmp_path: Path, ws: Workspace)
     again = ingest_log(log, ws, make_config())
     assert again.status == "up_to_date" and again.rejects == {"/imu": {"duplicate": 13}}
     assert ws.manifest(result.log_id).stage("ingest").rejects == {"duplicate": 13}  # type: ignore[union-attr]
+    assert_accounting(ws, result)
+
+
+def tf_static(*messages: list[tuple[str, str, tuple[float, ...], tuple[float, ...]]]) -> Msgs:
+    """``/tf_static``: one TFMessage per list of (parent, child, xyz, quaternion xyzw)."""
+    payloads = [
+        encode_message(
+            "tf2_msgs/msg/TFMessage",
+            {
+                "transforms": [
+                    {
+                        "header": {"stamp": {"sec": T0 // NS, "nanosec": k}, "frame_id": parent},
+                        "child_frame_id": child,
+                        "transform": {
+                            "translation": dict(zip("xyz", xyz, strict=True)),
+                            "rotation": dict(zip("xyzw", q, strict=True)),
+                        },
+                    }
+                    for parent, child, xyz, q in transforms
+                ]
+            },
+        )
+        for k, transforms in enumerate(messages)
+    ]
+    log_t = T0 + np.arange(len(messages), dtype=np.int64) * 1000
+    return Msgs("/tf_static", "tf2_msgs/msg/TFMessage", log_t, payloads)
+
+
+def test_unusable_and_conflicting_static_transforms_are_dropped_said_and_counted(
+    tmp_path: Path, ws: Workspace
+) -> None:
+    """NaN or inf in a transform made ingest die writing tf_static.json (the log lost); a
+    zero quaternion was written and then refused by pose; a child frame given two transforms
+    kept the last unsaid. Now: dropped or replaced by one rule, said, counted, JSON finite."""
+    nan, inf = math.nan, math.inf
+    identity = (0.0, 0.0, 0.0, 1.0)
+    log = write_log(
+        tmp_path / "tf.mcap",
+        [
+            *basic_topics(),
+            tf_static(
+                [
+                    ("base_link", "imu_link", (0.1, 0.0, 0.5), (0.0, 0.0, 0.0, 2.0)),
+                    ("base_link", "gps_link", (nan, 0.0, 1.0), identity),
+                    ("base_link", "laser_a", (1.0, 0.0, 1.0), (inf, 0.0, 0.0, 1.0)),
+                    ("base_link", "laser_b", (1.0, 0.0, 1.0), (0.0, 0.0, 0.0, 0.0)),
+                    ("base_link", "chassis", (0.0, 0.0, 0.2), identity),
+                ],
+                [
+                    ("base_link", "imu_link", (0.1, 0.0, 0.5), (0.0, 0.0, 0.0, -1.0)),  # same
+                    ("base_link", "chassis", (0.0, 0.0, 0.3), identity),  # conflicting
+                ],
+            ),
+        ],
+    )
+    result = ingest_log(log, ws, make_config(tf_static="/tf_static"))
+    assert result.status == "ingested"
+    path = log_dir(ws, result) / "tf_static.json"
+
+    def refuse(constant: str) -> None:
+        raise AssertionError(f"{constant} in tf_static.json")
+
+    written = json.loads(path.read_text(), parse_constant=refuse)["transforms"]
+    assert [(t["child_frame"], t["translation_m"]) for t in written] == [
+        ("imu_link", [0.1, 0.0, 0.5]),
+        ("chassis", [0.0, 0.0, 0.3]),
+    ]
+    assert written[0]["rotation_xyzw"] == [0.0, 0.0, 0.0, 1.0]  # normalised
+    assert result.row_counts["tf_static"] == 2
+    assert detail(ws, result)["tf_static"] == {
+        "read": 7,
+        "written": 2,
+        "repeats": 1,
+        "dropped": {
+            "non_finite_translation": 1,
+            "non_finite_rotation": 1,
+            "zero_rotation": 1,
+            "conflicting": 1,
+        },
+    }
+    dropped = next(w for w in result.warnings if "unusable static transform" in w)
+    assert dropped.startswith("/tf_static: 3 unusable")
+    assert all(f"'{f}'" in dropped for f in ("gps_link", "laser_a", "laser_b"))
+    conflict = next(w for w in result.warnings if "conflicting" in w)
+    assert "child frame 'chassis'" in conflict and "(0, 0, 0.2)" in conflict
+    assert "(0, 0, 0.3)" in conflict
+    assert ws.manifest(result.log_id).stage("ingest").warnings == result.warnings  # type: ignore[union-attr]
+    # The stages read it by the same rule: the IMU's mount from it, the antenna's not.
+    mounts = sensor_mounts(
+        path, dataclasses.replace(default_config().vehicle, gps_frame="gps_link")
+    )
+    assert mounts.imu.source == "tf_static" and mounts.gps.source == "config"
     assert_accounting(ws, result)
 
 

@@ -149,6 +149,11 @@ def config_init(log: Path, out_path: Path | None, overwrite: bool) -> None:
     """
     _require_file(log, LogReadError)
     if out_path is not None:
+        from toolkit.workspace import refuse_inside_workspace
+
+        # Like viz and sim: never a workspace's own files (its config.toml, a manifest),
+        # --overwrite or not.
+        refuse_inside_workspace(out_path)
         # Checked before the log is read: a configuration someone edited is not replaced
         # by a fresh guess unless asked.
         if out_path.exists() and not overwrite:

@@ -19,6 +19,7 @@ The package's modules: :mod:`~toolkit.config.sections` (the dataclasses and thei
 from toolkit.config.dump import (
     config_hash,
     dump_toml,
+    escape_controls,
     to_dict,
     toml_value,
 )
@@ -85,5 +86,6 @@ __all__ = [
     "load_config",
     "parse_config",
     "to_dict",
+    "escape_controls",
     "toml_value",
 ]

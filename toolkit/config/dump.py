@@ -9,6 +9,7 @@ import dataclasses
 import hashlib
 import json
 import typing
+import unicodedata
 from collections.abc import Iterable
 from typing import Any
 
@@ -128,17 +129,16 @@ def toml_value(value: Any) -> str:
     raise TypeError(f"cannot write {value!r} as TOML")
 
 
+def escape_controls(text: str) -> str:
+    """``text`` with every control character (C0 with tab and newline, DEL, C1) and Unicode
+    line or paragraph separator as its ``\\uXXXX`` escape: what a TOML string or comment may
+    not hold raw, or what a reader takes for a line break. A name from a log (a topic, a
+    frame) so written is shown, never obeyed."""
+    return "".join(
+        f"\\u{ord(ch):04x}" if unicodedata.category(ch) in ("Cc", "Zl", "Zp") else ch for ch in text
+    )
+
+
 def _toml_string(text: str) -> str:
-    """A TOML basic string: quotes, backslashes and control characters escaped."""
-    out = ['"']
-    for ch in text:
-        if ch == '"':
-            out.append('\\"')
-        elif ch == "\\":
-            out.append("\\\\")
-        elif ord(ch) < 0x20 or ord(ch) == 0x7F:
-            out.append(f"\\u{ord(ch):04x}")
-        else:
-            out.append(ch)
-    out.append('"')
-    return "".join(out)
+    """A TOML basic string: backslashes and quotes escaped, then :func:`escape_controls`."""
+    return '"' + escape_controls(text.replace("\\", "\\\\").replace('"', '\\"')) + '"'

@@ -10,8 +10,11 @@ Three pure steps and one that reads the log:
 2. :func:`guess_roles` matches topics to the roles of ``[topics]``: by message type first
    (the types :data:`~toolkit.ingestion.roles.ROLE_SPECS` accepts), then, when several topics
    share a type, by name (``/imu/data`` over ``/imu/data_raw``; a wheel controller's odometry,
-   never ``/odometry/filtered``, which is a fusion's output and not a sensor). Each guess
-   keeps why it was made and the alternatives; a role nothing matches says so.
+   never ``/odometry/filtered``, which is a fusion's output and not a sensor). A topic with
+   no messages, or named ``""`` (an absent role in ``[topics]``), plays no role (said on
+   the terminal with what was chosen instead), and one with a rate comes before one
+   without. Each guess keeps why it was made and the alternatives; a role nothing matches
+   says so.
 3. :func:`render_config` writes the TOML text: the built-in default's text (every key, every
    comment) with the values the log decides replaced, each replaced value preceded by
    comments saying why, and a head saying which stages the log can feed. The result is
@@ -67,9 +70,11 @@ def init_config(path: str | Path) -> str:
             summary.problems,
             summary.path,
         )
-    for note in summary.notes:
+    guesses = guess_roles(summary)
+    notices = (notice for guess in guesses.values() for notice in guess.notices)
+    for note in dict.fromkeys((*summary.notes, *summary.tf_warnings, *notices)):
         _log.warning("%s: %s", summary.path, note)
-    text = render_config(summary, guess_roles(summary))
+    text = render_config(summary, guesses)
     try:
         parse_config(text, source=f"<configuration written for {summary.path}>")
     except ConfigError as exc:  # a bug here, said as one line rather than a bad file

@@ -11,6 +11,8 @@ import textwrap
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
+from toolkit.config import escape_controls
+
 # --------------------------------------------------------------------------------------
 # 3. The TOML text
 # --------------------------------------------------------------------------------------
@@ -33,9 +35,11 @@ COMMENT_WIDTH = 96
 
 def comment_lines(texts: Iterable[str]) -> list[str]:
     """TOML comment lines of ``texts``, each wrapped to :data:`COMMENT_WIDTH` (a text's
-    leading spaces indent its continuation lines too); an empty text is a bare ``#``."""
+    leading spaces indent its continuation lines too); an empty text is a bare ``#``. Control
+    characters and line separators are escaped (:func:`~toolkit.config.escape_controls`): a
+    name from the log can neither break a comment nor end it."""
     out: list[str] = []
-    for text in texts:
+    for text in map(escape_controls, texts):
         indent = " " * (len(text) - len(text.lstrip(" ")))
         wrapped = textwrap.wrap(
             text,

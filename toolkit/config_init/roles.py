@@ -79,18 +79,27 @@ ROLE_WORDS: dict[str, str] = {role: spec.word for role, spec in ROLE_SPECS.items
 @dataclass(frozen=True)
 class RoleGuess:
     """The topics chosen for a role (none, one, or for lasers and lidars several), why, and
-    the other topics of an accepted type with the reason each was not chosen."""
+    the other topics of an accepted type with the reason each was not chosen; ``notices``,
+    what must be said on the terminal (a topic of the role's type passed over for what the
+    log holds, not for its name: no messages)."""
 
     role: str
     topics: tuple[str, ...]
     why: str
     others: tuple[tuple[str, str], ...] = ()
+    notices: tuple[str, ...] = ()
+
+
+def topic_label(topic: str) -> str:
+    """A topic's name as the comments show it (``""`` for the empty name)."""
+    return topic if topic else '""'
 
 
 def describe_topic(t: TopicSummary) -> str:
-    rate = f"{t.rate_hz:.1f} Hz" if t.rate_hz is not None else f"{t.count} message(s)"
+    """The topic's type, rate (its count under two messages) and frame, for the comments."""
+    rate = f" at {t.rate_hz:.1f} Hz" if t.rate_hz is not None else f", {t.count} message(s)"
     frame = f", frame {t.frame_id}" if t.frame_id else ""
-    return f"{t.type_name} at {rate}{frame}"
+    return f"{t.type_name}{rate}{frame}"
 
 
 def _excluded(role: str, t: TopicSummary) -> str:
@@ -109,13 +118,42 @@ def _excluded(role: str, t: TopicSummary) -> str:
     return ""
 
 
-def _rank(role: str, t: TopicSummary) -> tuple[int, int, float, str]:
-    """Sort key, best first: name score, type preference, rate, then the name itself."""
+def _unusable(t: TopicSummary) -> str:
+    """Why ``t`` can play no role whatever its name and type say ("" when it can): the log
+    holds nothing of it, or nothing a configuration can name. A topic with no messages would
+    make an empty table (and a stage verdict that lies), so it never wins over one with
+    messages; a topic named "" would be written as an absent role."""
+    if not t.topic:
+        return 'its name is empty, and a configuration cannot name it ("" is no topic)'
+    if t.count == 0:
+        return "it has no messages in the log"
+    return ""
+
+
+def _rank(role: str, t: TopicSummary) -> tuple[bool, int, int, float, str]:
+    """Sort key, best first: a rate known (two messages or more) before none, then name
+    score, type preference, rate, and the name itself."""
     name = t.topic.lower()
     score = sum(h.score for h in PREFER.get(role, ()) if h.word in name)
     order = TYPE_ORDER.get(role, ())
     type_rank = order.index(t.type_name) if t.type_name in order else len(order)
-    return (-score, type_rank, -(t.rate_hz or 0.0), t.topic)
+    return (t.rate_hz is None, -score, type_rank, -(t.rate_hz or 0.0), t.topic)
+
+
+def _notices(
+    role: str, passed: Sequence[tuple[TopicSummary, str]], chosen: Sequence[str]
+) -> tuple[str, ...]:
+    """The terminal's lines for the topics of ``role``'s type passed over for what the log
+    holds, each with what was chosen instead."""
+    instead = (
+        f"{', '.join(repr(c) for c in chosen)} chosen"
+        if chosen
+        else f"no {ROLE_WORDS[role]} topic left"
+    )
+    return tuple(
+        f"[topics] {role}: {t.topic!r} ({t.type_name}) not used, {why}; {instead}"
+        for t, why in passed
+    )
 
 
 def _name_reasons(role: str, t: TopicSummary) -> list[str]:
@@ -128,9 +166,14 @@ def guess_role(role: str, topics: Sequence[TopicSummary]) -> RoleGuess:
     accepted = ROLE_SPECS[role].converters
     typed = [t for t in topics if t.type_name in accepted]
     others: list[tuple[str, str]] = []
+    passed: list[tuple[TopicSummary, str]] = []
     usable = []
     for t in typed:
         why_not = _excluded(role, t)
+        if not why_not:
+            why_not = _unusable(t)
+            if why_not:
+                passed.append((t, why_not))
         if why_not:
             others.append((t.topic, f"{describe_topic(t)}: not used, {why_not}"))
         else:
@@ -141,15 +184,17 @@ def guess_role(role: str, topics: Sequence[TopicSummary]) -> RoleGuess:
         if role == "lidars":  # a log of packets has a lidar the toolkit cannot read yet
             notes = [packets_note(t.topic, t.type_name) for t in topics]
             why = "; ".join([why, *(n for n in notes if n)])
-        return RoleGuess(role, (), why, tuple(others))
+        return RoleGuess(role, (), why, tuple(others), _notices(role, passed, ()))
     if ROLE_SPECS[role].multi:  # every laser (lidar) scans terrain: all of them
         chosen = sorted(usable, key=lambda t: t.topic)
         types = " or ".join(ROLE_SPECS[role].accepted_types)
+        names = tuple(t.topic for t in chosen)
         return RoleGuess(
             role,
-            tuple(t.topic for t in chosen),
+            names,
             f"every {types} topic ({len(chosen)})",
             tuple(others),
+            _notices(role, passed, names),
         )
     ranked = sorted(usable, key=lambda t: _rank(role, t))
     best = ranked[0]
@@ -164,7 +209,13 @@ def guess_role(role: str, topics: Sequence[TopicSummary]) -> RoleGuess:
         reasons = _name_reasons(role, t)
         extra = f" ({'; '.join(reasons)})" if reasons else ""
         others.insert(0, (t.topic, f"{describe_topic(t)}: an alternative{extra}"))
-    return RoleGuess(role, (best.topic,), f"{describe_topic(best)}: {how}", tuple(others))
+    return RoleGuess(
+        role,
+        (best.topic,),
+        f"{describe_topic(best)}: {how}",
+        tuple(others),
+        _notices(role, passed, (best.topic,)),
+    )
 
 
 def guess_roles(summary: LogSummary) -> dict[str, RoleGuess]:

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 from toolkit.config import PipelineConfig, default_config, toml_value
 from toolkit.config_init.mounts import base_frame, mount_of, vehicle_settings
 from toolkit.config_init.render import Setting, Settings
-from toolkit.config_init.roles import RoleGuess, describe_topic
+from toolkit.config_init.roles import RoleGuess, describe_topic, topic_label
 from toolkit.config_init.summary import LogSummary, TopicSummary
 from toolkit.errors import ToolkitError
 from toolkit.ingestion.roles import ROLE_SPECS
@@ -39,7 +39,7 @@ def _topic_settings(guesses: Mapping[str, RoleGuess], summary: LogSummary) -> Se
             if not guess.topics:
                 comments.extend(_missing_role_notes(role))
         for topic, why in guess.others:
-            comments.append(f"  also {topic}: {why}")
+            comments.append(f"  also {topic_label(topic)}: {why}")
         for topic in guess.topics:
             chosen = summary.topic(topic)
             if chosen.problem:
@@ -166,6 +166,7 @@ def file_head(
         lines.append(
             f"`terrain info` finds {summary.problems} problem(s) in this log: read them first"
         )
+    lines.extend(f"CHECK: {warning}" for warning in summary.tf_warnings)
     return lines
 
 

@@ -16,6 +16,11 @@ import numpy as np
 
 from toolkit.errors import ToolkitError
 from toolkit.geometry.mounts import StaticTransform
+from toolkit.geometry.static_transforms import (
+    StaticTransformSet,
+    TransformRecord,
+    select_static_transforms,
+)
 from toolkit.ingestion.roles import ROLE_SPECS
 from toolkit.mcapio.info import LogInfo, scan_log
 from toolkit.mcapio.layout_check import ChannelLayout
@@ -65,7 +70,8 @@ class TopicSummary:
 @dataclass(frozen=True)
 class LogSummary:
     """What :func:`summarize_log` read: the log, its duration, its topics, and the static
-    transforms of its tf_static topic (``tf_static_topic`` "" when it has none)."""
+    transforms of its tf_static topic (``tf_static_topic`` "" when it has none) that ingest
+    will keep (:mod:`toolkit.geometry.static_transforms`)."""
 
     path: Path
     duration_s: float
@@ -75,6 +81,8 @@ class LogSummary:
     problems: int = 0
     #: What the user must know of the log beyond its damage (a lidar recorded as packets).
     notes: tuple[str, ...] = ()
+    #: What the static transforms' rule dropped or replaced, as ingest will say it.
+    tf_warnings: tuple[str, ...] = ()
 
     def topic(self, name: str) -> TopicSummary:
         """The summary of one topic (KeyError when the log has no such topic)."""
@@ -112,6 +120,7 @@ def summarize_log(path: str | Path) -> LogSummary:
     tf_messages: list[dict[str, np.ndarray]] = []
     if wanted:
         _read_first_batches(path, wanted, tf_topic, tf_count, first, problems, tf_messages)
+    kept = _transforms(tf_messages, tf_topic)
     topics = []
     for t in info.topics:
         cols = first.get(t.topic, {})
@@ -133,9 +142,10 @@ def summarize_log(path: str | Path) -> LogSummary:
         duration_s=info.duration_s,
         topics=tuple(topics),
         tf_static_topic=tf_topic,
-        transforms=tuple(_transforms(tf_messages)),
+        transforms=tuple(StaticTransform.from_record(r) for r in kept.transforms),
         problems=sum(p.kind not in NOTE_KINDS for p in info.problems),
         notes=tuple(p.message for p in info.problems if p.kind in NOTE_KINDS),
+        tf_warnings=kept.warnings,
     )
 
 
@@ -215,11 +225,10 @@ def _accel_mean(cols: Mapping[str, np.ndarray]) -> tuple[float, float, float] | 
     return (mean[0], mean[1], mean[2]) if all(math.isfinite(m) for m in mean) else None
 
 
-def _transforms(messages: Iterable[Mapping[str, np.ndarray]]) -> list[StaticTransform]:
-    """The static transforms of decoded TFMessage batches (unusable ones left out)."""
-    from scipy.spatial.transform import Rotation
-
-    out: list[StaticTransform] = []
+def _transforms(messages: Iterable[Mapping[str, np.ndarray]], topic: str) -> StaticTransformSet:
+    """The static transforms of decoded TFMessage batches, kept by the rule ingest keeps
+    them by (:mod:`toolkit.geometry.static_transforms`)."""
+    records: list[TransformRecord] = []
     for cols in messages:
         for per_msg in cols.get("transforms", []):
             parents = np.asarray(per_msg.get("header.frame_id", []), dtype=str)
@@ -232,17 +241,14 @@ def _transforms(messages: Iterable[Mapping[str, np.ndarray]]) -> list[StaticTran
                 [np.asarray(per_msg[f"transform.rotation.{a}"], np.float64) for a in "xyzw"],
                 axis=-1,
             ).reshape(-1, 4)
-            for k in range(len(children)):
-                if not (np.isfinite(t[k]).all() and np.isfinite(q[k]).all()):
-                    continue
-                if np.linalg.norm(q[k]) < 1e-9:
-                    continue
-                out.append(
-                    StaticTransform(
-                        str(parents[k]).lstrip("/"),
-                        str(children[k]).lstrip("/"),
-                        t[k],
-                        Rotation.from_quat(q[k]).as_matrix(),
-                    )
+            records.extend(
+                TransformRecord(
+                    str(parents[k]).lstrip("/"),
+                    str(children[k]).lstrip("/"),
+                    0,
+                    tuple(float(v) for v in t[k]),
+                    tuple(float(v) for v in q[k]),
                 )
-    return out
+                for k in range(len(children))
+            )
+    return select_static_transforms(records, topic)

@@ -28,6 +28,7 @@ from scipy.spatial.transform import Rotation
 from toolkit.arrays import FloatArray
 from toolkit.config import VehicleConfig
 from toolkit.errors import StageError
+from toolkit.geometry.static_transforms import TransformRecord, usable_transform
 
 #: Where a mount came from.
 FROM_TF_STATIC = "tf_static"
@@ -72,32 +73,47 @@ class StaticTransform:
     translation_m: FloatArray
     rotation: FloatArray
 
+    @classmethod
+    def from_record(cls, record: TransformRecord) -> StaticTransform:
+        """A usable transform (:func:`~toolkit.geometry.static_transforms.usable_transform`)
+        as a rotation matrix and translation."""
+        return cls(
+            record.parent,
+            record.child,
+            np.asarray(record.translation_m, dtype=np.float64),
+            Rotation.from_quat(record.rotation_xyzw).as_matrix(),
+        )
+
+
+#: What to do about a ``tf_static.json`` ingest would not have written.
+_REINGEST = "not what ingest writes: ingest the log again (--overwrite)"
+
 
 def read_tf_static(path: Path) -> list[StaticTransform]:
     """The transforms of an ingested ``tf_static.json`` ([] when the file is absent).
 
-    Raises StageError naming the file when it exists but is not what ingest writes.
+    Raises StageError naming the file when it exists but is not what ingest writes: every
+    transform usable by :mod:`toolkit.geometry.static_transforms`' rule, one per child frame.
     """
     if not path.is_file():
         return []
     try:
         obj: Any = json.loads(path.read_text(encoding="utf-8"))
-        out = []
+        out: list[StaticTransform] = []
         for tf in obj["transforms"]:
-            quat = np.asarray(tf["rotation_xyzw"], dtype=np.float64)
-            if quat.shape != (4,) or not np.isfinite(quat).all() or np.linalg.norm(quat) < 1e-9:
-                raise ValueError(f"bad rotation {tf['rotation_xyzw']!r}")
-            translation = np.asarray(tf["translation_m"], dtype=np.float64)
-            if translation.shape != (3,) or not np.isfinite(translation).all():
-                raise ValueError(f"bad translation {tf['translation_m']!r}")
-            out.append(
-                StaticTransform(
-                    str(tf["parent_frame"]),
-                    str(tf["child_frame"]),
-                    translation,
-                    Rotation.from_quat(quat).as_matrix(),
-                )
+            read = TransformRecord(
+                str(tf["parent_frame"]),
+                str(tf["child_frame"]),
+                int(tf.get("t_ns", 0)),
+                tuple(float(v) for v in tf["translation_m"]),
+                tuple(float(v) for v in tf["rotation_xyzw"]),
             )
+            usable = usable_transform(read)
+            if isinstance(usable, str):
+                raise ValueError(f"{read.parent!r} -> {read.child!r}: {usable}; {_REINGEST}")
+            if any(t.child == usable.child for t in out):
+                raise ValueError(f"child frame {usable.child!r} twice; {_REINGEST}")
+            out.append(StaticTransform.from_record(usable))
     except (
         OSError,
         UnicodeDecodeError,
@@ -108,6 +124,15 @@ def read_tf_static(path: Path) -> list[StaticTransform]:
     ) as exc:
         raise StageError(f"unreadable static transforms: {exc}", path=path) from exc
     return out
+
+
+def _missing_where(path: Path, transforms: Sequence[StaticTransform]) -> str:
+    """Why a frame has no mount from the log, for the warning saying so."""
+    if transforms:
+        return "not in the log's /tf_static"
+    if path.is_file():  # ingest dropped every transform the log had (its warnings said why)
+        return "the log's /tf_static has no usable transform"
+    return "the log has no /tf_static"
 
 
 def chain_to_base(
@@ -146,7 +171,7 @@ def sensor_mounts(tf_static_path: Path, vehicle: VehicleConfig, *, gps: bool = T
     the antenna of a vehicle configured without GPS, ``gps=False``, whose mount is unused)."""
     transforms = read_tf_static(tf_static_path)
     warnings: list[str] = []
-    where = "the log has no /tf_static" if not transforms else "not in the log's /tf_static"
+    where = _missing_where(tf_static_path, transforms)
 
     def mount(
         frame: str, position: Sequence[float], rpy: Sequence[float], keys: str, used: bool = True
@@ -187,7 +212,7 @@ def frame_mounts(
     found nowhere (the configuration has no laser positions: such a sensor's data cannot
     be placed on the vehicle, and the caller drops it)."""
     transforms = read_tf_static(tf_static_path)
-    where = "the log has no /tf_static" if not transforms else "not in the log's /tf_static"
+    where = _missing_where(tf_static_path, transforms)
     found: dict[str, Mount] = {}
     warnings: list[str] = []
     for frame in sorted(set(frames)):

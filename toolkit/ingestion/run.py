@@ -22,6 +22,11 @@ import pyarrow.parquet as pq
 
 from toolkit.atomic import atomic_write_json
 from toolkit.config import ImuConfig, LidarConfig, TimeConfig, TopicsConfig
+from toolkit.geometry.static_transforms import (
+    StaticTransformSet,
+    TransformRecord,
+    select_static_transforms,
+)
 from toolkit.ingestion.accounts import TopicAccount, count_totals, reject_warnings, usable_roles
 from toolkit.ingestion.dedup import DuplicateFilter
 from toolkit.ingestion.imucheck import IMU_REJECT_REASONS, stream_imu_check
@@ -115,6 +120,8 @@ class IngestRun:
                 account.rejects.update(dict.fromkeys(IMU_REJECT_REASONS, 0))
         self.dedups = {t: DuplicateFilter() for t in plans}
         self.tf_rows: list[pa.Table] = []
+        #: The static transforms kept of ``tf_rows`` (:meth:`finish`), None before or without.
+        self.tf_static: StaticTransformSet | None = None
         self.mcap_metadata: dict[str, dict[str, str]] = {}
         self.extra_plans: dict[tuple[str, int], TopicPlan] = {}
         #: Lines for the terminal from the channels planned while reading (schema notices;
@@ -175,6 +182,11 @@ class IngestRun:
         self.warnings += reject_warnings(self.accounts)
         check_sweeps(self.accounts)
         self.warnings += lidar_notices(self.accounts)
+        if self.tf_rows:
+            self.tf_static = select_static_transforms(
+                tf_records(self.tf_rows), self.topics.tf_static or "tf_static"
+            )
+            self.warnings += self.tf_static.warnings
         t0 = time.perf_counter()
         for buffer in self.buffers.values():
             buffer.flush()
@@ -247,8 +259,8 @@ class IngestRun:
     def commit(self, log_dir: Path) -> list[str]:
         """Publish the finished tables, then write the JSON outputs; the file names."""
         files = [self.writers[name].publish().name for name in self.outputs]
-        if self.tf_rows:
-            atomic_write_json(log_dir / TF_STATIC_OUTPUT, tf_json(self.tf_rows))
+        if self.tf_static is not None:
+            atomic_write_json(log_dir / TF_STATIC_OUTPUT, tf_json(self.tf_static))
             files.append(TF_STATIC_OUTPUT)
         if self.mcap_metadata:
             atomic_write_json(log_dir / MCAP_METADATA_OUTPUT, self.mcap_metadata)
@@ -261,15 +273,16 @@ class IngestRun:
             writer.abort()
 
     def row_counts(self) -> dict[str, int]:
-        """Rows per output (tf_static: transforms)."""
+        """Rows per output (tf_static: the transforms kept)."""
         counts = {name: self.writers[name].rows for name in self.outputs}
-        if self.tf_rows:
-            counts["tf_static"] = sum(t.num_rows for t in self.tf_rows)
+        if self.tf_static is not None:
+            counts["tf_static"] = len(self.tf_static.transforms)
         return counts
 
     def detail(self, report: ReadReport, missing: Mapping[str, list[str]]) -> dict[str, Any]:
-        """The manifest's ``ingest`` section: per-topic accounting, reader damage, counts."""
-        return {
+        """The manifest's ``ingest`` section: per-topic accounting, reader damage, counts, and
+        the static transforms kept and dropped (``tf_static``, when the log has them)."""
+        out: dict[str, Any] = {
             "topics": {t: a.to_json() for t, a in sorted(self.accounts.items())},
             "missing_topics": dict(missing),
             "missing_roles": sorted(
@@ -284,6 +297,9 @@ class IngestRun:
             "resorted_tables": sorted(n for n, w in self.writers.items() if w.resorted),
             "counts": count_totals(self.accounts),
         }
+        if self.tf_static is not None:
+            out["tf_static"] = self.tf_static.to_json()
+        return out
 
 
 def damage_json(damage: Iterable[Damage]) -> list[dict[str, Any]]:
@@ -291,23 +307,23 @@ def damage_json(damage: Iterable[Damage]) -> list[dict[str, Any]]:
     return [dataclasses.asdict(d) for d in damage]
 
 
-def tf_json(tables: Sequence[pa.Table]) -> dict[str, Any]:
-    """Static transforms, the latest per (parent, child) pair."""
-    merged = pa.concat_tables(tables).to_pylist()
-    latest: dict[tuple[str, str], dict[str, Any]] = {}
-    for row in merged:
-        latest[(row["parent_frame"], row["child_frame"])] = row
-    transforms = [
-        {
-            "parent_frame": r["parent_frame"],
-            "child_frame": r["child_frame"],
-            "t_ns": int(r["t_ns"]),
-            "translation_m": [r["tx"], r["ty"], r["tz"]],
-            "rotation_xyzw": [r["qx"], r["qy"], r["qz"], r["qw"]],
-        }
-        for r in latest.values()
+def tf_records(tables: Sequence[pa.Table]) -> list[TransformRecord]:
+    """The transforms of the tf_static converter's rows, in the log's order."""
+    return [
+        TransformRecord(
+            r["parent_frame"],
+            r["child_frame"],
+            int(r["t_ns"]),
+            (r["tx"], r["ty"], r["tz"]),
+            (r["qx"], r["qy"], r["qz"], r["qw"]),
+        )
+        for r in pa.concat_tables(tables).to_pylist()
     ]
-    return {"transforms": transforms}
+
+
+def tf_json(kept: StaticTransformSet) -> dict[str, Any]:
+    """``tf_static.json``: the transforms kept, one per child frame (normalised, finite)."""
+    return {"transforms": [t.to_json() for t in kept.transforms]}
 
 
 __all__ = [
@@ -318,4 +334,5 @@ __all__ = [
     "damage_json",
     "make_buffers",
     "tf_json",
+    "tf_records",
 ]
