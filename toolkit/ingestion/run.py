@@ -23,6 +23,7 @@ import pyarrow.parquet as pq
 from toolkit.atomic import atomic_write_json
 from toolkit.config import LidarConfig, TimeConfig, TopicsConfig
 from toolkit.ingestion.accounts import TopicAccount, count_totals, reject_warnings, usable_roles
+from toolkit.ingestion.converters import laser_notices
 from toolkit.ingestion.dedup import DuplicateFilter
 from toolkit.ingestion.lidar import check_sweeps, lidar_notices
 from toolkit.ingestion.plans import TopicPlan, plan_topic
@@ -159,7 +160,7 @@ class IngestRun:
         self.warnings = usable_roles(self.accounts, self.log_path)
         self.warnings += reject_warnings(self.accounts)
         check_sweeps(self.accounts)
-        self.warnings += lidar_notices(self.accounts)
+        self.warnings += laser_notices(self.accounts) + lidar_notices(self.accounts)
         t0 = time.perf_counter()
         for buffer in self.buffers.values():
             buffer.flush()
