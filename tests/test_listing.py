@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from tests.stages.test_learn import Pipeline
@@ -63,3 +64,46 @@ def test_every_stage_verb_prints_json_a_script_reads(pipeline: Pipeline) -> None
     assert outcome == {
         "log": source["source"], "status": "up to date", "log_id": log_id, "error": None,
     }  # fmt: skip
+
+
+def _tiny_workspace(tmp_path: Path) -> tuple[Workspace, Path]:
+    """A workspace of one log whose manifest records an ingest and a pose (no table: the
+    listing reads manifests only); the workspace and that manifest's path."""
+    from toolkit.manifest import Manifest, StageRecord
+
+    ws = Workspace(tmp_path / "ws").create()
+    ws.config_path.write_text("")
+    ws.log_dir("tiny-0123456789ab").mkdir()
+    manifest = Manifest(ws.log_manifest_path("tiny-0123456789ab"))
+    manifest.set_header(source={"path": str(tmp_path / "tiny.mcap"), "size_bytes": 1234})
+    for stage, rows in (("ingest", {"imu": 10}), ("pose", {"pose": 7})):
+        manifest.record_stage(stage, StageRecord({"log": "aa" * 32}, "cc" * 32, row_counts=rows))
+    return ws, manifest.path
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "field"),
+    [
+        ('"size_bytes": 1234', '"size_bytes": NaN', "source.size_bytes"),
+        ('"size_bytes": 1234', '"size_bytes": Infinity', "source.size_bytes"),
+        ('"pose": 7', '"pose": Infinity', "stages.pose.row_counts.pose"),
+        ('"size_bytes": 1234', '"size_bytes": "big"', "source.size_bytes"),
+    ],
+)
+def test_a_tampered_number_in_a_manifest_is_one_line_naming_the_file_and_field(
+    tmp_path: Path, old: str, new: str, field: str
+) -> None:
+    """``terrain logs``, as a table or as JSON: exit 1 and one line naming the manifest and
+    the field, as for a manifest that is not JSON; never an internal error, never a NaN
+    token in the JSON."""
+    ws, manifest = _tiny_workspace(tmp_path)
+    runner = CliRunner()
+    good = runner.invoke(main, ["logs", "-w", str(ws.root), "--json"])
+    assert good.exit_code == 0 and json.loads(good.stdout)["logs"][0]["size_bytes"] == 1234
+    manifest.write_text(manifest.read_text().replace(old, new))
+    for extra in ([], ["--json"]):
+        result = runner.invoke(main, ["logs", "-w", str(ws.root), *extra])
+        assert result.exit_code == 1, result.output
+        assert result.stdout == ""
+        (line,) = result.stderr.splitlines()
+        assert str(manifest) in line and field in line and "internal error" not in line

@@ -9,11 +9,13 @@ still up to date is for the stage itself to say (``terrain run`` skips those tha
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
-from toolkit.manifest import Manifest
+from toolkit import strict_json
+from toolkit.errors import WorkspaceError
+from toolkit.manifest import Manifest, whole_number
 from toolkit.stages import registry
 from toolkit.workspace import Workspace
 
@@ -43,7 +45,8 @@ class Listing:
     workspace_stages: dict[str, str]
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self), indent=2)
+        """The listing as strict JSON (:func:`toolkit.strict_json.dumps`)."""
+        return strict_json.dumps(asdict(self))
 
     def text(self) -> str:
         """A table a person reads: a line per log, then the workspace stages."""
@@ -86,7 +89,7 @@ def list_workspace(workspace: Workspace) -> Listing:
             LogEntry(
                 log_id=log_id,
                 source=str(source.get("path", "")),
-                size_bytes=source.get("size_bytes"),
+                size_bytes=_source_size(source, workspace.log_manifest_path(log_id)),
                 stages=tuple(s for s in per_log if s in records),
                 rows=rows,
             )
@@ -99,6 +102,18 @@ def list_workspace(workspace: Workspace) -> Listing:
             s: overall[s].finished_utc or "done" for s in registry.over_workspace() if s in overall
         },
     )
+
+
+def _source_size(source: dict[str, Any], manifest: Path) -> int | None:
+    """The size the manifest records of the log's file (None when it records none); a
+    WorkspaceError naming the manifest and the field when it is no size."""
+    size = source.get("size_bytes")
+    if size is None:
+        return None
+    try:
+        return whole_number(size, "source.size_bytes")
+    except ValueError as exc:
+        raise WorkspaceError(f"malformed manifest: {exc}", path=manifest) from None
 
 
 __all__ = ["Listing", "LogEntry", "list_workspace"]
