@@ -107,3 +107,39 @@ def test_a_tampered_number_in_a_manifest_is_one_line_naming_the_file_and_field(
         assert result.stdout == ""
         (line,) = result.stderr.splitlines()
         assert str(manifest) in line and field in line and "internal error" not in line
+
+
+def test_a_log_whose_folder_is_gone_is_listed_missing_not_no_log_yet(tmp_path: Path) -> None:
+    """``WS/logs/<id>`` pointing to a generation removed by hand: the listing names that
+    folder as missing (on the terminal too), shows none of the log's stages done (its
+    manifest went with it) and the workspace's stages as recorded; never "no log yet"."""
+    from tests.test_workspace import _dangling
+    from toolkit.manifest import StageRecord
+
+    ws = Workspace(tmp_path / "ws").create()
+    ws.config_path.write_text("")
+    target = _dangling(ws, "gone-0123456789ab")
+    ws.manifest().record_stage("tables", StageRecord({"gone-0123456789ab/events": "aa"}, "cc"))
+    runner = CliRunner()
+    result = runner.invoke(main, ["logs", "-w", str(ws.root)])
+    assert result.exit_code == 0, result.output
+    assert "no log yet" not in result.stdout
+    (row,) = [line for line in result.stdout.splitlines() if line.startswith("gone-")]
+    assert f"MISSING: {target}" in row and "ingest" not in row
+    assert "workspace: tables 20" in result.stdout
+    assert "the log's folder is missing" in result.stderr and str(target) in result.stderr
+    doc = json.loads(runner.invoke(main, ["logs", "-w", str(ws.root), "--json"]).stdout)
+    (entry,) = doc["logs"]
+    assert entry["missing"] == str(target) and entry["stages"] == []
+    assert list(doc["workspace_stages"]) == ["tables"]
+
+
+def test_no_log_left_but_workspace_stages_recorded_says_both(tmp_path: Path) -> None:
+    from toolkit.manifest import StageRecord
+
+    ws = Workspace(tmp_path / "ws").create()
+    ws.config_path.write_text("")
+    ws.manifest().record_stage("learn", StageRecord({}, "cc"))
+    result = CliRunner().invoke(main, ["logs", "-w", str(ws.root)])
+    assert result.exit_code == 0 and "no log yet" not in result.stdout
+    assert "no log in logs/" in result.stdout and "learn 20" in result.stdout
