@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -343,11 +345,11 @@ def test_the_disk_estimate_holds_the_figures_the_sample_projection_wrote(project
     assert 0 < written <= project_module.FIGURE_BYTES
 
 
-def test_a_disk_that_holds_the_cloud_but_not_its_figures_is_refused(
+def _tiny_scans(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """The estimate is the cloud and the figures beside it: a disk with room for the cloud
-    alone is refused before anything is written, naming the figures."""
+) -> tuple[Path, project_module.ProjectSettings, int, Callable[[int], None]]:
+    """A laser table of 100 scans of 181 returns (all the disk check reads), the default
+    settings, the cloud's estimate (bytes) and a setter of the free space the check sees."""
     from collections import namedtuple
 
     laser = tmp_path / "laser.parquet"
@@ -361,11 +363,35 @@ def test_a_disk_that_holds_the_cloud_but_not_its_figures_is_refused(
     def free(n: int) -> None:
         monkeypatch.setattr(project_module.shutil, "disk_usage", lambda _p: Usage(10**9, 0, n))
 
+    return laser, settings, cloud, free
+
+
+def test_a_disk_that_holds_the_cloud_but_not_its_figures_is_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The estimate is the cloud and the figures beside it: a disk with room for the cloud
+    alone is refused before anything is written, naming the figures."""
+    laser, settings, cloud, free = _tiny_scans(tmp_path, monkeypatch)
     free(cloud + 1000)
     with pytest.raises(StageError, match="with its figures, needs about"):
         project_module._require_disk_for_cloud(laser, settings)
     free(cloud + project_module.FIGURE_BYTES)
     project_module._require_disk_for_cloud(laser, settings)  # room for both: no error
+
+
+def test_an_old_clouds_room_is_not_counted_free(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Projecting again writes the new cloud aside while the old one stays in the log's
+    current generation (a hard link to it in the new one) until the stage commits: both are
+    on the disk at once, so the old cloud's size is no room for the new one."""
+    laser, settings, cloud, free = _tiny_scans(tmp_path, monkeypatch)
+    old = tmp_path / "old-generation-points.parquet"
+    old.write_bytes(b"\0" * 200_000)
+    os.link(old, tmp_path / project_module.OUTPUT)  # as a new generation holds it
+    free(cloud + project_module.FIGURE_BYTES - 1000)
+    with pytest.raises(StageError, match="needs about"):
+        project_module._require_disk_for_cloud(laser, settings)
 
 
 def test_a_disk_too_small_for_the_cloud_is_said_before_anything_is_written(
@@ -382,7 +408,7 @@ def test_a_disk_too_small_for_the_cloud_is_said_before_anything_is_written(
     monkeypatch.setattr(
         project_module.shutil, "disk_usage", lambda _p: Usage(10**9, 10**9 - 10**6, 10**6)
     )
-    points_path.unlink()  # a first projection (an old cloud's room counts as free)
+    points_path.unlink()  # a first projection
     with pytest.raises(StageError, match=r"needs about 0\.0[34] GB.*keep = \"near_path\""):
         run_stage(PROJECT, ws, default_config(), log_id=log_id, overwrite=True)
     assert not points_path.exists()

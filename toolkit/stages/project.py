@@ -443,7 +443,8 @@ def _require_disk_for_cloud(laser_path: Path, config: ProjectSettings) -> None:
     counted in the Parquet footer, not read; a lidar table's rows) at
     :data:`CLOUD_BYTES_PER_RETURN`, and the figures beside it
     (:data:`~toolkit.stages.project_figures.FIGURE_BYTES`), against the free space beside
-    it (with the old cloud's own size, which the new one replaces)."""
+    it. An old cloud's room is not free: the new one is written aside in a new generation of
+    the log while the old one stays in the current generation until the stage commits."""
     meta = pq.ParquetFile(laser_path).metadata
     leaf = next(
         (
@@ -458,8 +459,7 @@ def _require_disk_for_cloud(laser_path: Path, config: ProjectSettings) -> None:
     else:
         returns = sum(meta.row_group(i).column(leaf).num_values for i in range(meta.num_row_groups))
     need = returns * CLOUD_BYTES_PER_RETURN[config.project.keep] + FIGURE_BYTES
-    old = laser_path.with_name(OUTPUT)
-    free = shutil.disk_usage(laser_path.parent).free + (old.stat().st_size if old.is_file() else 0)
+    free = shutil.disk_usage(laser_path.parent).free
     _log.info(
         "the point cloud of %d returns and its figures will take about %.2f GB", returns, need / 1e9
     )
