@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
 from click.testing import CliRunner
 
 from tests.stages.test_learn import Pipeline
@@ -63,3 +64,82 @@ def test_every_stage_verb_prints_json_a_script_reads(pipeline: Pipeline) -> None
     assert outcome == {
         "log": source["source"], "status": "up to date", "log_id": log_id, "error": None,
     }  # fmt: skip
+
+
+def _tiny_workspace(tmp_path: Path) -> tuple[Workspace, Path]:
+    """A workspace of one log whose manifest records an ingest and a pose (no table: the
+    listing reads manifests only); the workspace and that manifest's path."""
+    from toolkit.manifest import Manifest, StageRecord
+
+    ws = Workspace(tmp_path / "ws").create()
+    ws.config_path.write_text("")
+    ws.log_dir("tiny-0123456789ab").mkdir()
+    manifest = Manifest(ws.log_manifest_path("tiny-0123456789ab"))
+    manifest.set_header(source={"path": str(tmp_path / "tiny.mcap"), "size_bytes": 1234})
+    for stage, rows in (("ingest", {"imu": 10}), ("pose", {"pose": 7})):
+        manifest.record_stage(stage, StageRecord({"log": "aa" * 32}, "cc" * 32, row_counts=rows))
+    return ws, manifest.path
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "field"),
+    [
+        ('"size_bytes": 1234', '"size_bytes": NaN', "source.size_bytes"),
+        ('"size_bytes": 1234', '"size_bytes": Infinity', "source.size_bytes"),
+        ('"pose": 7', '"pose": Infinity', "stages.pose.row_counts.pose"),
+        ('"size_bytes": 1234', '"size_bytes": "big"', "source.size_bytes"),
+    ],
+)
+def test_a_tampered_number_in_a_manifest_is_one_line_naming_the_file_and_field(
+    tmp_path: Path, old: str, new: str, field: str
+) -> None:
+    """``terrain logs``, as a table or as JSON: exit 1 and one line naming the manifest and
+    the field, as for a manifest that is not JSON; never an internal error, never a NaN
+    token in the JSON."""
+    ws, manifest = _tiny_workspace(tmp_path)
+    runner = CliRunner()
+    good = runner.invoke(main, ["logs", "-w", str(ws.root), "--json"])
+    assert good.exit_code == 0 and json.loads(good.stdout)["logs"][0]["size_bytes"] == 1234
+    manifest.write_text(manifest.read_text().replace(old, new))
+    for extra in ([], ["--json"]):
+        result = runner.invoke(main, ["logs", "-w", str(ws.root), *extra])
+        assert result.exit_code == 1, result.output
+        assert result.stdout == ""
+        (line,) = result.stderr.splitlines()
+        assert str(manifest) in line and field in line and "internal error" not in line
+
+
+def test_a_log_whose_folder_is_gone_is_listed_missing_not_no_log_yet(tmp_path: Path) -> None:
+    """``WS/logs/<id>`` pointing to a generation removed by hand: the listing names that
+    folder as missing (on the terminal too), shows none of the log's stages done (its
+    manifest went with it) and the workspace's stages as recorded; never "no log yet"."""
+    from tests.test_workspace import _dangling
+    from toolkit.manifest import StageRecord
+
+    ws = Workspace(tmp_path / "ws").create()
+    ws.config_path.write_text("")
+    target = _dangling(ws, "gone-0123456789ab")
+    ws.manifest().record_stage("tables", StageRecord({"gone-0123456789ab/events": "aa"}, "cc"))
+    runner = CliRunner()
+    result = runner.invoke(main, ["logs", "-w", str(ws.root)])
+    assert result.exit_code == 0, result.output
+    assert "no log yet" not in result.stdout
+    (row,) = [line for line in result.stdout.splitlines() if line.startswith("gone-")]
+    assert f"MISSING: {target}" in row and "ingest" not in row
+    assert "workspace: tables 20" in result.stdout
+    assert "the log's folder is missing" in result.stderr and str(target) in result.stderr
+    doc = json.loads(runner.invoke(main, ["logs", "-w", str(ws.root), "--json"]).stdout)
+    (entry,) = doc["logs"]
+    assert entry["missing"] == str(target) and entry["stages"] == []
+    assert list(doc["workspace_stages"]) == ["tables"]
+
+
+def test_no_log_left_but_workspace_stages_recorded_says_both(tmp_path: Path) -> None:
+    from toolkit.manifest import StageRecord
+
+    ws = Workspace(tmp_path / "ws").create()
+    ws.config_path.write_text("")
+    ws.manifest().record_stage("learn", StageRecord({}, "cc"))
+    result = CliRunner().invoke(main, ["logs", "-w", str(ws.root)])
+    assert result.exit_code == 0 and "no log yet" not in result.stdout
+    assert "no log in logs/" in result.stdout and "learn 20" in result.stdout

@@ -191,3 +191,52 @@ def test_an_output_of_an_older_table_schema_is_not_up_to_date(tmp_path: Path) ->
     )
     fresh = check_up_to_date(record, inputs={}, config_hash="c", outputs=[path])
     assert not fresh and "written for schema heading v0" in fresh.reason
+
+
+@pytest.mark.parametrize(
+    ("token", "field"),
+    [
+        ("Infinity", "stages.pose.row_counts.pose"),
+        ("NaN", "stages.pose.row_counts.pose"),
+        ("-Infinity", "stages.pose.row_counts.pose"),
+        ("1e999", "stages.pose.row_counts.pose"),  # read as an infinity
+    ],
+)
+def test_a_non_finite_number_is_a_corrupt_manifest_naming_the_field(
+    tmp_path: Path, token: str, field: str
+) -> None:
+    """The toolkit writes strict JSON: a NaN or infinity read back is a tampered manifest,
+    refused with the file and the field named (not an OverflowError later on)."""
+    path = tmp_path / "manifest.json"
+    m = Manifest(path)
+    m.record_stage("pose", _record(row_counts={"pose": 5}))
+    path.write_text(path.read_text().replace('"pose": 5', f'"pose": {token}'))
+    for read in (m.stages, m.read, lambda: m.stage("pose")):
+        with pytest.raises(WorkspaceError, match=f"manifest field {field} is not a finite") as err:
+            read()
+        assert str(path) in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("key", "value", "said"),
+    [
+        ("row_counts", {"imu": 6.5}, "row_counts.imu is 6.5, not a whole number"),
+        ("rejects", {"clock_skew": -1}, "rejects.clock_skew is -1, not a whole number"),
+        ("row_counts", {"imu": True}, "row_counts.imu is True, not a whole number"),
+        ("timings_s", {"total": "fast"}, "timings_s.total is 'fast', not a finite number"),
+        (
+            "output_files",
+            {"imu.parquet": {"bytes": 1.5, "sha256": "ab"}},
+            r"output_files.imu.parquet.bytes is 1.5",
+        ),
+    ],
+)
+def test_a_count_that_is_no_count_is_a_malformed_record_naming_the_field(
+    tmp_path: Path, key: str, value: object, said: str
+) -> None:
+    path = tmp_path / "manifest.json"
+    record = _record().to_json()
+    record[key] = value
+    path.write_text(json.dumps({"format": 1, "stages": {"ingest": record}}))
+    with pytest.raises(WorkspaceError, match=f"malformed record for stage 'ingest': {said}"):
+        Manifest(path).stage("ingest")

@@ -184,3 +184,27 @@ def test_an_unknown_log_is_refused_naming_the_logs_there(tmp_path: Path) -> None
     assert ws.require_log("a-1") == ws.log_dir("a-1")
     with pytest.raises(WorkspaceError, match="no log 'c-3' in the workspace; its logs: a-1, b-2"):
         ws.require_log("c-3")
+
+
+def _dangling(ws: Workspace, log_id: str) -> Path:
+    """A log committed as a stage commits one, then its generation removed by hand: the
+    link ``WS/logs/<log_id>`` points to nothing. The folder it points to."""
+    with ws.change_log(log_id) as gen:
+        (gen.path / "manifest.json").write_text('{"format": 1, "stages": {}}')
+        gen.commit()
+    target = ws.logs_dir / os.readlink(ws.log_dir(log_id))
+    for entry in target.iterdir():
+        entry.unlink()
+    target.rmdir()
+    return target
+
+
+def test_a_log_whose_link_points_to_nothing_is_missing_and_said_so(tmp_path: Path) -> None:
+    ws = Workspace(tmp_path / "ws").create()
+    (ws.logs_dir / "a-1").mkdir()
+    target = _dangling(ws, "b-2")
+    assert ws.log_ids() == ["a-1"]
+    assert ws.missing_logs() == {"b-2": target}
+    with pytest.raises(WorkspaceError, match="the log's folder is missing") as err:
+        ws.require_log("b-2")
+    assert str(target) in str(err.value) and str(ws.log_dir("b-2")) in str(err.value)

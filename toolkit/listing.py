@@ -5,17 +5,26 @@ as finished, and the rows they wrote (pose rows, laser points, events); then the
 all logs (tables, learn, evaluate) with when they finished. Nothing is recomputed or hashed:
 a listing of a season's workspace takes milliseconds per log. Whether a recorded stage is
 still up to date is for the stage itself to say (``terrain run`` skips those that are).
+
+A log whose link points to nothing (its folder removed by hand or lost) is listed as
+missing, naming that folder, with no stage done (its manifest went with it), and said on the
+terminal; the workspace's stages are listed as their manifest records them either way.
 """
 
 from __future__ import annotations
 
-import json
+import logging
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 from typing import Any
 
-from toolkit.manifest import Manifest
+from toolkit import strict_json
+from toolkit.errors import WorkspaceError
+from toolkit.manifest import Manifest, whole_number
 from toolkit.stages import registry
-from toolkit.workspace import Workspace
+from toolkit.workspace import Workspace, missing_log_problem
+
+_log = logging.getLogger(__name__)
 
 
 def _rows_shown() -> dict[str, str]:
@@ -25,13 +34,15 @@ def _rows_shown() -> dict[str, str]:
 
 @dataclass(frozen=True)
 class LogEntry:
-    """One log of the workspace as its manifest records it."""
+    """One log of the workspace as its manifest records it; ``missing`` is the folder its
+    link points to when that does not exist (None for a log that is there)."""
 
     log_id: str
     source: str
     size_bytes: int | None
     stages: tuple[str, ...]
     rows: dict[str, int] = field(default_factory=dict)
+    missing: str | None = None
 
 
 @dataclass(frozen=True)
@@ -43,62 +54,82 @@ class Listing:
     workspace_stages: dict[str, str]
 
     def to_json(self) -> str:
-        return json.dumps(asdict(self), indent=2)
+        """The listing as strict JSON (:func:`toolkit.strict_json.dumps`)."""
+        return strict_json.dumps(asdict(self))
 
     def text(self) -> str:
         """A table a person reads: a line per log, then the workspace stages."""
+        later = registry.over_workspace()
+        done_over = ", ".join(
+            f"{s} {self.workspace_stages[s]}" if s in self.workspace_stages else f"{s} -"
+            for s in later
+        )
         if not self.logs:
-            return f"{self.workspace}: no log yet (run `terrain ingest LOG.mcap -w WS`)"
-        per_log, later = registry.per_log(), registry.over_workspace()
+            if not self.workspace_stages:
+                return f"{self.workspace}: no log yet (run `terrain ingest LOG.mcap -w WS`)"
+            return f"{self.workspace}: no log in logs/\nworkspace: {done_over}"
+        per_log = registry.per_log()
         width = max(len(e.log_id) for e in self.logs)
         done_width = len(" ".join(per_log))
         lines = [f"{'log':<{width}}  {'stages done':<{done_width}}  rows  source"]
         for e in self.logs:
             done = " ".join(s if s in e.stages else "-" * len(s) for s in per_log)
             rows = ", ".join(f"{k} {v:,}" for k, v in e.rows.items()) or "-"
-            lines.append(f"{e.log_id:<{width}}  {done:<{done_width}}  {rows}  {e.source}")
-        lines.append(
-            "workspace: "
-            + ", ".join(
-                f"{s} {self.workspace_stages[s]}" if s in self.workspace_stages else f"{s} -"
-                for s in later
-            )
-        )
+            source = e.source if e.missing is None else f"MISSING: {e.missing}"
+            lines.append(f"{e.log_id:<{width}}  {done:<{done_width}}  {rows}  {source}")
+        lines.append(f"workspace: {done_over}")
         return "\n".join(lines)
 
 
 def list_workspace(workspace: Workspace) -> Listing:
-    """The :class:`Listing` of ``workspace`` (which must exist)."""
+    """The :class:`Listing` of ``workspace`` (which must exist); each missing log said on
+    the terminal."""
     workspace.require()
-    per_log, shown = registry.per_log(), _rows_shown()
-    entries = []
-    for log_id in workspace.log_ids():
-        raw: dict[str, Any] = Manifest(workspace.log_manifest_path(log_id)).read()
-        found = raw.get("source")
-        source: dict[str, Any] = found if isinstance(found, dict) else {}
-        records = Manifest(workspace.log_manifest_path(log_id)).stages()
-        rows = {
-            shown[s]: int(records[s].row_counts.get(shown[s], 0))
-            for s in per_log
-            if s in records and s in shown
-        }
-        entries.append(
-            LogEntry(
-                log_id=log_id,
-                source=str(source.get("path", "")),
-                size_bytes=source.get("size_bytes"),
-                stages=tuple(s for s in per_log if s in records),
-                rows=rows,
-            )
-        )
+    entries = {log_id: _entry(workspace, log_id) for log_id in workspace.log_ids()}
+    for log_id, target in workspace.missing_logs().items():
+        _log.warning("%s: %s", workspace.log_dir(log_id), missing_log_problem(target))
+        entries[log_id] = LogEntry(log_id, "", None, (), missing=str(target))
     overall = workspace.manifest().stages()
     return Listing(
         workspace=str(workspace.root),
-        logs=tuple(entries),
+        logs=tuple(entries[k] for k in sorted(entries)),
         workspace_stages={
             s: overall[s].finished_utc or "done" for s in registry.over_workspace() if s in overall
         },
     )
+
+
+def _entry(workspace: Workspace, log_id: str) -> LogEntry:
+    """The :class:`LogEntry` of a log that is there, from its manifest."""
+    per_log, shown = registry.per_log(), _rows_shown()
+    manifest = Manifest(workspace.log_manifest_path(log_id))
+    found = manifest.read().get("source")
+    source: dict[str, Any] = found if isinstance(found, dict) else {}
+    records = manifest.stages()
+    rows = {
+        shown[s]: int(records[s].row_counts.get(shown[s], 0))
+        for s in per_log
+        if s in records and s in shown
+    }
+    return LogEntry(
+        log_id=log_id,
+        source=str(source.get("path", "")),
+        size_bytes=_source_size(source, manifest.path),
+        stages=tuple(s for s in per_log if s in records),
+        rows=rows,
+    )
+
+
+def _source_size(source: dict[str, Any], manifest: Path) -> int | None:
+    """The size the manifest records of the log's file (None when it records none); a
+    WorkspaceError naming the manifest and the field when it is no size."""
+    size = source.get("size_bytes")
+    if size is None:
+        return None
+    try:
+        return whole_number(size, "source.size_bytes")
+    except ValueError as exc:
+        raise WorkspaceError(f"malformed manifest: {exc}", path=manifest) from None
 
 
 __all__ = ["Listing", "LogEntry", "list_workspace"]

@@ -6,6 +6,10 @@ it read, and the size and sha256 of every output as written, so "up to date"
 (:func:`check_up_to_date`) means "the same inputs and configuration, and the outputs are
 still what that run wrote". Updates are read-modify-write under a lock on the manifest's
 directory and land by atomic rename.
+
+Reading one checks its numbers: the toolkit writes strict JSON (no NaN or infinity), so a
+non-finite number anywhere, or a count or size that is not a whole number, is a tampered or
+corrupt manifest: a WorkspaceError naming the file and the field, as for invalid JSON.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import datetime as _dt
 import fcntl
 import hashlib
 import json
+import math
 import os
 from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
@@ -24,6 +29,7 @@ from typing import Any
 
 from toolkit.atomic import atomic_write_json
 from toolkit.errors import SchemaError, WorkspaceError
+from toolkit.strict_json import non_finite_field
 from toolkit.tableio import load_table_schema, read_table_metadata
 
 #: Version of the manifest's JSON layout.
@@ -50,6 +56,28 @@ def file_sha256(path: str | Path) -> str:
 # --------------------------------------------------------------------------------------
 
 
+def whole_number(value: Any, field_name: str) -> int:
+    """``value`` if it is a whole number of at least 0 (a count, a size in bytes); else a
+    ValueError naming ``field_name``. A float, even an integral one, is not: the toolkit
+    writes counts as JSON integers."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+        raise ValueError(f"{field_name} is {value!r}, not a whole number of at least 0")
+    return value
+
+
+def finite_number(value: Any, field_name: str) -> float:
+    """``value`` as a float if it is a finite number; else a ValueError naming
+    ``field_name``."""
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise ValueError(f"{field_name} is {value!r}, not a finite number")
+    return float(value)
+
+
+def _counts(obj: Mapping[str, Any], key: str) -> dict[str, int]:
+    """A record's ``key`` table of whole numbers (row counts, rejects), checked."""
+    return {str(k): whole_number(v, f"{key}.{k}") for k, v in obj.get(key, {}).items()}
+
+
 def _now_utc() -> str:
     return _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds")
 
@@ -73,7 +101,7 @@ class FileDigest:
     @classmethod
     def from_json(cls, obj: Mapping[str, Any]) -> FileDigest:
         """Inverse of :meth:`to_json`."""
-        return cls(int(obj["bytes"]), str(obj["sha256"]))
+        return cls(whole_number(obj["bytes"], "bytes"), str(obj["sha256"]))
 
 
 def digest_files(directory: Path, names: Iterable[str]) -> dict[str, FileDigest]:
@@ -121,21 +149,32 @@ class StageRecord:
 
     @classmethod
     def from_json(cls, obj: Mapping[str, Any]) -> StageRecord:
-        """Inverse of :meth:`to_json` (raises KeyError/TypeError on a malformed record)."""
+        """Inverse of :meth:`to_json` (raises KeyError/TypeError on a malformed record, and
+        ValueError naming the field on a count that is not a whole number or a time that is
+        not a finite number)."""
         return cls(
             inputs={str(k): str(v) for k, v in obj["inputs"].items()},
             config_hash=str(obj["config_hash"]),
             outputs=tuple(str(o) for o in obj.get("outputs", ())),
-            row_counts={str(k): int(v) for k, v in obj.get("row_counts", {}).items()},
-            rejects={str(k): int(v) for k, v in obj.get("rejects", {}).items()},
-            timings_s={str(k): float(v) for k, v in obj.get("timings_s", {}).items()},
+            row_counts=_counts(obj, "row_counts"),
+            rejects=_counts(obj, "rejects"),
+            timings_s={
+                str(k): finite_number(v, f"timings_s.{k}")
+                for k, v in obj.get("timings_s", {}).items()
+            },
             warnings=tuple(str(w) for w in obj.get("warnings", ())),
             toolkit_version=str(obj.get("toolkit_version", "")),
             finished_utc=str(obj.get("finished_utc", "")),
-            output_files={
-                str(k): FileDigest.from_json(v) for k, v in obj.get("output_files", {}).items()
-            },
+            output_files={str(k): _digest(k, v) for k, v in obj.get("output_files", {}).items()},
         )
+
+
+def _digest(name: str, obj: Mapping[str, Any]) -> FileDigest:
+    """One entry of a record's ``output_files``, its errors naming the entry."""
+    try:
+        return FileDigest.from_json(obj)
+    except ValueError as exc:
+        raise ValueError(f"output_files.{name}.{exc}") from None
 
 
 @contextlib.contextmanager
@@ -180,6 +219,13 @@ class Manifest:
             raise WorkspaceError(f"manifest is not valid JSON: {exc}", path=self.path) from exc
         if not isinstance(obj, dict) or not isinstance(obj.get("stages"), dict):
             raise WorkspaceError("manifest has no 'stages' table", path=self.path)
+        bad = non_finite_field(obj)
+        if bad is not None:
+            raise WorkspaceError(
+                f"manifest field {bad} is not a finite number (the toolkit never writes one: "
+                "the file was changed or damaged)",
+                path=self.path,
+            )
         if obj.get("format") != MANIFEST_FORMAT:
             raise WorkspaceError(
                 f"manifest format {obj.get('format')!r} is not {MANIFEST_FORMAT}", path=self.path
@@ -337,5 +383,7 @@ __all__ = [
     "check_up_to_date",
     "digest_files",
     "file_sha256",
+    "finite_number",
     "require_finished",
+    "whole_number",
 ]

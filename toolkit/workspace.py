@@ -96,6 +96,14 @@ def _unlink_unheld_lock(path: Path) -> None:
         os.close(fd)
 
 
+def missing_log_problem(target: Path) -> str:
+    """What is wrong with a log whose link points to ``target``, which does not exist."""
+    return (
+        f"the log's folder is missing: its link points to {target}, which does not exist "
+        "(its tables and manifest are gone); ingest its log again"
+    )
+
+
 # --------------------------------------------------------------------------------------
 # The workspace
 # --------------------------------------------------------------------------------------
@@ -228,12 +236,28 @@ class Workspace(WorkspaceLayout):
             p.name for p in self.logs_dir.iterdir() if p.is_dir() and not p.name.startswith(".")
         )
 
+    def missing_logs(self) -> dict[str, Path]:
+        """The logs whose ``WS/logs/<log_id>`` link points to nothing (its generation removed
+        by hand or lost with a disk), id -> the folder it points to, sorted by id. They are not
+        among :meth:`log_ids`: nothing of them, not even their manifest, can be read."""
+        if not self.logs_dir.is_dir():
+            return {}
+        return {
+            p.name: self.logs_dir / os.readlink(p)
+            for p in sorted(self.logs_dir.iterdir())
+            if not p.name.startswith(".") and p.is_symlink() and not p.exists()
+        }
+
     def require_log(self, log_id: str) -> Path:
         """The directory of the workspace's log ``log_id``; WorkspaceError naming the logs it
-        does have (or saying it has none yet) when it is not one of them."""
+        does have (or saying it has none yet) when it is not one of them, or naming the folder
+        its link points to when that is missing."""
         path = self.log_dir(log_id)
         if path.is_dir() and not log_id.startswith("."):
             return path
+        gone = self.missing_logs().get(log_id)
+        if gone is not None:
+            raise WorkspaceError(missing_log_problem(gone), path=path)
         ids = self.log_ids()
         if not ids:
             raise WorkspaceError(

@@ -261,6 +261,34 @@ def test_laser_scans_of_varying_beam_counts_in_one_batch() -> None:
     assert rows.counts["laser_no_return"].tolist() == [0, 1, 0]
 
 
+def test_a_negative_range_is_no_return_whatever_range_min_claims() -> None:
+    """A range below zero is no distance a sensor measures: counted apart from the other
+    no-returns (``laser_negative_range``), under a negative range_min as under a positive
+    one; the scans that claim a negative range_min are counted too. Every range is kept."""
+    cols = _scan_cols(3, 5, 1.0)
+    cols["ranges"][0] = [-2.0, -0.5, 3.0, np.nan, 0.0]
+    cols["ranges"][1] = [-1.0, 2.0, 3.0, 4.0, 90.0]
+    cols["range_min"] = [-5.0, 0.1, -1.0]
+    rows = convert("lasers", "sensor_msgs/msg/LaserScan", cols)
+    assert rows.counts["laser_negative_range"].tolist() == [2, 1, 0]
+    assert rows.counts["laser_no_return"].tolist() == [1, 1, 0]  # NaN; 90 > range_max
+    assert rows.counts["laser_negative_range_min"].tolist() == [1, 0, 1]
+    np.testing.assert_array_equal(np.asarray(col(rows, "ranges")[0], np.float32), cols["ranges"][0])
+
+
+def test_a_negative_range_counts_in_ragged_batches_too() -> None:
+    cols = {
+        **header(SEC * 10**9 + np.arange(2)),
+        "angle_increment": 0.01,
+        "range_min": -1.0,
+        "range_max": 80.0,
+        "ranges": [np.array([-0.5, 2.0, np.inf], np.float32), np.array([1.0, -3.0], np.float32)],
+    }
+    rows = convert("lasers", "sensor_msgs/msg/LaserScan", cols)
+    assert rows.counts["laser_negative_range"].tolist() == [1, 1]
+    assert rows.counts["laser_no_return"].tolist() == [1, 0]
+
+
 def test_laser_non_finite_angle_rejects_the_scan() -> None:
     cols = {**_scan_cols(2, 5, 1.0), "angle_increment": [0.01, np.nan]}
     rows = convert("lasers", "sensor_msgs/msg/LaserScan", cols)

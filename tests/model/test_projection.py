@@ -35,3 +35,38 @@ def test_interpolation_on_the_rotation_group_equals_scipys_slerp(turn_rad: float
     assert np.array_equal(
         ok, (np.diff(t_ns)[np.searchsorted(t_ns, tq, side="right") - 1] <= 50_000_000)
     )
+
+
+def test_a_negative_range_is_never_projected_even_under_a_negative_range_min() -> None:
+    """A LaserScan claiming ``range_min`` = -5 m lets a range of -2 m through its own bounds:
+    placed, it would land behind the laser. It is out of range, whatever range_min says."""
+    from toolkit.geometry.mounts import Mount
+    from toolkit.model.projection import Scans, prepare_scans, project_points
+
+    t0 = 1_700_000_000_000_000_000
+    t_ns = t0 + np.arange(20, dtype=np.int64) * 10_000_000
+    window = PoseWindow(t_ns, np.zeros((20, 3)), Rotation.identity(20), np.zeros((20, 2)))
+    ranges = np.array([-2.0, -0.0, 0.0, 3.0, -1e-3, 5.0], np.float32)
+    scans = Scans(
+        t_ns=np.array([t0 + 50_000_000], np.int64),
+        laser_code=np.zeros(1, np.int64),
+        laser_names=["/laser"],
+        frame_code=np.zeros(1, np.int64),
+        frame_names=["laser"],
+        angle_min=np.zeros(1),
+        angle_increment=np.zeros(1),
+        time_increment=np.zeros(1),
+        range_min=np.array([-5.0]),
+        range_max=np.array([80.0]),
+        scan=np.zeros(ranges.size, np.int64),
+        beam=np.arange(ranges.size, dtype=np.int64),
+        range_m=ranges,
+    )
+    mount = Mount.from_rpy("laser", [0.0, 0.0, 1.0], [0.0, 0.0, 0.0], "test")
+    prepared = prepare_scans(scans, {"laser": mount}, {}, lambda lo, hi: window)
+    chunks, counts = project_points(prepared)
+    x = np.concatenate([c["x"] for c in chunks])
+    got = np.concatenate([c["range"] for c in chunks])
+    assert counts.rejects["out_of_range"] == 2  # -2 and -1e-3
+    np.testing.assert_array_equal(got, [-0.0, 0.0, 3.0, 5.0])  # zero is no distance behind
+    assert (x >= 0).all()  # nothing placed behind the laser

@@ -689,6 +689,35 @@ def test_screening_nan_skew_no_fix_and_zero_speed(tmp_path: Path, ws: Workspace)
     assert_accounting(ws, result)
 
 
+def test_a_negative_range_min_is_said_once_and_its_negative_ranges_counted(
+    tmp_path: Path, ws: Workspace
+) -> None:
+    """A laser claiming range_min = -1 m: its negative ranges are no returns, counted by
+    reason in the manifest (kept in the table as read), and the claim is said on the
+    terminal once for the topic, not once per scan."""
+    ranges = np.full((30, 31), 10.0, dtype=np.float32)
+    ranges[:, 0] = -0.5
+    ranges[3, 1] = -2.0
+    ranges[4, 2] = np.nan
+    topics = [t for t in basic_topics() if t.topic != "/laser/a"]
+    topics.append(scans("/laser/a", ranges=ranges, range_min=-1.0))
+    log = write_log(tmp_path / "negative.mcap", topics)
+    result = ingest_log(log, ws, make_config())
+    info = detail(ws, result)["topics"]
+    counts = info["/laser/a"]["counts"]
+    assert counts["laser_negative_range"] == 31
+    assert counts["laser_negative_range_min"] == 30
+    assert counts["laser_no_return"] == 1
+    assert info["/laser/b"]["counts"]["laser_negative_range"] == 0
+    said = [w for w in result.warnings if "range_min" in w]
+    assert len(said) == 1 and said[0].startswith("/laser/a: 30 of 30 scans give a negative")
+    assert ws.manifest(result.log_id).stage("ingest").warnings == result.warnings  # type: ignore[union-attr]
+    laser = read(ws, result, "laser")
+    first = laser.filter(laser.column("laser").to_numpy(zero_copy_only=False) == "/laser/a")
+    assert first.column("ranges")[0].values.to_numpy()[0] == np.float32(-0.5)
+    assert_accounting(ws, result)
+
+
 def test_undecodable_payload_is_rejected(tmp_path: Path, ws: Workspace) -> None:
     topics = basic_topics()
     imu_msgs = next(m for m in topics if m.topic == "/imu")

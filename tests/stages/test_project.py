@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -332,6 +334,66 @@ def test_a_failing_worker_leaves_the_last_cloud_as_it_was(
     assert leftovers == []
 
 
+def test_the_disk_estimate_holds_the_figures_the_sample_projection_wrote(projected) -> None:  # type: ignore[no-untyped-def]
+    """Every file the stage wrote beside the cloud (Fig. 4, the z error: PNG and CSV) is in
+    the disk estimate: together they take less than FIGURE_BYTES."""
+    ws, log_id, _ = projected
+    record = ws.manifest(log_id).stage("project")
+    figures = [name for name in record.outputs if name != project_module.OUTPUT]
+    assert {n.rsplit(".", 1)[1] for n in figures} == {"png", "csv"} and len(figures) == 4
+    written = sum(ws.log_dir(log_id).joinpath(name).stat().st_size for name in figures)
+    assert 0 < written <= project_module.FIGURE_BYTES
+
+
+def _tiny_scans(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> tuple[Path, project_module.ProjectSettings, int, Callable[[int], None]]:
+    """A laser table of 100 scans of 181 returns (all the disk check reads), the default
+    settings, the cloud's estimate (bytes) and a setter of the free space the check sees."""
+    from collections import namedtuple
+
+    laser = tmp_path / "laser.parquet"
+    ranges = pa.array([[1.0] * 181] * 100, pa.list_(pa.float32()))
+    pq.write_table(pa.table({"ranges": ranges}), laser)
+    cfg = default_config()
+    settings = project_module.ProjectSettings(cfg.project, cfg.vehicle, cfg.topics, cfg.model)
+    cloud = int(100 * 181 * project_module.CLOUD_BYTES_PER_RETURN[cfg.project.keep])
+    Usage = namedtuple("Usage", "total used free")
+
+    def free(n: int) -> None:
+        monkeypatch.setattr(project_module.shutil, "disk_usage", lambda _p: Usage(10**9, 0, n))
+
+    return laser, settings, cloud, free
+
+
+def test_a_disk_that_holds_the_cloud_but_not_its_figures_is_refused(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The estimate is the cloud and the figures beside it: a disk with room for the cloud
+    alone is refused before anything is written, naming the figures."""
+    laser, settings, cloud, free = _tiny_scans(tmp_path, monkeypatch)
+    free(cloud + 1000)
+    with pytest.raises(StageError, match="with its figures, needs about"):
+        project_module._require_disk_for_cloud(laser, settings)
+    free(cloud + project_module.FIGURE_BYTES)
+    project_module._require_disk_for_cloud(laser, settings)  # room for both: no error
+
+
+def test_an_old_clouds_room_is_not_counted_free(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Projecting again writes the new cloud aside while the old one stays in the log's
+    current generation (a hard link to it in the new one) until the stage commits: both are
+    on the disk at once, so the old cloud's size is no room for the new one."""
+    laser, settings, cloud, free = _tiny_scans(tmp_path, monkeypatch)
+    old = tmp_path / "old-generation-points.parquet"
+    old.write_bytes(b"\0" * 200_000)
+    os.link(old, tmp_path / project_module.OUTPUT)  # as a new generation holds it
+    free(cloud + project_module.FIGURE_BYTES - 1000)
+    with pytest.raises(StageError, match="needs about"):
+        project_module._require_disk_for_cloud(laser, settings)
+
+
 def test_a_disk_too_small_for_the_cloud_is_said_before_anything_is_written(
     posed_copy: tuple[Workspace, str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -346,7 +408,7 @@ def test_a_disk_too_small_for_the_cloud_is_said_before_anything_is_written(
     monkeypatch.setattr(
         project_module.shutil, "disk_usage", lambda _p: Usage(10**9, 10**9 - 10**6, 10**6)
     )
-    points_path.unlink()  # a first projection (an old cloud's room counts as free)
+    points_path.unlink()  # a first projection
     with pytest.raises(StageError, match=r"needs about 0\.0[34] GB.*keep = \"near_path\""):
         run_stage(PROJECT, ws, default_config(), log_id=log_id, overwrite=True)
     assert not points_path.exists()

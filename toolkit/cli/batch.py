@@ -4,7 +4,6 @@ with their executor (local pool or Dask) and shard options."""
 from __future__ import annotations
 
 import functools
-import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -12,6 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from toolkit import strict_json
 from toolkit.cli.base import debug_on, error_line
 from toolkit.cli.group import main
 from toolkit.cli.stages import StageName
@@ -184,7 +184,7 @@ def ingest(ctx: click.Context, batch: BatchArgs, overwrite: bool, as_json: bool)
             }
             for o in summary.outcomes
         ]
-        click.echo(json.dumps({"stage": "ingest", "logs": outcomes}, indent=2))
+        click.echo(strict_json.dumps({"stage": "ingest", "logs": outcomes}))
     else:
         click.echo(summary.render(with_reasons=False))
     if summary.ok:
@@ -232,7 +232,7 @@ def run(
         overwrite=overwrite,
         executors=batch.executors,
     )
-    click.echo(json.dumps(summary.to_dict(), indent=2) if as_json else summary.render())
+    click.echo(strict_json.dumps(summary.to_dict()) if as_json else summary.render())
     if summary.ok:
         return
     for report in summary.stages:

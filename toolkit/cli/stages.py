@@ -3,12 +3,12 @@ one log or every log of the workspace, a workspace stage over the workspace."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import click
 
+from toolkit import strict_json
 from toolkit.cli.base import WORKSPACE_OPTION, error_line, workspace_option
 from toolkit.errors import ToolkitError
 from toolkit.stages import registry
@@ -81,7 +81,7 @@ def each_log(
         results = [_one_log(spec, ws, cfg, one, overwrite, as_json) for one in ids]
     failed = sum(r["status"] == "failed" for r in results)
     if as_json:
-        click.echo(json.dumps({"stage": verb, "logs": results}, indent=2))
+        click.echo(strict_json.dumps({"stage": verb, "logs": results}))
     elif len(ids) > 1 or failed:
         done: dict[str, int] = {}
         for r in results:
@@ -158,4 +158,4 @@ def _echo_stage(ws: Workspace, stage: str, status: str, text: str, as_json: bool
         "summary": text,
         "record": record.to_json() if record is not None else None,
     }
-    click.echo(json.dumps(doc, indent=2))
+    click.echo(strict_json.dumps(doc))

@@ -4,13 +4,13 @@ others) and ``logs`` (what a workspace holds)."""
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, Protocol
 
 import click
 
+from toolkit import strict_json
 from toolkit.cli.base import WORKSPACE_OPTION, TerrainGroup
 from toolkit.cli.group import main
 from toolkit.errors import LogReadError, ToolkitError
@@ -119,7 +119,7 @@ def info(log: Path, as_json: bool, full: bool) -> None:
         doc = log_info.to_dict()
         for topic in doc["topics"]:
             topic["roles"] = list(roles[topic["topic"]])
-        click.echo(json.dumps(doc, indent=2, sort_keys=False))
+        click.echo(strict_json.dumps(doc))
     else:
         click.echo(render_table(log_info, roles))
 

@@ -19,8 +19,12 @@ a fix). Decisions documented here:
   give ``speed = twist.linear.x`` and null per-wheel columns.
 - lasers: ``sensor_msgs/LaserScan`` with any beam count and field of view, one row per scan;
   ``laser`` is the topic. NaN/inf ranges and ranges outside ``[range_min, range_max]`` mean no
-  return: they are kept and counted (``laser_no_return``). Extra columns: ``range_min``,
-  ``range_max`` (m) and ``frame_id`` (the laser's frame, to find its mount on tf_static).
+  return: they are kept and counted (``laser_no_return``). A finite range below zero is no
+  return either, whatever ``range_min`` claims (no sensor measures a negative distance): kept
+  and counted apart (``laser_negative_range``); a scan whose ``range_min`` is negative is
+  counted (``laser_negative_range_min``) and said on the terminal once per topic
+  (:func:`laser_notices`). Extra columns: ``range_min``, ``range_max`` (m, as the message
+  gives them) and ``frame_id`` (the laser's frame, to find its mount on tf_static).
 - truth_pose: ``nav_msgs/Odometry`` (pose in ``header.frame_id``, twist in ``child_frame_id`` as
   ROS specifies) to the pose columns: Z-Y-X Euler angles, velocity rotated into the world frame,
   Euler-angle rates from the body rates by the Z-Y-X kinematics, speed = horizontal norm. The
@@ -32,6 +36,8 @@ a fix). Decisions documented here:
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 import pyarrow as pa
 
@@ -41,6 +47,7 @@ from toolkit.geometry.rotations import (
     quaternion_to_euler_zyx,
     rotate_body_to_world,
 )
+from toolkit.ingestion.accounts import TopicAccount
 from toolkit.ingestion.rows import (
     NS_PER_S,
     Columns,
@@ -253,7 +260,8 @@ def wheels_from_odometry(cols: Columns, log_time_ns: IntArray, ctx: ConvertConte
 def laser_from_scan(cols: Columns, log_time_ns: IntArray, ctx: ConvertContext) -> RoleRows:
     """sensor_msgs/LaserScan -> one row per scan: t_ns, laser (topic), angle_min,
     angle_increment (rad), time_increment (s), ranges (list<float32>, m, no-returns kept),
-    range_min, range_max (m), frame_id."""
+    range_min, range_max (m), frame_id. Counted per scan: ``laser_no_return``,
+    ``laser_negative_range`` (beams) and ``laser_negative_range_min`` (the module docstring)."""
     t_ns, missing = stamp_times(cols, log_time_ns, ctx)
     n = len(t_ns)
     angle_min = np.asarray(cols["angle_min"], dtype=np.float32)
@@ -266,16 +274,20 @@ def laser_from_scan(cols: Columns, log_time_ns: IntArray, ctx: ConvertContext) -
         ranges = ragged_list_array(raw, pa.float32(), np.float32)
         flat = np.asarray(ranges.values.to_numpy(zero_copy_only=False), dtype=np.float32)
         row_of = np.repeat(np.arange(n), np.diff(np.asarray(ranges.offsets.to_numpy())))
-        lo, hi = rmin[row_of], rmax[row_of]
-        with np.errstate(invalid="ignore"):
-            bad = ~np.isfinite(flat) | (flat < lo) | (flat > hi)
-        no_return = np.bincount(row_of[bad], minlength=n).astype(np.int64)
+        negative, no_return = _range_screen(flat, rmin[row_of], rmax[row_of])
+        counts = {
+            "laser_no_return": np.bincount(row_of[no_return], minlength=n).astype(np.int64),
+            "laser_negative_range": np.bincount(row_of[negative], minlength=n).astype(np.int64),
+        }
     else:
         values = np.asarray(raw, dtype=np.float32).reshape(n, -1)
         ranges = list_array(values, pa.float32())
-        with np.errstate(invalid="ignore"):
-            bad = ~np.isfinite(values) | (values < rmin[:, None]) | (values > rmax[:, None])
-        no_return = np.count_nonzero(bad, axis=1).astype(np.int64)
+        negative, no_return = _range_screen(values, rmin[:, None], rmax[:, None])
+        counts = {
+            "laser_no_return": np.count_nonzero(no_return, axis=1).astype(np.int64),
+            "laser_negative_range": np.count_nonzero(negative, axis=1).astype(np.int64),
+        }
+    counts["laser_negative_range_min"] = (rmin < 0).astype(np.int64)
     table = pa.table(
         {
             "t_ns": t_ns,
@@ -290,7 +302,37 @@ def laser_from_scan(cols: Columns, log_time_ns: IntArray, ctx: ConvertContext) -
         }
     )
     finite = all_finite(angle_min, angle_inc, time_inc)
-    return RoleRows(table, finite, missing, counts={"laser_no_return": no_return})
+    return RoleRows(table, finite, missing, counts=counts)
+
+
+def _range_screen(
+    ranges: np.ndarray, range_min: np.ndarray, range_max: np.ndarray
+) -> tuple[BoolArray, BoolArray]:
+    """The beams that are no return, in two masks of ``ranges``' shape: finite but negative
+    (never a return, whatever ``range_min`` says), and the others: NaN/inf or outside
+    ``[range_min, range_max]``."""
+    with np.errstate(invalid="ignore"):
+        finite = np.isfinite(ranges)
+        negative = finite & (ranges < 0)
+        outside = (ranges < range_min) | (ranges > range_max)
+    return negative, ~finite | (outside & ~negative)
+
+
+def laser_notices(accounts: Mapping[str, TopicAccount]) -> list[str]:
+    """What a user must know of the lasers' scans, a line per topic (the terminal says them;
+    the manifest counts them): a negative ``range_min`` claims what no sensor can do."""
+    out: list[str] = []
+    for topic, account in accounts.items():
+        c = account.counts
+        if account.role != "lasers" or not c["laser_negative_range_min"]:
+            continue
+        out.append(
+            f"{topic}: {c['laser_negative_range_min']} of {account.written} scans give a "
+            "negative range_min (no sensor measures a negative distance): a range below 0 is "
+            f"never a return ({c['laser_negative_range']} such beams counted as "
+            "laser_negative_range, none projected)"
+        )
+    return out
 
 
 def pose_from_odometry(cols: Columns, log_time_ns: IntArray, ctx: ConvertContext) -> RoleRows:
@@ -447,6 +489,7 @@ __all__ = [
     "heading_from_quaternion",
     "imu_from_imu",
     "laser_from_scan",
+    "laser_notices",
     "pose_from_odometry",
     "tf_from_tfmessage",
     "wheels_from_odometry",

@@ -28,6 +28,7 @@ from toolkit.geometry.static_transforms import (
     select_static_transforms,
 )
 from toolkit.ingestion.accounts import TopicAccount, count_totals, reject_warnings, usable_roles
+from toolkit.ingestion.converters import laser_notices
 from toolkit.ingestion.dedup import DuplicateFilter
 from toolkit.ingestion.imucheck import IMU_REJECT_REASONS, stream_imu_check
 from toolkit.ingestion.lidar import check_sweeps, lidar_notices
@@ -181,7 +182,7 @@ class IngestRun:
         self.warnings = [*self.notices, *usable_roles(self.accounts, self.log_path)]
         self.warnings += reject_warnings(self.accounts)
         check_sweeps(self.accounts)
-        self.warnings += lidar_notices(self.accounts)
+        self.warnings += laser_notices(self.accounts) + lidar_notices(self.accounts)
         if self.tf_rows:
             self.tf_static = select_static_transforms(
                 tf_records(self.tf_rows), self.topics.tf_static or "tf_static"

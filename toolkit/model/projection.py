@@ -23,10 +23,11 @@ laser's previous scan (``scan_dt_s``, NaN for a laser's first scan).
 
 Returns are dropped and counted by reason (:data:`REJECT_REASONS`, in the order checked):
 ``bad_scan`` (every return of a scan whose angles or ``time_increment`` are not finite),
-``no_return`` (NaN/inf range), ``out_of_range`` (outside the scan's ``[range_min,
-range_max]``), ``no_mount`` (a laser whose frame no mount places on the vehicle) and
-``no_pose`` (before the first or after the last pose row, or inside a gap of the pose longer
-than :data:`MAX_POSE_GAP_S`: no estimate to place it with).
+``no_return`` (NaN/inf range), ``out_of_range`` (outside the scan's ``[max(range_min, 0),
+range_max]``: a negative range is never a return, even under a negative ``range_min``, which
+would place it behind the laser), ``no_mount`` (a laser whose frame no mount places on the
+vehicle) and ``no_pose`` (before the first or after the last pose row, or inside a gap of the
+pose longer than :data:`MAX_POSE_GAP_S`: no estimate to place it with).
 
 Arrays only: reading the scans and the pose, the threads and the writing are the project
 stage's (:mod:`toolkit.stages.project`).
@@ -376,8 +377,10 @@ def _placeable_returns(
     counts.rejects["bad_scan"] += int(r.size - np.count_nonzero(usable))
     counts.rejects["no_return"] += int(np.count_nonzero(usable & ~finite))
     finite &= usable
+    # Never below 0, whatever the scan's range_min claims (a negative r points backwards).
+    lowest = np.maximum(np.take(scans.range_min, s), 0.0)
     with np.errstate(invalid="ignore"):
-        in_range = finite & (r >= np.take(scans.range_min, s)) & (r <= np.take(scans.range_max, s))
+        in_range = finite & (r >= lowest) & (r <= np.take(scans.range_max, s))
     counts.rejects["out_of_range"] += int(np.count_nonzero(finite & ~in_range))
     mounted = in_range & (np.take(batch.scan_mount, s) >= 0)
     counts.rejects["no_mount"] += int(np.count_nonzero(in_range & ~mounted))

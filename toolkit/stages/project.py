@@ -52,7 +52,7 @@ from toolkit.geometry.mounts import Mount, frame_mounts
 from toolkit.layout import LogFiles, log_file_name
 from toolkit.model.projection import Counts, PoseWindow, PreparedBatch
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
-from toolkit.stages.project_figures import Figures, ZSample
+from toolkit.stages.project_figures import FIGURE_BYTES, Figures, ZSample
 from toolkit.stages.project_lidar import LidarSource, lidar_frames
 from toolkit.stages.project_scans import (
     LASER_COLUMNS,
@@ -438,10 +438,13 @@ CLOUD_BYTES_PER_RETURN = {"all": 9.0, "near_path": 1.6}
 
 
 def _require_disk_for_cloud(laser_path: Path, config: ProjectSettings) -> None:
-    """StageError, before anything is written, when the disk cannot hold the cloud: its
-    size estimated from the scans' returns (the ``ranges`` values counted in the Parquet
-    footer, not read; a lidar table's rows) at :data:`CLOUD_BYTES_PER_RETURN`, against the
-    free space beside it (with the old cloud's own size, which the new one replaces)."""
+    """StageError, before anything is written, when the disk cannot hold what the stage
+    writes: the cloud, its size estimated from the scans' returns (the ``ranges`` values
+    counted in the Parquet footer, not read; a lidar table's rows) at
+    :data:`CLOUD_BYTES_PER_RETURN`, and the figures beside it
+    (:data:`~toolkit.stages.project_figures.FIGURE_BYTES`), against the free space beside
+    it. An old cloud's room is not free: the new one is written aside in a new generation of
+    the log while the old one stays in the current generation until the stage commits."""
     meta = pq.ParquetFile(laser_path).metadata
     leaf = next(
         (
@@ -455,10 +458,11 @@ def _require_disk_for_cloud(laser_path: Path, config: ProjectSettings) -> None:
         returns = meta.num_rows
     else:
         returns = sum(meta.row_group(i).column(leaf).num_values for i in range(meta.num_row_groups))
-    need = returns * CLOUD_BYTES_PER_RETURN[config.project.keep]
-    old = laser_path.with_name(OUTPUT)
-    free = shutil.disk_usage(laser_path.parent).free + (old.stat().st_size if old.is_file() else 0)
-    _log.info("the point cloud of %d returns will take about %.2f GB", returns, need / 1e9)
+    need = returns * CLOUD_BYTES_PER_RETURN[config.project.keep] + FIGURE_BYTES
+    free = shutil.disk_usage(laser_path.parent).free
+    _log.info(
+        "the point cloud of %d returns and its figures will take about %.2f GB", returns, need / 1e9
+    )
     if need > free:
         hint = (
             '; [project] keep = "near_path" keeps only the points the tables use, about a sixth'
@@ -466,8 +470,8 @@ def _require_disk_for_cloud(laser_path: Path, config: ProjectSettings) -> None:
             else ""
         )
         raise StageError(
-            f"the point cloud of {returns} laser returns needs about {need / 1e9:.2f} GB and "
-            f"{free / 1e9:.2f} GB are free on this disk: make room{hint}",
+            f"the point cloud of {returns} laser returns, with its figures, needs about "
+            f"{need / 1e9:.2f} GB and {free / 1e9:.2f} GB are free on this disk: make room{hint}",
             path=laser_path.parent,
         )
 

@@ -52,6 +52,13 @@ Z_ERROR_TILE_EVERY = 8
 #: ... or closer, so that a short route still has this many checked stretches (the sample
 #: log's 0.7 km: every tile).
 Z_ERROR_FEWEST_STRETCHES = 15
+#: Bytes the figures take beside the cloud, for the stage's disk estimate: Fig. 4 and the z
+#: error, a PNG and a CSV each. Measured on the sample log (``terrain run
+#: sample_logs/sample.mcap``): Fig. 4 57.2 kB (PNG) + 16.7 kB (CSV), the z error 79.8 + 4.6 kB,
+#: 158 kB in all. Neither grows with the log (their CSVs are binned, by dt and by laser and
+#: range; their PNGs 700 x 450 pixels); twice the sample's leaves room for busier plots and
+#: more lasers.
+FIGURE_BYTES = 320_000
 #: Batches handed to the Fig. 4 thread at most, the one it is working on included (each
 #: ~30 MB of points).
 FIGURE_QUEUE = 2
@@ -198,4 +205,4 @@ def z_sample(
     )
 
 
-__all__ = ["FIG4_SECONDS", "Z_ERROR_STRIDE", "Figures", "ZSample", "z_sample"]
+__all__ = ["FIG4_SECONDS", "FIGURE_BYTES", "Z_ERROR_STRIDE", "Figures", "ZSample", "z_sample"]
