@@ -150,7 +150,7 @@ def test_every_registered_stage_declares_itself_as_listed() -> None:
 HASHED = {
     # [lidar] keys nothing at its defaults (toolkit.config.UNHASHED_AT_DEFAULT), so the key
     # of a laser vehicle's ingest is what it was before the 3-D lidar: checked below.
-    "ingest": ("topics", "time", "lidar"),
+    "ingest": ("topics", "time", "lidar", "imu"),
     "pose": ("pose", "time", "vehicle"),
     "project": ("vehicle", "project.keep"),
     "label": ("label", "vehicle"),
