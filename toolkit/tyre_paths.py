@@ -4,10 +4,18 @@ The tables stage lists, per event, the points within ``[model] wheel_window_radi
 ground each rear tyre traversed (paper sect. 7); the project stage may keep only the points
 near the tyres' paths at all (``[project] keep = "near_path"``). Both sample the paths here
 (:func:`tyre_paths`) and sieve points by grid cells first (:func:`near_cells`).
+
+What the paths are drawn from is defined here once (:data:`PATH_SETTINGS`,
+:data:`PATH_INPUTS`): the project stage's up-to-date key holds it when it cuts, and it is
+stamped on the cut cloud (:func:`cut_metadata`), which a reader checks against its own
+(:func:`cut_differences`): a change that moves the paths redoes the cut or is refused, never
+matched against a strip cut around other paths.
 """
 
 from __future__ import annotations
 
+import json
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +29,15 @@ PATH_STEP_M = 0.05
 #: Key-value metadata of a point cloud that keeps only the points near the tyres' paths: how
 #: near, m (the tables stage refuses a cloud cut narrower than its radius).
 META_KEPT_WITHIN_M = "kept_within_m_of_tyre_paths"
+#: ... and what those paths were drawn from (:meth:`PathsDrawnFrom.to_text`).
+META_CUT_AROUND = "tyre_paths_drawn_from"
+#: The configuration the rear tyres' paths are drawn from, by dotted key: the track between
+#: the tyres (:func:`tyre_paths`, :class:`NearPath`). The wheelbase, the mounts and the pose's
+#: own settings move them only through the pose, below.
+PATH_SETTINGS = ("vehicle.track_m",)
+#: The files they are drawn from, by layout name: the pose (its ``t_ns``, ``x``, ``y``,
+#: ``yaw``; the whole log's, so the events do not move the cut).
+PATH_INPUTS = ("pose",)
 #: Largest bitmap of grid cells sieve 1 marks (32 M cells, 32 MB: open tyre paths 1.7 km
 #: across at 30 cm cells; larger ones use sorted cell keys).
 MAX_BITMAP_CELLS = 1 << 25
@@ -217,3 +234,101 @@ def _densify_turns(
     y = np.concatenate([xy[j, 1] + f * (xy[j + 1, 1] - xy[j, 1]), xy[-1:, 1]])
     a = np.concatenate([yaw[j] + f * (yaw[j + 1] - yaw[j]), yaw[-1:]])
     return t, np.c_[x, y], a
+
+
+#: A setting's value as stamped on a cloud (JSON's scalars).
+Setting = float | int | str | bool
+
+
+@dataclass(frozen=True)
+class PathsDrawnFrom:
+    """What a log's rear tyres' paths are drawn from: the value of each of
+    :data:`PATH_SETTINGS` and the sha256 of each of :data:`PATH_INPUTS`. The same code draws
+    the same paths from two equal ones."""
+
+    settings: Mapping[str, Setting]
+    inputs: Mapping[str, str]
+
+    @classmethod
+    def of(cls, config: object, inputs: Mapping[str, str]) -> PathsDrawnFrom:
+        """From a configuration (anything holding its sections as attributes: the whole
+        configuration or a stage's settings) and the inputs' sha256 by layout name (KeyError
+        when one of :data:`PATH_INPUTS` is not among them: a stage that cuts must need it)."""
+        settings: dict[str, Setting] = {}
+        for dotted in PATH_SETTINGS:
+            section, _, key = dotted.partition(".")
+            settings[dotted] = getattr(getattr(config, section), key)
+        return cls(settings, {name: inputs[name] for name in PATH_INPUTS})
+
+    def to_text(self) -> str:
+        """Canonical JSON (``{"inputs": {...}, "settings": {...}}``, keys sorted)."""
+        body = {"settings": dict(self.settings), "inputs": dict(self.inputs)}
+        return json.dumps(body, sort_keys=True, separators=(",", ":"))
+
+    @classmethod
+    def from_text(cls, text: str) -> PathsDrawnFrom:
+        """Read :meth:`to_text`'s JSON back; ValueError when it is not of that form."""
+        body = json.loads(text)
+        if not (
+            isinstance(body, dict)
+            and isinstance(body.get("settings"), dict)
+            and isinstance(body.get("inputs"), dict)
+        ):
+            raise ValueError(f"not an object of settings and inputs: {text!r}")
+        return cls(body["settings"], body["inputs"])
+
+    def differences(self, now: PathsDrawnFrom) -> list[str]:
+        """What differs between these (a cut's) and ``now``, in words, one item each."""
+        out = [
+            f"{name} = {self.settings.get(name)!r} when cut, {now.settings.get(name)!r} now"
+            for name in sorted({*self.settings, *now.settings})
+            if self.settings.get(name) != now.settings.get(name)
+        ]
+        out += [
+            f"{name} sha256 {str(self.inputs.get(name))[:12]} when cut, "
+            f"{str(now.inputs.get(name))[:12]} now"
+            for name in sorted({*self.inputs, *now.inputs})
+            if self.inputs.get(name) != now.inputs.get(name)
+        ]
+        return out
+
+
+def cut_metadata(distance_m: float, drawn_from: PathsDrawnFrom) -> dict[str, str]:
+    """The key-value metadata of a cloud keeping only the points within ``distance_m`` of
+    the tyres' paths drawn from ``drawn_from``."""
+    return {META_KEPT_WITHIN_M: repr(distance_m), META_CUT_AROUND: drawn_from.to_text()}
+
+
+def cut_differences(metadata: Mapping[str, str], now: PathsDrawnFrom, reach_m: float) -> list[str]:
+    """Why a cloud of key-value ``metadata`` cannot give every point within ``reach_m`` of
+    the tyres' paths drawn from ``now`` (plus :data:`PATH_STEP_M`, the paths' sampling), in
+    words, one item each: cut narrower, around paths drawn from other settings or inputs, or
+    with no record of them (cut before they were recorded). Empty when it can: a cloud that
+    keeps every point, or one cut for these paths at least that wide."""
+    if META_KEPT_WITHIN_M not in metadata:
+        return []
+    out: list[str] = []
+    text = metadata[META_KEPT_WITHIN_M]
+    try:
+        kept = float(text)
+    except ValueError:
+        out.append(f"metadata {META_KEPT_WITHIN_M} = {text!r} is not a distance")
+    else:
+        if kept < reach_m + PATH_STEP_M:
+            out.append(
+                f"kept only within {kept:g} m of the paths, and the tables reach {reach_m:g} m "
+                f"(+ {PATH_STEP_M:g} m of path sampling)"
+            )
+    stamp = metadata.get(META_CUT_AROUND)
+    if stamp is None:
+        out.append(
+            f"no record of what its paths were drawn from: no metadata {META_CUT_AROUND}, "
+            "cut by an earlier version"
+        )
+        return out
+    try:
+        then = PathsDrawnFrom.from_text(stamp)
+    except ValueError:
+        out.append(f"metadata {META_CUT_AROUND} = {stamp!r} is unreadable")
+        return out
+    return out + then.differences(now)

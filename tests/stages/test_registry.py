@@ -168,4 +168,4 @@ def test_every_stage_hashes_the_configuration_it_always_has() -> None:
     near_path = dataclasses.replace(config.project, keep="near_path")
     keeping_near_path = dataclasses.replace(config, project=near_path)
     hashed = registry.stage("project").hashed_sections(keeping_near_path)
-    assert hashed == ("vehicle", "project", "model.wheel_window_radius_m")
+    assert hashed == ("vehicle", "project", "model.wheel_window_radius_m", "vehicle.track_m")

@@ -64,7 +64,7 @@ from toolkit.stages.project_scans import (
     project_prepared,
 )
 from toolkit.tableio import TableWriter, iter_table_batches, read_table, read_table_metadata
-from toolkit.tyre_paths import META_KEPT_WITHIN_M, NearPath
+from toolkit.tyre_paths import PATH_SETTINGS, NearPath, PathsDrawnFrom, cut_metadata
 
 _log = logging.getLogger(__name__)
 
@@ -72,7 +72,8 @@ STAGE = "project"
 OUTPUT = log_file_name("points")
 #: Configuration sections projection reads: the vehicle (its base frame, for the mounts; its
 #: track, for the tyres' paths) and which points to keep; with ``keep = "near_path"`` also
-#: the tables' radius around a tyre (:meth:`Stage.config_hash`).
+#: the tables' radius around a tyre and what the paths are drawn from
+#: (:func:`hashed_sections`).
 CONFIG_SECTIONS = ("vehicle", "project")
 #: Scans per read batch (5 lasers x 181 beams: ~360 k points, ~40 MB of arrays in flight).
 SCAN_BATCH = 2_000
@@ -119,9 +120,13 @@ class ProjectResult:
 
 
 def hashed_sections(config: PipelineConfig) -> tuple[str, ...]:
-    """What projection reads of ``config`` (a radius only when it cuts by one)."""
+    """What projection reads of ``config``: cutting near the tyres' paths, also the tables'
+    radius and the settings the paths are drawn from
+    (:data:`~toolkit.tyre_paths.PATH_SETTINGS`; their inputs,
+    :data:`~toolkit.tyre_paths.PATH_INPUTS`, are among the stage's needs), so a change that
+    moves the paths redoes the cut."""
     if config.project.keep == "near_path":
-        return (*CONFIG_SECTIONS, "model.wheel_window_radius_m")
+        return (*CONFIG_SECTIONS, "model.wheel_window_radius_m", *PATH_SETTINGS)
     # Keeping every point, the margin is not read: changing it leaves the cloud as it is.
     return ("vehicle", "project.keep")
 
@@ -242,8 +247,9 @@ def _open_inputs(call: Call[ProjectSettings], config: ProjectSettings, lidar: bo
     sha = json.loads(json.dumps(call.manifest.read().get("source", {}))).get("sha256", "")
     poses = PoseStream(files.pose)
     near_path = _near_path(files.pose, config)
-    if near_path is not None:
-        frame_meta[META_KEPT_WITHIN_M] = repr(near_path.distance_m)
+    if near_path is not None:  # stamped with what the paths are drawn from, for its readers
+        drawn_from = PathsDrawnFrom.of(config, call.inputs)
+        frame_meta.update(cut_metadata(near_path.distance_m, drawn_from))
     return _Inputs(mounts, list(mount_warnings), frame_meta, sha, poses, near_path)
 
 

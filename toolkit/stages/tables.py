@@ -68,9 +68,10 @@ from toolkit.stages.tables_points import (
     MatchedBatch,
     RunningUnwrap,
     event_points_of_log,
+    require_cut_fits,
 )
 from toolkit.tableio import TableWriter, iter_table_batches, read_table
-from toolkit.tyre_paths import TyrePaths, tyre_paths
+from toolkit.tyre_paths import PathsDrawnFrom, TyrePaths, tyre_paths
 from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
@@ -135,9 +136,12 @@ class TablesResult:
 # --------------------------------------------------------------------------------------
 
 
-def _log_inputs(workspace: Workspace) -> tuple[list[LogInputs], list[str]]:
+def _log_inputs(workspace: Workspace, config: PipelineConfig) -> tuple[list[LogInputs], list[str]]:
     """The logs that have finished events, points and pose (in time order), and a warning
-    for each log left out and why."""
+    for each log left out and why. StageError when a log's events or points come from
+    another pose than its own, or its points were cut near other tyre paths than ``config``
+    draws (:func:`~toolkit.stages.tables_points.require_cut_fits`): refused before any
+    up-to-date check, so tables made from such a cloud are never current."""
     usable: list[LogInputs] = []
     warnings: list[str] = []
     made_by = {need.name: need.made_by for need in SPEC.needs}
@@ -171,6 +175,13 @@ def _log_inputs(workspace: Workspace) -> tuple[list[LogInputs], list[str]]:
                     f"{stage} -w {workspace.root} --log {log_id}` again",
                     path=LogFiles(log_dir).pose,
                 )
+        require_cut_fits(
+            files.points,
+            log_id,
+            PathsDrawnFrom.of(config, hashes),
+            config.model.wheel_window_radius_m,
+            workspace.root,
+        )
         # The pose is in time order: its first row is its first time (read alone).
         head = next(
             iter_table_batches(LogFiles(log_dir).pose, "pose", columns=["t_ns"], batch_rows=1),
@@ -218,8 +229,7 @@ def _gather(
 ) -> tuple[dict[str, str], tuple[list[LogInputs], list[str]]]:
     """Every usable log's events, points and pose, hashed (``<log id>/<name>``), and the
     logs with the warnings on those left out."""
-    del config  # which logs are usable does not depend on it
-    logs, warnings = _log_inputs(workspace)
+    logs, warnings = _log_inputs(workspace, config)
     if not logs:
         raise StageError(
             "no log has finished events, points and pose; run `terrain label` and "

@@ -28,7 +28,7 @@ from toolkit.layout import LogFiles
 from toolkit.model.tyre_match import EventPaths, PathSource, match_points
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata, table_num_rows
 from toolkit.timewindow import Columns, TimeWindow
-from toolkit.tyre_paths import META_KEPT_WITHIN_M, PATH_STEP_M
+from toolkit.tyre_paths import PathsDrawnFrom, cut_differences
 
 #: Points per read batch.
 POINT_BATCH = 262_144
@@ -136,26 +136,20 @@ class MatchedBatch:
     t_hi_ns: int
 
 
-def _require_points_near_enough(points_path: Path, radius_m: float, log_id: str) -> None:
-    """StageError when the cloud keeps only points nearer the tyres' paths than the tables
-    reach (``[project] keep = "near_path"`` under another radius): the events would be
-    scored on a strip narrower than they ask, quietly."""
-    text = read_table_metadata(points_path).get(META_KEPT_WITHIN_M)
-    if text is None:
-        return
-    try:
-        kept = float(text)
-    except ValueError:
+def require_cut_fits(
+    points_path: Path, log_id: str, drawn_from: PathsDrawnFrom, reach_m: float, workspace: Path
+) -> None:
+    """StageError, in one line naming the file, what differs and how to redo the cut, when
+    the cloud keeps only the points near the tyres' paths (``[project] keep = "near_path"``)
+    and these are not the paths the tables draw (from ``drawn_from``) out to ``reach_m``
+    (:func:`~toolkit.tyre_paths.cut_differences`): the events would be scored on a strip
+    narrower than they ask, or beside their tyres, quietly."""
+    differences = cut_differences(read_table_metadata(points_path), drawn_from, reach_m)
+    if differences:
         raise StageError(
-            f"{log_id}: metadata {META_KEPT_WITHIN_M} = {text!r} is not a distance; run "
-            f"`terrain project --overwrite --log {log_id}` again",
-            path=points_path,
-        ) from None
-    if kept < radius_m + PATH_STEP_M:
-        raise StageError(
-            f"{log_id}: its points were kept only within {kept:g} m of the tyres' "
-            f"paths, and the tables reach {radius_m:g} m (+ {PATH_STEP_M:g} m of path "
-            f"sampling); run `terrain project --overwrite --log {log_id}` again",
+            f"{log_id}: its points were kept only near the tyres' paths, cut for other "
+            f"tables than these ({'; '.join(differences)}); run `terrain project -w "
+            f"{workspace} --log {log_id} --overwrite` again",
             path=points_path,
         )
 
@@ -277,7 +271,6 @@ def event_points_of_log(
     # The pose is streamed: each batch of points gets the rows around its open events.
     lookahead_ns = int(max_lookahead_s * 1e9)
     feed = _PoseFeed(inputs, events, lookahead_ns, track_m)
-    _require_points_near_enough(LogFiles(log_dir).points, radius_m, inputs.log_id)
     # Batches are matched by a pool of threads (the KD-tree's queries and numpy's loops run
     # outside the GIL) and handed back in order, so the output is the same as matching one
     # batch after another; at most WORKERS + 1 batches are in flight.
@@ -310,4 +303,5 @@ __all__ = [
     "MatchedBatch",
     "RunningUnwrap",
     "event_points_of_log",
+    "require_cut_fits",
 ]
