@@ -19,7 +19,8 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from scipy.ndimage import uniform_filter1d
 
-from toolkit.geometry.geodesy import GeodeticOrigin, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin
+from toolkit.geometry.map_frame import geodetic_to_world
 from toolkit.sim.profiles import make_profile
 from toolkit.sim.sensors import Mount, SensorParams
 from toolkit.sim.simulate import SimResult
@@ -256,7 +257,7 @@ def _gps_residuals(log: SimLog) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     k = k[ok]
     lever, _ = log.static_transform("gps_antenna")
     antenna = tr.position[k] + tr.rotation[k].apply(lever)
-    enu = geodetic_to_enu(
+    enu = geodetic_to_world(
         fix["latitude"][ok],
         fix["longitude"][ok],
         fix["altitude"][ok],

@@ -432,13 +432,14 @@ def test_a_filter_locked_out_by_its_gate_reinitialises(
     # The pose follows the moved fixes to the end (truth does not: it was not moved).
     pose = read_table(ws.log_table(log_id, "pose"), "pose")
     origin = json.loads(read_table_metadata(ws.log_table(log_id, "pose"))["enu_origin"])
-    from toolkit.geometry.geodesy import GeodeticOrigin, geodetic_to_enu
+    from toolkit.geometry.geodesy import GeodeticOrigin
+    from toolkit.geometry.map_frame import geodetic_to_world
 
     o = GeodeticOrigin(origin["latitude_deg"], origin["longitude_deg"], origin["altitude_m"])
     moved = read_table(ws.log_table(log_id, "gps"), "gps")
     ok = moved.column("status").to_numpy() >= 0
     enu = np.asarray(
-        geodetic_to_enu(
+        geodetic_to_world(
             moved.column("latitude").to_numpy(zero_copy_only=False)[ok],
             moved.column("longitude").to_numpy(zero_copy_only=False)[ok],
             moved.column("altitude").to_numpy(zero_copy_only=False)[ok],

@@ -14,7 +14,8 @@ import numpy as np
 import pytest
 
 from toolkit.config import PipelineConfig, load_config
-from toolkit.geometry.geodesy import GeodeticOrigin, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin
+from toolkit.geometry.map_frame import geodetic_to_world
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.pose import SPEC as POSE
 from toolkit.stages.pose import PoseResult
@@ -47,7 +48,7 @@ def _fixes_enu(ws: Workspace, log_id: str) -> tuple[np.ndarray, np.ndarray]:
     lon = gps.column("longitude").to_numpy()
     alt = gps.column("altitude").to_numpy()
     ok = np.isfinite(lat) & np.isfinite(lon) & (gps.column("status").to_numpy() >= 0)
-    enu = geodetic_to_enu(lat[ok], lon[ok], alt[ok], origin)
+    enu = geodetic_to_world(lat[ok], lon[ok], alt[ok], origin)
     return gps.column("t_ns").to_numpy()[ok], np.asarray(enu)[:, :2]
 
 

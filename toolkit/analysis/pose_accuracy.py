@@ -22,7 +22,8 @@ import pyarrow.parquet as pq
 
 from toolkit.arrays import FloatArray
 from toolkit.errors import StageError
-from toolkit.geometry.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin
+from toolkit.geometry.map_frame import move_between_frames
 from toolkit.geometry.rotations import wrap_angle
 from toolkit.layout import LogFiles
 from toolkit.sim.record import SIM_RECORD
@@ -115,20 +116,21 @@ class TruthAccuracy:
         tr = (tt - self.tt0).astype(np.float64)
         tq = tq[inside]
         xyz = np.stack([column(truth, c) for c in "xyz"], axis=1)
+        truth_yaw = np.unwrap(column(truth, "yaw"))
         yaw_shift = 0.0
         if self.origin is None:
             if self.local_ref is None:
                 t_ref = tq[0]
                 p_ref = np.array([np.interp(t_ref, tr, xyz[:, k]) for k in range(3)])
-                yaw_ref = float(np.interp(t_ref, tr, np.unwrap(column(truth, "yaw"))))
+                yaw_ref = float(np.interp(t_ref, tr, truth_yaw))
                 self.local_ref = (p_ref, yaw_ref)
             p_ref, yaw_shift = self.local_ref
             c, s_ = np.cos(-yaw_shift), np.sin(-yaw_shift)
             d = xyz - p_ref
             xyz = np.stack([c * d[:, 0] - s_ * d[:, 1], s_ * d[:, 0] + c * d[:, 1], d[:, 2]], 1)
         elif self.sim_origin != self.origin:
-            lat, lon, alt = enu_to_geodetic(xyz, self.sim_origin)
-            xyz = geodetic_to_enu(lat, lon, alt, self.origin)
+            xyz, moved_yaw = move_between_frames(xyz, truth_yaw, self.sim_origin, self.origin)
+            truth_yaw = truth_yaw if moved_yaw is None else moved_yaw
 
         def at(v: FloatArray) -> FloatArray:
             return np.asarray(np.interp(tq, tr, v), dtype=np.float64)
@@ -140,7 +142,7 @@ class TruthAccuracy:
         self.sums["h"] += float(np.sum(eh**2))
         self.sums["v"] += float(np.sum(ez**2))
         for name in ("roll", "pitch", "yaw"):
-            tv = np.unwrap(column(truth, name)) - (yaw_shift if name == "yaw" else 0.0)
+            tv = truth_yaw - yaw_shift if name == "yaw" else np.unwrap(column(truth, name))
             e = wrap_angle(cols[name][inside] - wrap_angle(at(tv)))
             self.sums[name] += float(np.sum(e**2))
         t_abs = t_ns[inside]

@@ -1,7 +1,8 @@
-"""WGS-84 geodetic <-> local ENU conversions, vectorised.
+"""WGS-84 geodetic <-> ECEF <-> a local east-north-up tangent plane, vectorised, exactly.
 
-The world frame of every table is a local east-north-up (ENU) tangent plane whose origin is
-a geodetic point (the log's first valid GPS fix). Conversions go through Earth-centred,
+The tangent plane at a point is the exact local frame there (what the origin choice measures
+fixes in, over a few kilometres); the world frame every table is written in is the map of
+:mod:`toolkit.geometry.map_frame`, level everywhere. Conversions go through Earth-centred,
 Earth-fixed (ECEF) coordinates, exactly, so a round trip loses nothing but float rounding.
 """
 

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from toolkit.arrays import AnyFloatArray as FloatArray
-from toolkit.geometry.geodesy import enu_to_geodetic
+from toolkit.geometry.map_frame import grid_minus_true_yaw_rad, world_to_geodetic
 from toolkit.mcapio.cdr_encode import Column, encode_batch
 from toolkit.sim.drive import TrueBlock
 from toolkit.sim.laser_workers import LaserRays
@@ -267,7 +267,7 @@ class SensorSuite:
             [g.horizontal_noise_m, g.horizontal_noise_m, g.vertical_noise_m]
         )
         enu = antenna + drift + white
-        lat, lon, alt = enu_to_geodetic(enu, self.profile.origin)
+        lat, lon, alt = world_to_geodetic(enu, self.profile.origin)
         t_true = block.t_ns[ticks]
         lost = self.in_dropout(t_true)
         var_h = g.horizontal_noise_m**2 + g.drift_std_m**2
@@ -295,9 +295,11 @@ class SensorSuite:
         if ticks_h.size == 0:
             return
         t_true = block.t_ns[ticks_h]
-        yaw = wrap_angle(
-            block.yaw_rad[ticks_h] + self.rng.normal(0, g.heading_noise_rad, ticks_h.size)
-        )
+        # The compass reads true north; the world is a map whose north turns from it by the
+        # meridian convergence (toolkit.geometry.map_frame).
+        lat, lon, _ = world_to_geodetic(block.position_m[ticks_h], self.profile.origin)
+        true_yaw = block.yaw_rad[ticks_h] - grid_minus_true_yaw_rad(lat, lon, self.profile.origin)
+        yaw = wrap_angle(true_yaw + self.rng.normal(0, g.heading_noise_rad, ticks_h.size))
         fields = {"yaw": yaw, "yaw_std": np.full(ticks_h.size, g.heading_noise_rad)}
         self._publish(out, TOPIC_HEADING, t_true, BASE_FRAME, "terrain_msgs/msg/GpsHeading", fields)
 

@@ -34,7 +34,8 @@ import pyarrow.parquet as pq
 
 from toolkit.arrays import FloatArray, IntArray
 from toolkit.errors import StageError
-from toolkit.geometry.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin
+from toolkit.geometry.map_frame import move_between_frames
 from toolkit.layout import LogFiles
 from toolkit.sim.record import SIM_RECORD, sim_origin
 from toolkit.sim.route import Route
@@ -164,8 +165,8 @@ def truth_under_events(
         xyz = np.stack([batch.column(c).to_numpy(zero_copy_only=False) for c in "xyz"], 1)
         yaw = np.asarray(batch.column("yaw").to_numpy(zero_copy_only=False), np.float64)
         if frame_origin is not None and sim_o is not None and frame_origin != sim_o:
-            lat, lon, alt = enu_to_geodetic(xyz, frame_origin)
-            xyz = np.asarray(geodetic_to_enu(lat, lon, alt, sim_o), np.float64)
+            xyz, moved_yaw = move_between_frames(xyz, yaw, frame_origin, sim_o)
+            yaw = yaw if moved_yaw is None else moved_yaw
         ev = np.searchsorted(bounds_ns, t, side="right") - 1
         left = np.stack([-np.sin(yaw), np.cos(yaw)], 1) * (track_m / 2.0)  # base_link +y
         for sign in (1.0, -1.0):

@@ -30,7 +30,8 @@ from toolkit.errors import StageError
 from toolkit.fusion.epochs import MAX_BRIDGE_S, MAX_STEP_S
 from toolkit.fusion.estimator_io import ImuWindow, SensorData
 from toolkit.geometry.frames import choose_enu_origin
-from toolkit.geometry.geodesy import GeodeticOrigin, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin
+from toolkit.geometry.map_frame import geodetic_to_world, grid_minus_true_yaw_rad
 from toolkit.geometry.mounts import Mount
 from toolkit.geometry.rotations import rot_to_euler
 from toolkit.layout import LogFiles
@@ -250,6 +251,24 @@ def _imu_window_factory(
     return imu_windows
 
 
+def _map_yaw(
+    yaw_true_rad: FloatArray,
+    head_t: FloatArray,
+    gps_t: FloatArray,
+    lat_deg: FloatArray,
+    lon_deg: FloatArray,
+    origin: GeodeticOrigin | None,
+) -> FloatArray:
+    """A compass's true yaws (K,) turned into the world map's (:mod:`toolkit.geometry.map_frame`:
+    by the meridian convergence where the vehicle was, from the GPS fixes ``gps_t`` (N,)
+    interpolated to ``head_t`` (K,)). Without a fix there is no map: the yaws as they are."""
+    if origin is None or not len(gps_t) or not len(head_t):
+        return yaw_true_rad
+    lat = np.interp(head_t, gps_t, lat_deg)
+    lon = np.interp(head_t, gps_t, np.degrees(np.unwrap(np.radians(lon_deg))))
+    return np.asarray(yaw_true_rad + grid_minus_true_yaw_rad(lat, lon, origin), np.float64)
+
+
 def _low_rate_data(
     files: LogFiles,
     tables: tuple[pa.Table, pa.Table, pa.Table],
@@ -270,10 +289,12 @@ def _low_rate_data(
 
     gps_t = rel(gps)[valid]
     enu = (
-        np.asarray(geodetic_to_enu(lat[valid], lon[valid], alt[valid], origin), np.float64)
+        np.asarray(geodetic_to_world(lat[valid], lon[valid], alt[valid], origin), np.float64)
         if origin is not None
         else np.zeros((0, 3))
     )
+    head_t = rel(head)
+    head_yaw = _map_yaw(column(head, "yaw"), head_t, gps_t, lat[valid], lon[valid], origin)
     p = config
     default_var = np.array([p.gps_noise_m**2, p.gps_noise_m**2, p.gps_vertical_noise_m**2])
     gvar = np.tile(default_var, (int(valid.sum()), 1))
@@ -293,8 +314,8 @@ def _low_rate_data(
         gps_t=gps_t,
         gps_enu=enu,
         gps_var=gvar,
-        head_t=rel(head),
-        head_yaw=column(head, "yaw"),
+        head_t=head_t,
+        head_yaw=head_yaw,
         head_var=head_var,
         wheel_t=rel(wheels)[wok],
         wheel_speed=wheel_speed[wok],

@@ -3,13 +3,11 @@
 The simulator writes its true pose (``/truth/odom``) in its own world frame: local ENU at the
 origin in its ``terrain_sim`` metadata record. The contract wants ``truth_pose.parquet`` in
 the pose's frame, local ENU at the log's agreeing GPS fix (:mod:`toolkit.geometry.frames`), so the
-two tables compare row for row. Positions move exactly, through geodetic coordinates::
-
-    p_enu = geodetic_to_enu(enu_to_geodetic(p_sim, sim_origin), origin)
-
-Attitudes and velocities are kept: the two tangent planes differ by the angle the origins
-subtend at the Earth's centre (distance / 6.37e6 m, 5e-6 rad for 30 m), far below what any
-stage resolves.
+two tables compare row for row. Both are world frames of :mod:`toolkit.geometry.map_frame`
+(level at every point), so positions move exactly through geodetic coordinates and the yaw
+by the two maps' difference in convergence there
+(:func:`~toolkit.geometry.map_frame.move_between_frames`); roll and pitch are the same in
+both. Velocities are kept: they turn by that same angle, 5e-6 rad for origins 30 m apart.
 """
 
 from __future__ import annotations
@@ -22,7 +20,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from toolkit.geometry.frames import ENU_FRAME_ID, choose_enu_origin
-from toolkit.geometry.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin
+from toolkit.geometry.map_frame import move_between_frames
 from toolkit.tableio import TableWriter
 
 
@@ -50,11 +49,13 @@ def truth_to_pose_frame(
 
     def move(piece: pa.Table, first_row: int) -> pa.Table:
         xyz_sim = np.stack([piece.column(c).to_numpy(zero_copy_only=False) for c in "xyz"], 1)
-        lat, lon, alt = enu_to_geodetic(xyz_sim, sim)
-        xyz = np.asarray(geodetic_to_enu(lat, lon, alt, origin))
-        for k, c in enumerate("xyz"):
+        yaw_sim = piece.column("yaw").to_numpy(zero_copy_only=False)
+        xyz, yaw = move_between_frames(xyz_sim, yaw_sim, sim, origin)
+        assert yaw is not None
+        moved = {**{c: xyz[:, k] for k, c in enumerate("xyz")}, "yaw": yaw}
+        for c, values in moved.items():
             piece = piece.set_column(
-                piece.schema.get_field_index(c), c, pa.array(xyz[:, k], pa.float64())
+                piece.schema.get_field_index(c), c, pa.array(values, pa.float64())
             )
         return piece
 
