@@ -7,6 +7,7 @@ would otherwise end the process with a traceback (Ctrl-C) or without a word (SIG
 
 from __future__ import annotations
 
+import signal
 import sys
 
 from toolkit.stopping import Stopped, stop_on_signals
@@ -25,6 +26,13 @@ def entry() -> None:
             sys.stderr.write(f"terrain: error: {exc.line}\n")
             sys.stderr.flush()
         raise SystemExit(exc.code) from None
+    finally:
+        # The command is over, its outputs written or removed and its exit code decided;
+        # what is left is the interpreter's own shutdown (a few tenths of a second). A signal
+        # there would end the process by its default action, without a line and with a code
+        # that is not the command's: it changes nothing now, so it is ignored.
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, signal.SIG_IGN)
 
 
 __all__ = ["entry"]
