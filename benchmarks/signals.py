@@ -33,6 +33,7 @@ def terrain(*args: str) -> list[str]:
 
 def verbs(ws: Path, tmp: Path) -> dict[str, list[str]]:
     """Each verb's command line on the prepared workspace (each redoes its work)."""
+    (log_id,) = [p.name for p in (ws / "logs").iterdir()]
     return {
         "ingest": terrain("ingest", str(SAMPLE), "-w", str(ws), "--overwrite"),
         "pose": terrain("pose", "-w", str(ws), "--overwrite"),
@@ -45,7 +46,9 @@ def verbs(ws: Path, tmp: Path) -> dict[str, list[str]]:
         "info": terrain("info", str(SAMPLE)),
         "logs": terrain("logs", "-w", str(ws)),
         "export": terrain("export", "-w", str(ws), "--out", str(tmp / "export"), "--overwrite"),
-        "viz": terrain("viz", "-w", str(ws), "--out", str(tmp / "viz.mcap"), "--overwrite"),
+        "viz": terrain(
+            "viz", "-w", str(ws), "--log", log_id, "--out", str(tmp / "viz.mcap"), "--overwrite"
+        ),
         "sim": terrain("sim", str(tmp / "sim.mcap"), "--profile", "sample", "--overwrite"),
     }
 
