@@ -11,13 +11,15 @@ import hashlib
 import json
 import os
 import random
+import re
 import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import pytest
 
@@ -30,12 +32,71 @@ STAGES = registry.names()
 SAMPLE_LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "sample.mcap"
 #: Manifest fields that differ between two runs of the same stage on the same input.
 VOLATILE = {"timings_s", "finished_utc", "x_real_time", "seconds"}
-KILLS = 3
 SEED = 20261125
+#: The line `terrain run` (not quiet, off a terminal) writes on stderr as each stage ends.
+STAGE_LINE = re.compile(rf"terrain: ({'|'.join(STAGES)}) +\d+\.\d s  ")
+#: Longest wait for a stage's line or a run's end, s.
+TIMEOUT_S = 600.0
 
 
-def terrain(*args: str | Path) -> list[str]:
-    return [sys.executable, "-m", "toolkit", "-q", *map(str, args)]
+def terrain(*args: str | Path, quiet: bool = True) -> list[str]:
+    return [sys.executable, "-m", "toolkit", *(["-q"] if quiet else []), *map(str, args)]
+
+
+class StageLines:
+    """The stages a running `terrain run` (started with ``stderr=PIPE``, not quiet) has
+    finished, in order, each with when its line came (s after ``t0``), read from its stderr
+    by a thread; ``text`` keeps the whole stderr for a failure's message."""
+
+    def __init__(self, stream: IO[str], t0: float) -> None:
+        self.t0 = t0
+        self.ends: dict[str, float] = {}
+        self.text: list[str] = []
+        self.eof = False
+        self._cond = threading.Condition()
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream: IO[str]) -> None:
+        for line in stream:
+            now = time.perf_counter() - self.t0
+            with self._cond:
+                self.text.append(line)
+                # search, not match: a pool worker's warning may share the line
+                for m in STAGE_LINE.finditer(line):
+                    self.ends.setdefault(m.group(1), now)
+                self._cond.notify_all()
+        with self._cond:
+            self.eof = True
+            self._cond.notify_all()
+
+    def wait_for(self, stage: str) -> bool:
+        """Wait until ``stage`` has finished (True) or stderr closed without it (False)."""
+        with self._cond:
+            ok = self._cond.wait_for(lambda: stage in self.ends or self.eof, TIMEOUT_S)
+            assert ok, f"no line for {stage} within {TIMEOUT_S} s"
+            return stage in self.ends
+
+    def finished(self) -> list[str]:
+        """The stages finished so far, once stderr is closed."""
+        self._thread.join(TIMEOUT_S)
+        with self._cond:
+            return list(self.ends)
+
+
+def start_run(logs: list[Path], ws: Path) -> tuple[subprocess.Popen[str], StageLines]:
+    """`terrain run` of the logs in ``ws`` (two workers) in a session of its own, its stage
+    lines read as they come."""
+    t0 = time.perf_counter()
+    child = subprocess.Popen(
+        terrain("run", *logs, "-w", ws, "--workers", "2", quiet=False),
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+    )
+    assert child.stderr is not None
+    return child, StageLines(child.stderr, t0)
 
 
 def _strip(obj: Any) -> Any:
@@ -64,6 +125,25 @@ def state(ws: Path) -> dict[str, Any]:
     return out
 
 
+def not_as_at_the_end(got: dict[str, Any], want: dict[str, Any]) -> list[str]:
+    """What of a workspace's :func:`state` ``got`` is not as in the finished one's ``want``:
+    a file not there or with other contents; a manifest's section (its ``stages``: each
+    stage's record) the finished manifest does not hold the same."""
+    out = []
+    for path, have in got.items():
+        end = want.get(path)
+        if Path(path).name != "manifest.json" or end is None:
+            if have != end:
+                out.append(path)
+            continue
+        for key, value in have.items():
+            if key == "stages":
+                out += [f"{path}: {key}.{k}" for k, v in value.items() if end[key].get(k) != v]
+            elif end.get(key) != value:
+                out.append(f"{path}: {key}")
+    return out
+
+
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     d = tmp_path_factory.mktemp("logs")
@@ -74,18 +154,20 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
 
 
 @pytest.fixture(scope="module")
-def first_run(logs: list[Path], tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, float]:
-    """One `terrain run` to the end on the two logs: its workspace and how long it took (s)."""
+def first_run(
+    logs: list[Path], tmp_path_factory: pytest.TempPathFactory
+) -> tuple[Path, dict[str, float]]:
+    """One `terrain run` to the end on the two logs: its workspace, and when each stage
+    ended (s after the command started, from the line it writes then)."""
     ws = tmp_path_factory.mktemp("run") / "ws"
-    t0 = time.perf_counter()
-    subprocess.run(
-        terrain("run", *logs, "-w", ws, "--workers", "2"), check=True, capture_output=True
-    )
-    return ws, time.perf_counter() - t0
+    child, lines = start_run(logs, ws)
+    assert child.wait(TIMEOUT_S) == 0, "".join(lines.text)
+    assert lines.finished() == list(STAGES), "".join(lines.text)
+    return ws, lines.ends
 
 
 @pytest.fixture(scope="module")
-def uninterrupted(first_run: tuple[Path, float]) -> Path:
+def uninterrupted(first_run: tuple[Path, dict[str, float]]) -> Path:
     """The workspace of one `terrain run` to the end on the two logs."""
     return first_run[0]
 
@@ -158,34 +240,49 @@ def test_from_and_to_run_only_their_stages(
 
 
 @pytest.mark.slow  # end to end: run by .ci/run, left out of the README's command
-def test_killed_at_random_moments_then_rerun_gives_the_same_outputs(
-    first_run: tuple[Path, float], logs: list[Path], tmp_path: Path
+def test_killed_in_every_stage_then_rerun_gives_the_same_outputs(
+    first_run: tuple[Path, dict[str, float]], logs: list[Path], tmp_path: Path
 ) -> None:
-    """SIGKILL at a random moment of a run (seeded, spread over a whole run's duration: that
-    of the uninterrupted run), then `terrain run` again: the workspace equals the
-    uninterrupted run's, file for file."""
+    """SIGKILL once in each stage, ingest to evaluate, in one workspace: `terrain run` is
+    started, killed (its process group, the workers too, as a machine failure) at a random
+    moment (seeded) of the stage's span in the uninterrupted run, counted from the line of
+    the stage before (from the start for ingest), and started again on what it left, to be
+    killed in the next stage, and so on; a last run goes to the end. After each kill every
+    file there is as the uninterrupted run made it (an output is there whole or not yet; a
+    manifest holds only records the uninterrupted run's holds too); at the end the
+    workspace equals the uninterrupted run's, file for file. Every run but the first starts
+    on a killed run's workspace, as a rerun does, and one that ends before its kill must
+    have succeeded."""
     rng = random.Random(SEED)
-    uninterrupted, duration = first_run
+    uninterrupted, ends = first_run
     want = state(uninterrupted)
-    for k in range(KILLS):
-        ws = tmp_path / f"ws{k}"
-        child = subprocess.Popen(
-            terrain("run", *logs, "-w", ws, "--workers", "2"),
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.DEVNULL,
-            start_new_session=True,
-        )
-        time.sleep(rng.uniform(0.1, 0.9) * duration)
-        # The whole process group: the run and its worker processes, as a machine failure.
-        if child.poll() is None:
+    ws = tmp_path / "ws"
+    killed_in: list[str] = []
+    for i, stage in enumerate(STAGES):
+        begins = ends[STAGES[i - 1]] if i else 0.0
+        delay = rng.uniform(0.1, 0.9) * (ends[stage] - begins)
+        child, lines = start_run(logs, ws)
+        if i and not lines.wait_for(STAGES[i - 1]):
+            pytest.fail(f"the run ended before {STAGES[i - 1]}: {''.join(lines.text)}")
+        since = time.perf_counter() - lines.t0 - (lines.ends[STAGES[i - 1]] if i else 0.0)
+        try:
+            rc = child.wait(max(0.0, delay - since))
+        except subprocess.TimeoutExpired:
             os.killpg(child.pid, signal.SIGKILL)
-        child.wait()
-        subprocess.run(
-            terrain("run", *logs, "-w", ws, "--workers", "2"), check=True, capture_output=True
-        )
-        got = state(ws)
-        assert got.keys() == want.keys(), k
-        assert [p for p in want if got[p] != want[p]] == [], k
+            child.wait()
+            done = lines.finished()
+            killed_in.append(STAGES[len(done)] if len(done) < len(STAGES) else "(its summary)")
+        else:
+            assert rc == 0, "".join(lines.text)  # ended before the kill: it must have worked
+            killed_in.append("(none: the run ended first)")
+        assert not_as_at_the_end(state(ws), want) == [], stage
+    subprocess.run(
+        terrain("run", *logs, "-w", ws, "--workers", "2"), check=True, capture_output=True
+    )
+    got = state(ws)
+    assert got.keys() == want.keys()
+    assert [p for p in want if got[p] != want[p]] == []
+    print(f"killed in: {', '.join(killed_in)}")
 
 
 @pytest.mark.slow  # end to end: run by .ci/run, left out of the README's command

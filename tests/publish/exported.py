@@ -14,6 +14,9 @@ import polars as pl
 import pyarrow as pa
 import yaml
 
+from toolkit.tableio import load_table_schema, read_table
+from toolkit.workspace import Workspace
+
 CONFIGS = ("events", "event_points")
 SPLITS = ("train", "test")
 POINT_COLUMNS = (
@@ -43,6 +46,28 @@ def event_keys(table: pa.Table) -> list[tuple[str, int]]:
     return list(
         zip(table.column("log_id").to_pylist(), table.column("event_id").to_pylist(), strict=True)
     )
+
+
+def expected_rows(ws: Workspace) -> dict[str, dict[str, pa.Table]]:
+    """config -> split -> the rows the export of ``ws`` must hold: the tables' rows of that
+    split in the tables' order, the events with the model's ``r_combined`` and ``predicted``
+    (joined on log and event), each point in the split of its event."""
+    schema = load_table_schema("tables_events")
+    events = read_table(ws.events_table, "tables_events", columns=schema.column_names)
+    scores = read_table(ws.scores_table, "scores")
+    score_row = {key: i for i, key in enumerate(event_keys(scores))}
+    take = pa.array([score_row[k] for k in event_keys(events)])
+    events = events.append_column(
+        "r_combined", scores.column("r_combined").take(take)
+    ).append_column("predicted", scores.column("predicted").take(take))
+    split_of = dict(zip(event_keys(events), events.column("split").to_pylist(), strict=True))
+    points = read_table(ws.event_points_table, "event_points", columns=list(POINT_COLUMNS))
+    point_split = np.array([split_of[k] for k in event_keys(points)], dtype=object)
+    event_split = np.asarray(events.column("split").to_pylist(), dtype=object)
+    return {
+        "events": {s: events.filter(pa.array(event_split == s)) for s in SPLITS},
+        "event_points": {s: points.filter(pa.array(point_split == s)) for s in SPLITS},
+    }
 
 
 def column_values(values: Any) -> np.ndarray:
