@@ -320,6 +320,7 @@ def test_the_ingest_row_counts_are_a_total_not_rows_of_rows() -> None:
     assert "rows: total 8" in line and "rows: rows" not in line
 
 
+@pytest.mark.slow  # reads the whole run the slow tests here share (72 s on its own)
 def test_run_json_is_the_summary_a_script_reads(
     uninterrupted: Path, logs: list[Path], tmp_path: Path
 ) -> None:
