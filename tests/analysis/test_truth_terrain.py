@@ -195,6 +195,7 @@ def test_true_pose_points_lie_on_the_true_terrain_and_estimated_ones_do_not(
         assert e.median_abs_m > 4 * t.median_abs_m, (name, e, t)
 
 
+@pytest.mark.slow  # simulates a log with Stanley's laser errors (22 s): run by .ci/run
 def test_stanleys_laser_errors_put_the_true_pose_points_centimetres_off(
     projected: Path, tmp_path: Path
 ) -> None:

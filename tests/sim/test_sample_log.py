@@ -32,6 +32,7 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+@pytest.mark.slow  # simulates the whole sample (23 s): run by .ci/run
 def test_readme_command_regenerates_the_sample_bit_for_bit(tmp_path: Path) -> None:
     readme = (REPO / "sample_logs" / "README.md").read_text()
     match = re.search(
