@@ -11,11 +11,36 @@ from toolkit.model.roc import (
     MIN_ROUGH_EVENTS,
     auc,
     auc_half_width,
+    bootstrap,
     roc,
     small_sample_warnings,
     summarise,
     tpr_at_fpr,
 )
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_bootstrap_equals_each_resample_curve_built_anew(seed: int) -> None:
+    """The bootstrap's counted curves give, resample by resample, the AUC and operating
+    points of the resample's own curve (``roc`` on the drawn events, the draws made as the
+    bootstrap makes them), under heavy ties, NaN and infinite scores."""
+    rng = np.random.default_rng(seed)
+    n = 400
+    y = rng.random(n) < 0.1
+    s = np.round(rng.normal(size=n) + y, 1)
+    s[rng.random(n) < 0.3] = 0.0
+    s[rng.random(n) < 0.05] = np.nan
+    s[rng.random(n) < 0.02] = np.inf
+    rates = (0.05, 0.1, 0.2)
+    aucs, tprs = bootstrap(s, y, rates, resamples=150, seed=seed)
+
+    draw = np.random.default_rng(seed)
+    pos, neg = np.flatnonzero(y), np.flatnonzero(~y)
+    for b in range(150):
+        idx = np.concatenate([draw.choice(pos, pos.size), draw.choice(neg, neg.size)])
+        curve = roc(s[idx], y[idx])
+        assert aucs[b] == pytest.approx(auc(s[idx], y[idx]), abs=1e-12)
+        assert list(tprs[b]) == [tpr_at_fpr(curve, f) for f in rates]
 
 
 @pytest.mark.parametrize("seed", range(5))

