@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from tests.sim.logdata import load_log
+from toolkit.errors import SimulationError
 from toolkit.sim.profiles import make_profile
 from toolkit.sim.simulate import simulate
 from toolkit.sim.world import make_world
@@ -65,6 +67,49 @@ def test_a_log_without_lasers_is_the_same_log_less_its_scans(
     assert set(full) - lasers == set(without)
     for topic, rows in without.items():
         assert rows == full[topic], topic
+
+
+def test_laser_spans_scan_only_there_and_change_no_other_sensor(
+    short_logs: dict[str, Path], tmp_path: Path
+) -> None:
+    """``laser_spans_m`` (a long drive judged at a few places) scans inside its spans only,
+    by the metres driven, and every other sensor is the drive scanned all the way."""
+    spans = ((10.0, 25.0), (40.0, 52.0))  # of the 59 m this log drives
+    part = simulate(
+        tmp_path / "part.mcap",
+        profile="sample",
+        distance_m=DISTANCE_M,
+        seed=SEED_A,
+        laser_spans_m=spans,
+    ).path
+
+    def by_topic(path: Path) -> dict[str, list[tuple[int, bytes]]]:
+        out: dict[str, list[tuple[int, bytes]]] = {}
+        with path.open("rb") as f:
+            for _, channel, message in make_reader(f).iter_messages():
+                out.setdefault(channel.topic, []).append((message.log_time, message.data))
+        return out
+
+    full, scanned = by_topic(short_logs["a1"]), by_topic(part)
+    for topic, rows in full.items():
+        if not topic.startswith("/laser/"):
+            assert scanned[topic] == rows, topic
+    # Metres driven at each time, from the true positions; a scan is logged within a block
+    # (0.1 s, under 1 m) of a span.
+    truth = load_log(part).truth
+    t_ns, xy = truth.t_ns, truth.position[:, :2]
+    driven = np.r_[0.0, np.cumsum(np.hypot(*np.diff(xy, axis=0).T))]
+    for topic in (t for t in scanned if t.startswith("/laser/")):
+        at_m = np.interp(np.asarray([t for t, _ in scanned[topic]]), t_ns, driven)
+        inside = np.zeros(at_m.size, bool)
+        for a, b in spans:
+            inside |= (at_m >= a - 2.0) & (at_m <= b + 2.0)
+        assert inside.all(), topic
+        for a, b in spans:  # and they scan throughout each span
+            assert ((at_m > a + 2.0) & (at_m < a + 5.0)).any(), (topic, a)
+            assert ((at_m > b - 5.0) & (at_m < b - 2.0)).any(), (topic, b)
+    with pytest.raises(SimulationError, match="laser spans"):
+        simulate(tmp_path / "bad.mcap", profile="sample", laser_spans_m=((5.0, 1.0),))
 
 
 def test_other_seed_gives_other_log(short_logs: dict[str, Path]) -> None:

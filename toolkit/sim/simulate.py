@@ -16,7 +16,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
@@ -26,6 +26,7 @@ import numpy as np
 
 from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.config import default_config
+from toolkit.errors import SimulationError
 from toolkit.mcapio.cdr_encode import encode_message
 from toolkit.mcapio.writer import LogWriter
 from toolkit.progress import progress
@@ -96,6 +97,7 @@ def simulate(
     workers: int | None = None,
     lasers: bool = True,
     lidar: bool = False,
+    laser_spans_m: Sequence[tuple[float, float]] | None = None,
 ) -> SimResult:
     """Simulate a drive and write it to ``out_path`` (complete, or not at all).
 
@@ -106,7 +108,14 @@ def simulate(
     judging the physics and the labels. ``lidar=True`` adds the spinning 3-D lidar
     (:class:`~toolkit.sim.lidar.LidarParams`, on ``/ouster/points``); without it the log is
     the one written before the lidar existed (it draws from generators of its own).
+    ``laser_spans_m``, (from, to) metres driven: the lasers scan only in blocks that start
+    inside one of them (a long drive whose points are judged at a few places, cast where
+    they are judged; the scans' noise then differs from a log scanned all the way, every
+    other sensor's does not). None: everywhere.
     """
+    spans = tuple(laser_spans_m) if laser_spans_m is not None else None
+    if spans is not None and any(not (0.0 <= a < b) for a, b in spans):
+        raise SimulationError(f"laser spans must be 0 <= from < to metres, got {spans}")
     prof = make_profile(profile, distance_m)
     if lidar and prof.lidar is None:
         prof = dataclasses.replace(prof, lidar=LidarParams())
@@ -130,7 +139,7 @@ def simulate(
             if prof.lidar is not None:
                 scanners["lidar"] = prof.lidar
             start_cast = start_laser_casting(stack, workers, prof.world, seed, scanners)
-            loop = _BlockLoop(driver, suite, out, start_cast, bar, start_sigma)
+            loop = _BlockLoop(driver, suite, out, start_cast, bar, start_sigma, spans)
             meter = ShockMeter.for_imu(prof.sensors.imu.rate_hz, default_config().label)
             loop.run(prev, meter, lasers, ahead=2 * workers)
         out.flush(before_ns=None)
@@ -215,6 +224,8 @@ class _BlockLoop:
     bar: Any
     #: Where along the route the log starts (m): the bar counts metres from it.
     start_sigma_m: float = 0.0
+    #: Metres driven (from, to) where the lasers scan; None: everywhere.
+    laser_spans_m: tuple[tuple[float, float], ...] | None = None
     pending: deque[_Pending] = dataclasses.field(default_factory=deque)
 
     def run(self, prev: TrueBlock, meter: ShockMeter, lasers: bool, ahead: int) -> None:
@@ -227,7 +238,8 @@ class _BlockLoop:
             if imu is not None:  # the controller reads the shock its IMU felt
                 shock_g = meter.read(imu.accel_mps2[:, 2])
                 driver.controller.on_shock(shock_g, float(block.speed_mps[-1]))
-            rays = suite.plan_lasers(ext, HISTORY_SAMPLES) if lasers else None
+            scan = lasers and self._scans_at(float(block.sigma_m[0]) - self.start_sigma_m)
+            rays = suite.plan_lasers(ext, HISTORY_SAMPLES) if scan else None
             future = self.start_cast("laser", rays) if rays is not None else None
             lidar = suite.lidar.plan(ext, HISTORY_SAMPLES) if suite.lidar is not None else None
             lidar_future = self.start_cast("lidar", lidar) if lidar is not None else None
@@ -237,6 +249,11 @@ class _BlockLoop:
             prev = block
         while self.pending:
             self.finish_oldest()
+
+    def _scans_at(self, driven_m: float) -> bool:
+        """Whether the lasers scan in a block that starts ``driven_m`` into the log."""
+        spans = self.laser_spans_m
+        return spans is None or any(a <= driven_m < b for a, b in spans)
 
     def finish_oldest(self) -> None:
         """Encode the oldest pending block's messages and release those due before its end."""
