@@ -6,7 +6,7 @@ JSON), its ``seed`` and the simulator frame's geodetic ``origin``;
 :func:`toolkit.sim.world.make_world` rebuilds that world bit for bit. The height error of a
 point is then its z minus the true terrain height under it::
 
-    p_sim      = geodetic_to_enu(enu_to_geodetic(p, pose_origin), sim_origin)   (exact)
+    p_sim      = move_between_frames(p, pose_origin, sim_origin)           (exact)
     (s, d)     = route.to_route(p_sim.x, p_sim.y, s_guess)        (route coordinates)
     z_error    = p_sim.z - terrain.height(s, d)
 
@@ -44,7 +44,8 @@ from toolkit.analysis.figures import new_figure, save_png_atomic, write_csv_atom
 from toolkit.analysis.histograms import bins_covering, histogram_quantile
 from toolkit.arrays import FloatArray, IntArray
 from toolkit.errors import ConfigError, StageError, ToolkitError
-from toolkit.geometry.geodesy import GeodeticOrigin, enu_to_geodetic, geodetic_to_enu
+from toolkit.geometry.geodesy import GeodeticOrigin
+from toolkit.geometry.map_frame import move_between_frames
 from toolkit.layout import LogFiles
 from toolkit.sim.record import SIM_RECORD, sim_origin
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
@@ -79,9 +80,13 @@ class TrueGround:
         self._max_d_m = float(world.terrain.coarse_half_width_m)
 
     def to_sim(self, xyz_m: ArrayLike) -> FloatArray:
-        """Pose-frame points (N, 3) -> the simulator's frame (N, 3), through geodetic."""
-        lat, lon, alt = enu_to_geodetic(np.asarray(xyz_m, np.float64), self.pose_origin)
-        return np.asarray(geodetic_to_enu(lat, lon, alt, self.sim_origin)).reshape(-1, 3)
+        """Pose-frame points (N, 3) -> the simulator's frame (N, 3), through geodetic: both
+        are maps of the curved Earth (:mod:`toolkit.geometry.map_frame`) about origins a
+        GPS error apart, which tangent planes would tilt against each other by that
+        distance over the Earth's radius (10 m: 0.16 m of height 100 km away)."""
+        p = np.asarray(xyz_m, np.float64).reshape(-1, 3)
+        moved, _ = move_between_frames(p, None, self.pose_origin, self.sim_origin)
+        return moved
 
     def route_coordinates(self, xyz_m: ArrayLike) -> tuple[FloatArray, FloatArray, FloatArray]:
         """Pose-frame points (N, 3) -> their route coordinates ``s``, ``d`` (N,) and their
