@@ -72,16 +72,30 @@ def pipeline(
     return build_pipeline(sample_projected, tmp_path_factory)
 
 
-#: Test files of the longest slow tests (minutes each, by `pytest -m slow --durations=20`),
-#: started first when several workers share the tests.
-LONGEST_FIRST = ("test_pipeline.py", "test_croissant.py", "test_race_labels.py")
+#: The slow test files, longest first (seconds on one worker of two, with their fixtures, by
+#: `pytest -m slow -n 2 --durations=0`, 2026-11-29): handed out in this order when several
+#: workers share the tests, so that none starts a long file while the other has nothing
+#: left to do (collected last, the killed-and-rerun pipeline test alone once kept one core
+#: busy for the last three minutes).
+LONGEST_FIRST = (
+    "test_pipeline.py",  # 344 s
+    "test_race_labels.py",  # 163 s
+    "test_kill_anywhere.py",  # 129 s
+    "test_pose.py",  # 120 s
+    "test_laser_truth.py",  # 117 s
+    "test_croissant.py",  # 70 s
+    "test_curved_earth.py",  # 55 s
+    "test_label.py",  # 50 s
+    "test_truth_terrain.py",  # 43 s
+    "test_sample_log.py",  # 33 s
+    "test_evaluate.py",  # 30 s
+    "test_project_lidar.py",  # 22 s
+)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
-    """With several workers (.ci/run runs the slow set with ``-n 2 --dist loadfile``), the
-    files of the longest tests are handed out first, so that no worker starts one of them
-    when the other has nothing left to do (collected last, the killed-and-rerun pipeline
-    test alone kept one core busy for the last three minutes). The order is the same on every
+    """With several workers (``-n auto --dist loadfile --no-loadscope-reorder``), the files
+    of the longest tests first (:data:`LONGEST_FIRST`). The order is the same on every
     worker, as xdist requires; alone, tests run in their usual order."""
     if not getattr(config.option, "numprocesses", None):
         return
