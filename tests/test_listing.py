@@ -119,7 +119,14 @@ def test_a_log_whose_folder_is_gone_is_listed_missing_not_no_log_yet(tmp_path: P
     ws = Workspace(tmp_path / "ws").create()
     ws.config_path.write_text("")
     target = _dangling(ws, "gone-0123456789ab")
-    ws.manifest().record_stage("tables", StageRecord({"gone-0123456789ab/events": "aa"}, "cc"))
+    from toolkit.stages.registry import stage
+
+    ws.manifest().record_stage(
+        "tables",
+        StageRecord(
+            {"gone-0123456789ab/events": "aa"}, "cc", code_version=stage("tables").code_version
+        ),
+    )
     runner = CliRunner()
     result = runner.invoke(main, ["logs", "-w", str(ws.root)])
     assert result.exit_code == 0, result.output
@@ -139,7 +146,53 @@ def test_no_log_left_but_workspace_stages_recorded_says_both(tmp_path: Path) -> 
 
     ws = Workspace(tmp_path / "ws").create()
     ws.config_path.write_text("")
-    ws.manifest().record_stage("learn", StageRecord({}, "cc"))
+    from toolkit.stages.registry import stage
+
+    ws.manifest().record_stage(
+        "learn", StageRecord({}, "cc", code_version=stage("learn").code_version)
+    )
     result = CliRunner().invoke(main, ["logs", "-w", str(ws.root)])
     assert result.exit_code == 0 and "no log yet" not in result.stdout
     assert "no log in logs/" in result.stdout and "learn 20" in result.stdout
+
+
+def test_a_stage_whose_output_is_gone_or_whose_code_changed_is_listed_stale(
+    tmp_path: Path,
+) -> None:
+    """``terrain logs`` marks a recorded stage stale, saying why, when an output it wrote
+    is gone or another version of its code made it (a record without a code version
+    included); a stage with its outputs there, made by this code, is not."""
+    import dataclasses
+
+    from toolkit.manifest import Manifest
+    from toolkit.stages.registry import stage
+
+    ws, path = _tiny_workspace(tmp_path)
+    manifest = Manifest(path)
+    log_dir = path.parent
+    (log_dir / "pose.parquet").write_bytes(b"x")
+    for name in ("ingest", "pose"):
+        record = manifest.stage(name)
+        assert record is not None
+        outputs = ("pose.parquet",) if name == "pose" else ("imu.parquet",)
+        manifest.record_stage(
+            name,
+            dataclasses.replace(record, outputs=outputs, code_version=stage(name).code_version),
+        )
+    ws.manifest().record_stage(
+        "learn", dataclasses.replace(record, outputs=(), inputs={}, code_version="")
+    )
+    runner = CliRunner()
+    doc = json.loads(runner.invoke(main, ["logs", "-w", str(ws.root), "--json"]).stdout)
+    (entry,) = doc["logs"]
+    assert entry["stale"] == {"ingest": "output missing: imu.parquet"}
+    assert doc["workspace_stale"] == {"learn": "made by a toolkit that recorded no code version"}
+    text = runner.invoke(main, ["logs", "-w", str(ws.root)]).stdout
+    assert "ingest* pose" in text and "learn* " in text
+    assert "tiny-0123456789ab ingest: output missing: imu.parquet" in text
+    # Made by another code: a pose recorded with another version.
+    pose = manifest.stage("pose")
+    assert pose is not None
+    manifest.record_stage("pose", dataclasses.replace(pose, code_version="0" * 64))
+    doc = json.loads(runner.invoke(main, ["logs", "-w", str(ws.root), "--json"]).stdout)
+    assert doc["logs"][0]["stale"]["pose"].startswith("made by other code")

@@ -118,7 +118,9 @@ class StageRecord:
     root for workspace-level stages); ``row_counts`` is rows per output table;
     ``rejects`` counts dropped records by reason; ``timings_s`` seconds per step;
     ``output_files`` the size and sha256 of every output as written, so "up to date" can
-    mean "the outputs are still what this run wrote" (:func:`check_up_to_date`).
+    mean "the outputs are still what this run wrote" (:func:`check_up_to_date`);
+    ``code_version`` the version of the code that made them (:mod:`toolkit.code_version`;
+    empty in a record written before the toolkit kept it).
     """
 
     inputs: Mapping[str, str]
@@ -131,6 +133,7 @@ class StageRecord:
     toolkit_version: str = ""
     finished_utc: str = ""
     output_files: Mapping[str, FileDigest] = field(default_factory=dict)
+    code_version: str = ""
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready dict."""
@@ -145,6 +148,7 @@ class StageRecord:
             "toolkit_version": self.toolkit_version,
             "finished_utc": self.finished_utc,
             "output_files": {k: v.to_json() for k, v in self.output_files.items()},
+            "code_version": self.code_version,
         }
 
     @classmethod
@@ -166,6 +170,7 @@ class StageRecord:
             toolkit_version=str(obj.get("toolkit_version", "")),
             finished_utc=str(obj.get("finished_utc", "")),
             output_files={str(k): _digest(k, v) for k, v in obj.get("output_files", {}).items()},
+            code_version=str(obj.get("code_version", "")),
         )
 
 
@@ -305,10 +310,13 @@ def check_up_to_date(
     inputs: Mapping[str, str],
     config_hash: str,
     outputs: Iterable[str | Path],
+    code_version: str | None = None,
 ) -> Freshness:
-    """A stage is current when its record has the same inputs (names and hashes) and the
-    same config hash, and every output exists and is still, in size and sha256, the file that
-    run wrote: a truncated, overwritten or half-copied output makes the stage run again."""
+    """A stage is current when its record has the same inputs (names and hashes), the
+    same config hash and (when given) the same ``code_version``, and every output exists and
+    is still, in size and sha256, the file that run wrote: a truncated, overwritten or
+    half-copied output makes the stage run again, as does an output another version of the
+    stage's code made (before a fix that changed results, say)."""
     if record is None:
         return Freshness(False, "never ran")
     paths = [Path(p) for p in outputs]
@@ -321,6 +329,8 @@ def check_up_to_date(
         return Freshness(False, f"inputs changed: {', '.join(changed)}")
     if record.config_hash != config_hash:
         return Freshness(False, "configuration changed")
+    if code_version is not None and record.code_version != code_version:
+        return Freshness(False, code_changed(record))
     for path in paths:
         written = record.output_files.get(path.name)
         if written is None:
@@ -331,6 +341,14 @@ def check_up_to_date(
         if stale:
             return Freshness(False, stale)
     return Freshness(True, "up to date")
+
+
+def code_changed(record: StageRecord) -> str:
+    """Why a record's outputs are stale when another version of its code made them."""
+    if not record.code_version:
+        return "made by a toolkit that recorded no code version"
+    made_by = f" (terrain {record.toolkit_version})" if record.toolkit_version else ""
+    return f"made by other code{made_by}: its code has changed since"
 
 
 def _older_table_schema(path: Path) -> str:

@@ -212,3 +212,24 @@ def test_a_declaration_the_runner_could_not_honour_is_refused() -> None:
 def _with_threshold(config: PipelineConfig, threshold: float) -> PipelineConfig:
     label = dataclasses.replace(config.label, rough_threshold_g_per_mph=threshold)
     return dataclasses.replace(config, label=label)
+
+
+@pytest.mark.parametrize("recorded", ["an older code's version", ""])
+def test_outputs_other_code_made_are_made_again(
+    seeded: tuple[Workspace, str, Path], monkeypatch: pytest.MonkeyPatch, recorded: str
+) -> None:
+    """The code version is part of the key: outputs recorded with another one (or with
+    none, by a toolkit before it kept them) are made again, and recorded with this one."""
+    ws, log_id, _ = seeded
+    config = default_config()
+    run_stage(DOUBLE, ws, config, log_id=log_id)
+    manifest = Manifest(ws.log(log_id).manifest)
+    record = manifest.stage("double")
+    assert record is not None and record.code_version == DOUBLE.code_version
+    manifest.record_stage("double", dataclasses.replace(record, code_version=recorded))
+    assert run_stage(DOUBLE, ws, config, log_id=log_id).status == "doubled"
+    assert run_stage(DOUBLE, ws, config, log_id=log_id).status == "up_to_date"
+    monkeypatch.setattr(Stage, "code_version", property(lambda self: "f" * 64))
+    assert run_stage(DOUBLE, ws, config, log_id=log_id).status == "doubled"
+    again = Manifest(ws.log(log_id).manifest).stage("double")
+    assert again is not None and again.code_version == "f" * 64

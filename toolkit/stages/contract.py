@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, Literal, Protocol, TypeVar, cast
 
+from toolkit.code_version import code_version
 from toolkit.config import SECTIONS, PipelineConfig, config_hash
 from toolkit.layout import LogFiles
 from toolkit.manifest import Manifest, StageRecord
@@ -199,6 +200,14 @@ class Stage(Generic[SettingsT, OutcomeT]):
         """The hash of the configuration this stage reads (:meth:`hashed_sections`): its part
         of the up-to-date key, stamped on its tables."""
         return config_hash(config, self.hashed_sections(config))
+
+    @property
+    def code_version(self) -> str:
+        """The version of the code that makes this stage's outputs: derived from the source
+        of the modules of its functions and all they import (:mod:`toolkit.code_version`),
+        a part of its up-to-date key."""
+        functions = (self.compute, self.recall, self.check, self.gather, self.locate)
+        return code_version(f.__module__ for f in functions if f is not None)
 
     def settings_from(self, config: PipelineConfig) -> SettingsT:
         """The stage's own frozen configuration: its ``settings`` class, each field the

@@ -161,7 +161,14 @@ class _Here(Generic[SettingsT, OutcomeT]):
             written = [directory / o for o in record.outputs] or [
                 self._made_path(files, m) for m in spec.makes
             ]
-            if check_up_to_date(record, inputs=inputs, config_hash=cfg_hash, outputs=written):
+            fresh = check_up_to_date(
+                record,
+                inputs=inputs,
+                config_hash=cfg_hash,
+                outputs=written,
+                code_version=spec.code_version,
+            )
+            if fresh:
                 seconds = time.perf_counter() - self.start
                 last = Recalled(
                     self.log_id, record, manifest.read(), settings, seconds, self.workspace, found
@@ -180,7 +187,7 @@ class _Here(Generic[SettingsT, OutcomeT]):
             found,
         )
         made = spec.compute(call)
-        record_made(manifest, spec.name, made, inputs, cfg_hash, directory)
+        record_made(manifest, spec.name, made, inputs, cfg_hash, directory, spec.code_version)
         return made.outcome
 
     def _made_path(self, files: LogFiles, name: str) -> Path:
@@ -215,9 +222,11 @@ def record_made(
     inputs: Mapping[str, str],
     cfg_hash: str,
     directory: Path,
+    code_version: str = "",
 ) -> None:
     """Record a stage's run in ``manifest``: its header fields, then its record (inputs,
-    configuration hash, outputs with their digests, rows, rejects, timings, warnings)."""
+    configuration hash, outputs with their digests, rows, rejects, timings, warnings, the
+    version of the code that made them)."""
     if made.header:
         manifest.set_header(**made.header)
     manifest.record_stage(
@@ -232,6 +241,7 @@ def record_made(
             warnings=made.warnings,
             # Keyed by file name, as the up-to-date check looks them up.
             output_files={Path(o).name: FileDigest.of(directory / o) for o in made.outputs},
+            code_version=code_version,
         ),
     )
 
