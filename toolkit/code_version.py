@@ -17,8 +17,9 @@ upgrade of the toolkit, which is when outputs must be checked anyway.
 The import graph is read from the source with a regular expression (``import toolkit.x``,
 ``from toolkit.x import y``, ``y`` counted when it is a module), which takes milliseconds
 where parsing the package's syntax trees took seconds; every package on a module's path
-counts too (its ``__init__`` runs first); imports for type checking only do not. A name
-built at run time (``importlib``) is not seen: the package imports none.
+counts too (its ``__init__`` runs first); imports for type checking only do not. A module
+imported by a name built at run time (``importlib``) is not seen: only the registry does so,
+to find a stage's module, from which that stage's version starts anyway.
 """
 
 from __future__ import annotations

@@ -43,15 +43,25 @@ def record_stage_outputs(
     log_dir: Path, stage: str, outputs: list[str], inputs: dict[str, str] | None = None
 ) -> None:
     """Record ``outputs`` (as they are now) as what a finished ``stage`` wrote in this log
-    from ``inputs`` (name -> sha256), as a real run of that stage would have: for tests that
-    craft a stage's outputs by hand."""
+    from ``inputs`` (name -> sha256), as a real run of that stage with the default
+    configuration and this code would have: for tests that craft a stage's outputs by hand."""
     manifest = Manifest(log_dir / "manifest.json")
-    manifest.record_stage(
-        stage,
-        StageRecord(
-            inputs=dict(inputs or {}),
-            config_hash="crafted",
-            outputs=tuple(outputs),
-            output_files=digest_files(log_dir, outputs),
-        ),
+    manifest.record_stage(stage, crafted_record(stage, outputs, log_dir, inputs))
+
+
+def crafted_record(
+    stage: str, outputs: list[str], log_dir: Path, inputs: dict[str, str] | None = None
+) -> StageRecord:
+    """The record a run of ``stage`` with the default configuration and this code leaves
+    for ``outputs`` of ``log_dir`` as they are now, made from ``inputs``."""
+    from toolkit.config import default_config
+    from toolkit.stages.registry import stage as registered
+
+    spec = registered(stage)
+    return StageRecord(
+        inputs=dict(inputs or {}),
+        config_hash=spec.config_hash(default_config()),
+        outputs=tuple(outputs),
+        output_files=digest_files(log_dir, outputs),
+        code_version=spec.code_version,
     )

@@ -11,9 +11,10 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
+from tests.stages.crafted import crafted_record
 from toolkit.config import PipelineConfig, default_config, parse_config
 from toolkit.errors import ConfigError, StageError
-from toolkit.manifest import Manifest, StageRecord, digest_files, file_sha256
+from toolkit.manifest import Manifest, file_sha256
 from toolkit.model.shock import design_shock_fir, event_shock, filter_stream
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.label import FIG5_CSV, FIG5_PNG, LabelResult
@@ -97,23 +98,10 @@ def crafted_log(
             (d / "tf_static.json").write_text(json.dumps(tf), encoding="utf-8")
             ingested.append("tf_static.json")
         m = Manifest(d / "manifest.json")
-        m.record_stage(
-            "ingest",
-            StageRecord(
-                inputs={"log": "0" * 64},
-                config_hash="crafted",
-                outputs=tuple(ingested),
-                output_files=digest_files(d, ingested),
-            ),
-        )
+        m.record_stage("ingest", crafted_record("ingest", ingested, d, {"log": "0" * 64}))
         m.record_stage(
             "pose",
-            StageRecord(
-                inputs={"imu": file_sha256(d / "imu.parquet")},
-                config_hash="crafted",
-                outputs=("pose.parquet",),
-                output_files=digest_files(d, ["pose.parquet"]),
-            ),
+            crafted_record("pose", ["pose.parquet"], d, {"imu": file_sha256(d / "imu.parquet")}),
         )
         gen.commit()
     return ws

@@ -233,3 +233,33 @@ def test_outputs_other_code_made_are_made_again(
     assert run_stage(DOUBLE, ws, config, log_id=log_id).status == "doubled"
     again = Manifest(ws.log(log_id).manifest).stage("double")
     assert again is not None and again.code_version == "f" * 64
+
+
+def test_a_stage_refuses_inputs_its_maker_made_with_another_configuration_or_code(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``ingest --overwrite`` with a new configuration leaves the workspace's other logs
+    ingested with the old one: a stage run alone on them would mix the two, so it refuses
+    in one line naming the log, the maker and what differs; the maker made again, it runs.
+    Likewise for outputs another version of the maker's code made."""
+    from tests.conftest import SAMPLE_LOG
+    from toolkit.stages.ingest import SPEC as INGEST
+    from toolkit.stages.ingest import ingest_log
+    from toolkit.stages.pose import SPEC as POSE
+
+    ws = Workspace(tmp_path / "ws")
+    config = default_config()
+    log_id = ingest_log(SAMPLE_LOG, ws, config).log_id
+    # A wider gyro range: an ingest setting, not one of pose's own.
+    wider = dataclasses.replace(config.imu, gyro_range_radps=config.imu.gyro_range_radps * 2)
+    other = dataclasses.replace(config, imu=wider)
+    assert INGEST.config_hash(other) != INGEST.config_hash(config)
+    with pytest.raises(WorkspaceError, match="ingest outputs are stale .*another configuration"):
+        run_stage(POSE, ws, other, log_id=log_id)
+    ingest_log(SAMPLE_LOG, ws, other, overwrite=True)
+    assert run_stage(POSE, ws, other, log_id=log_id).status != "up_to_date"
+    monkeypatch.setattr(
+        type(INGEST), "code_version", property(lambda self: "e" * 64 if self is INGEST else "")
+    )
+    with pytest.raises(WorkspaceError, match="ingest outputs are stale .*made by other code"):
+        run_stage(POSE, ws, other, log_id=log_id, overwrite=True)

@@ -30,16 +30,18 @@ from pathlib import Path
 from typing import Any, Generic
 
 from toolkit.config import PipelineConfig
-from toolkit.errors import StageError
+from toolkit.errors import StageError, WorkspaceError
 from toolkit.layout import LogFiles, log_file_name
 from toolkit.manifest import (
     FileDigest,
     Manifest,
     StageRecord,
     check_up_to_date,
+    code_changed,
     file_sha256,
     require_finished,
 )
+from toolkit.stages import registry
 from toolkit.stages.contract import Call, Made, OutcomeT, Recalled, SettingsT, Stage
 from toolkit.workspace import Workspace
 
@@ -154,7 +156,7 @@ class _Here(Generic[SettingsT, OutcomeT]):
         elif spec.gather is not None:
             inputs, found = spec.gather(self.workspace, self.config)
         else:
-            inputs = hash_needs(spec, files, manifest)
+            inputs = hash_needs(spec, files, manifest, self.config)
         cfg_hash = spec.config_hash(self.config)
         record = manifest.stage(spec.name)
         if not self.overwrite and record is not None:
@@ -195,10 +197,14 @@ class _Here(Generic[SettingsT, OutcomeT]):
         return files.path(name) if self.spec.scope == "log" else self.workspace.path(name)
 
 
-def hash_needs(spec: Stage[Any, Any], files: LogFiles, manifest: Manifest) -> dict[str, str]:
+def hash_needs(
+    spec: Stage[Any, Any], files: LogFiles, manifest: Manifest, config: PipelineConfig
+) -> dict[str, str]:
     """Layout name -> sha256 of every file ``spec`` needs that is there, each checked
-    against the last finished run of the stage that makes it. StageError naming the first
-    required file missing; WorkspaceError naming a file its maker did not write."""
+    against the last finished run of the stage that makes it, which must also have been
+    made by this code with ``config`` (:func:`require_current`). StageError naming the first
+    required file missing; WorkspaceError naming a file its maker did not write, or the
+    maker's stale record."""
     for need in spec.needs:
         path = files.path(need.name)
         if not need.optional and not path.is_file():
@@ -211,8 +217,34 @@ def hash_needs(spec: Stage[Any, Any], files: LogFiles, manifest: Manifest) -> di
         if need.name in inputs:
             by_maker.setdefault(need.made_by, {})[log_file_name(need.name)] = inputs[need.name]
     for maker, made in by_maker.items():
-        require_finished(manifest.stage(maker), maker, made, files.dir)
+        record = manifest.stage(maker)
+        require_finished(record, maker, made, files.dir)
+        # A maker outside the registry (a test's toy stage) has no declaration to hold its
+        # record against; every stage the command line runs is in it.
+        if maker != spec.name and record is not None and maker in registry.names():
+            require_current(record, registry.stage(maker), config, files.dir)
     return inputs
+
+
+def require_current(
+    record: StageRecord, maker: Stage[Any, Any], config: PipelineConfig, directory: Path
+) -> None:
+    """Refuse the outputs of ``maker`` (its ``record``, in ``directory``) that its run with
+    ``config`` and this code would not make: another configuration (``ingest --overwrite``
+    with a new one left the workspace's other logs on the old) or another code made them.
+    A stage run alone on them would mix the two; ``terrain run`` makes them again first.
+    WorkspaceError naming the directory, the maker and what differs."""
+    why = ""
+    if record.config_hash != maker.config_hash(config):
+        why = "made with another configuration than the one in force"
+    elif record.code_version != maker.code_version:
+        why = code_changed(record)
+    if why:
+        raise WorkspaceError(
+            f"its {maker.name} outputs are stale ({why}); run `terrain {maker.name}` on it "
+            "again (or `terrain run`, which does)",
+            path=directory,
+        )
 
 
 def record_made(
