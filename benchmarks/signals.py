@@ -36,7 +36,8 @@ def terrain(*args: str) -> list[str]:
 
 def verbs(ws: Path, tmp: Path) -> dict[str, list[str]]:
     """Each verb's command line on the prepared workspace (each redoes its work)."""
-    (log_id,) = [p.name for p in (ws / "logs").iterdir()]
+    # The log's link; its generations beside it are hidden folders.
+    (log_id,) = [p.name for p in (ws / "logs").iterdir() if not p.name.startswith(".")]
     return {
         "ingest": terrain("ingest", str(SAMPLE), "-w", str(ws), "--overwrite"),
         "pose": terrain("pose", "-w", str(ws), "--overwrite"),
