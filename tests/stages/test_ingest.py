@@ -417,6 +417,28 @@ def test_message_type_a_role_does_not_accept(tmp_path: Path, ws: Workspace) -> N
 # --------------------------------------------------------------------------------------
 
 
+def test_a_topic_typo_is_said_with_the_topic_it_meant(
+    tmp_path: Path, ws: Workspace, caplog: pytest.LogCaptureFixture
+) -> None:
+    """``imu = "/imu/dta"`` where the log's only Imu topic is ``/imu``-something: the
+    terminal names the topic it most likely meant (a close name, or the log's only topic of
+    an accepted type no role reads); none is offered for a topic no such topic resembles."""
+    log = write_log(tmp_path / "log.mcap", basic_topics())
+    with caplog.at_level(logging.WARNING, logger="toolkit"):
+        ingest_log(log, ws, make_config(imu="/imu/dta"))
+    hints = [r.getMessage() for r in caplog.records if "did you mean" in r.getMessage()]
+    assert len(hints) == 1
+    assert "role imu: topic /imu/dta not in the log; did you mean /imu (sensor_msgs/msg/Imu" in (
+        hints[0]
+    )
+    assert str(log) in hints[0]
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="toolkit"):
+        ingest_log(log, ws, make_config(gps="/gps/fixx"), overwrite=True)
+    hints = [r.getMessage() for r in caplog.records if "did you mean" in r.getMessage()]
+    assert len(hints) == 1 and "did you mean /gps (sensor_msgs/msg/NavSatFix" in hints[0]
+
+
 def test_missing_roles_are_one_warning_naming_topics_and_accepted_types(
     tmp_path: Path, ws: Workspace, caplog: pytest.LogCaptureFixture
 ) -> None:

@@ -16,6 +16,7 @@ with one line naming the topic and the first differing field otherwise.
 
 from __future__ import annotations
 
+import difflib
 import functools
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -140,10 +141,15 @@ def resolve_topics(
     warnings: list[str] = []
     wholly_missing: list[str] = []
     by_role = topics.by_role()
+    configured = {t for role_topics in by_role.values() for t in role_topics}
     for role, role_topics in by_role.items():
         absent = [t for t in role_topics if t not in found]
         if absent:
             missing[role] = absent
+            for topic in absent:
+                hint = did_you_mean(topic, role, found, configured)
+                if hint:
+                    warnings.append(f"role {role}: topic {topic} not in the log; {hint}")
         if len(absent) == len(role_topics):
             wholly_missing.append(role)
         elif absent:
@@ -173,6 +179,35 @@ def resolve_topics(
             + "; ".join(_role_line(r, by_role[r]) for r in wholly_missing),
         )
     return plans, missing, warnings
+
+
+def did_you_mean(
+    topic: str, role: str, found: Mapping[str, Channel], configured: set[str]
+) -> str | None:
+    """For a configured ``topic`` the log lacks: the log's topic it most likely meant, as
+    a hint ("did you mean /imu/data (sensor_msgs/msg/Imu)?"), or None. Candidates are the
+    log's topics of a type ``role`` accepts that no role reads; the closest name wins
+    (``difflib``), and the only candidate is named even when its name is not close (a
+    vehicle's one IMU under another name)."""
+    accepts = set(ROLE_SPECS[role].accepted_types)
+    candidates = {}
+    for name, channel in found.items():
+        if name in configured or not channel.schema_name or not _is_ros_name(channel.schema_name):
+            continue
+        type_name = full_type_name(channel.schema_name)
+        if type_name in accepts:
+            candidates[name] = type_name
+    if not candidates:
+        return None
+    close = difflib.get_close_matches(topic, list(candidates), n=1, cutoff=0.6)
+    if close:
+        best = close[0]
+    elif len(candidates) == 1:
+        (best,) = candidates
+    else:
+        return None
+    only = ", the log's only one of a type it accepts" if len(candidates) == 1 else ""
+    return f"did you mean {best} ({candidates[best]}{only})?"
 
 
 def plan_topic(
