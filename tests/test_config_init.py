@@ -82,6 +82,25 @@ def test_husky_config_names_its_sensors_and_what_it_lacks(tmp_path: Path) -> Non
     assert "CHECK" in _comments_of(text, "dead_reckoning")
 
 
+def test_the_bundled_husky_configuration_names_the_logs_own_frames() -> None:
+    """``pipelines/husky.toml`` names the sensor frames the Husky log's messages carry
+    (ROS 1's leading "/" dropped, as tf2 does): its GPS frame is ``gps``, not a guess."""
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    cfg = load_config(REPO / "pipelines" / "husky.toml")
+    frames: dict[str, str] = {}
+    with HUSKY_LOG.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, channel, _, msg in reader.iter_decoded_messages(topics=["/fix", "/imu/data"]):
+            frames.setdefault(channel.topic, msg.header.frame_id.lstrip("/"))
+            if len(frames) == 2:
+                break
+    assert cfg.vehicle.gps_frame == frames["/fix"] == "gps"
+    assert cfg.vehicle.imu_frame == frames["/imu/data"]
+    assert parse_config(init_config(HUSKY_LOG)).vehicle.gps_frame == "gps"
+
+
 def test_husky_config_ingests_and_poses(tmp_path: Path) -> None:
     """The stranger's path of the README: config init, ingest, pose, through the CLI."""
     runner = CliRunner()
