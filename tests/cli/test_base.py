@@ -56,6 +56,8 @@ def test_version(runner: CliRunner) -> None:
         ["sim"],
         ["sim", "out.mcap", "--profile", "desert"],
         ["sim", "out.mcap", "--distance-m", "-5"],
+        ["sim", "out.mcap", "--distance-m", "50"],  # the least route is 100 m, said in --help
+        ["run", "sample.mcap", "-w", "ws", "--from", "learn", "--to", "tables"],
         ["sim", "out.mcap", "--seed", "many"],
         ["info"],
         ["info", "a.mcap", "--bogus"],

@@ -44,3 +44,24 @@ def test_a_failed_run_keeps_a_folder_it_did_not_make(runner: CliRunner, tmp_path
     result = runner.invoke(main, ["ingest", str(tmp_path / "nope.mcap"), "-w", str(ws)])
     assert result.exit_code == 1
     assert (ws / "notes.txt").read_text() == "mine"
+
+
+@pytest.mark.parametrize("verb", ["run", "ingest"])
+def test_a_log_argument_that_is_no_file_is_one_line_before_any_work(
+    runner: CliRunner, tmp_path: Path, verb: str
+) -> None:
+    """A mistyped log or a folder given as a log: one line naming it and the problem, exit
+    1, nothing run (no stage table, no empty log name), whatever else was given."""
+    ws = tmp_path / "ws"
+    cases = {
+        "no such log file": [str(tmp_path / "nosuch.mcap")],
+        "is a directory, not an MCAP log": [str(tmp_path)],
+        "no such log file (1 more": [str(SAMPLE_LOG), "a.mcap", "b.mcap"],
+    }
+    for problem, logs in cases.items():
+        result = runner.invoke(main, [verb, *logs, "-w", str(ws)])
+        assert result.exit_code == 1, result.output
+        assert result.stdout == ""
+        (line,) = result.stderr.splitlines()
+        assert problem in line, line
+        assert not ws.exists()

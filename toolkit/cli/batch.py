@@ -50,6 +50,24 @@ def _check_executor_options(ctx: click.Context, executors: Executors) -> None:
         )
 
 
+def _require_log_files(logs: list[Path]) -> None:
+    """Refuse, before any work, a log argument that is no file: one line naming it (and
+    how many more), exit 1 (a mistyped path is not one log failing among many)."""
+    from toolkit.errors import LogReadError
+
+    bad = [p for p in logs if not p.is_file()]
+    if not bad:
+        return
+    first = bad[0]
+    problem = (
+        "is a directory, not an MCAP log (give its logs: DIR/*.mcap)"
+        if first.is_dir()
+        else "no such log file"
+    )
+    more = f" ({len(bad) - 1} more log argument(s) are no file either)" if len(bad) > 1 else ""
+    raise LogReadError(f"{problem}{more}", path=first)
+
+
 def _batch_options(*own: Decorator) -> Decorator:
     """The options of a verb that starts from MCAP files and runs logs in parallel: the logs,
     workspace and configuration, then the verb's ``own``, then executor, workers and shards.
@@ -167,6 +185,7 @@ def ingest(ctx: click.Context, batch: BatchArgs, overwrite: bool, as_json: bool)
     """
     from toolkit.batch import run_ingest_batch
 
+    _require_log_files(batch.logs)
     summary = run_ingest_batch(
         batch.logs,
         batch.workspace,
@@ -221,8 +240,14 @@ def run(
     reported and left out of the later ones. Killed at any moment and run again, it finishes
     with the outputs an uninterrupted run gives.
     """
-    from toolkit.pipeline import run_pipeline
+    from toolkit.errors import WorkspaceError
+    from toolkit.pipeline import run_pipeline, stage_range
 
+    try:
+        stage_range(first, last)
+    except WorkspaceError as exc:
+        raise click.UsageError(str(exc), ctx) from None
+    _require_log_files(batch.logs)
     summary = run_pipeline(
         batch.logs,
         batch.workspace,

@@ -141,13 +141,13 @@ def resolve_topics(
     warnings: list[str] = []
     wholly_missing: list[str] = []
     by_role = topics.by_role()
-    configured = {t for role_topics in by_role.values() for t in role_topics}
+    claimed = {t for role_topics in by_role.values() for t in role_topics}
     for role, role_topics in by_role.items():
         absent = [t for t in role_topics if t not in found]
         if absent:
             missing[role] = absent
             for topic in absent:
-                hint = did_you_mean(topic, role, found, configured)
+                hint = did_you_mean(topic, role, found, claimed)
                 if hint:
                     warnings.append(f"role {role}: topic {topic} not in the log; {hint}")
         if len(absent) == len(role_topics):

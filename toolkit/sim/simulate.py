@@ -69,14 +69,23 @@ class SimResult:
     distance_m: float
     message_counts: dict[str, int]
     feature_count: int
+    #: The route's length, m: the drive recorded is shorter (:data:`ROUTE_UNDRIVEN_NOTE`).
+    route_m: float = 0.0
 
     def summary(self) -> str:
         total = sum(self.message_counts.values())
         return (
             f"{self.path}: profile {self.profile}, seed {self.seed}, {self.duration_s:.1f} s, "
-            f"{self.distance_m:.0f} m, {total} messages on {len(self.message_counts)} topics, "
+            f"{self.distance_m:.0f} m driven of the {self.route_m:.0f} m route "
+            f"({ROUTE_UNDRIVEN_NOTE}), {total} messages on {len(self.message_counts)} topics, "
             f"{self.feature_count} rough features"
         )
+
+
+#: Why a log drives less than its route: the suspension settles over the route's first
+#: metres before recording starts (:data:`WARMUP_BLOCKS`), and the drive stops where the
+#: controller's look-ahead reaches the route's end (``Driver.end_sigma_m``).
+ROUTE_UNDRIVEN_NOTE = "its first metres settle the suspension, its last 60 m are look-ahead"
 
 
 def _concat_blocks(a: TrueBlock, b: TrueBlock, tail: int) -> TrueBlock:
@@ -154,6 +163,7 @@ def simulate(
         distance_m=driver.sigma_m - start_sigma,
         message_counts=dict(out.counts),
         feature_count=len(world.features),
+        route_m=prof.world.length_m,
     )
 
 
