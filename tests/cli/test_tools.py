@@ -165,6 +165,21 @@ def test_sim_missing_output_directory_exits_1(runner: CliRunner, tmp_path: Path)
     assert "output directory does not exist" in assert_one_error_line(result.stderr)
 
 
+@pytest.mark.parametrize("verb", ["viz", "export"])
+def test_every_verb_writing_outside_a_workspace_refuses_a_missing_folder(
+    runner: CliRunner, tmp_path: Path, verb: str
+) -> None:
+    """viz and export, as sim: the folder the output goes into must exist (a mistyped
+    path is one line, exit 1, and no folder is made), checked before the workspace."""
+    out = tmp_path / "nope" / "deeper" / "out"
+    args = [verb, "-w", str(tmp_path / "ws"), "--out", str(out)]
+    result = runner.invoke(main, args + (["--log", "x"] if verb == "viz" else []))
+    assert result.exit_code == 1, result.output
+    line = assert_one_error_line(result.stderr)
+    assert "output directory does not exist" in line and str(out.parent) in line
+    assert not (tmp_path / "nope").exists()
+
+
 def test_sim_onto_an_existing_file_refuses_without_overwrite(
     runner: CliRunner, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:

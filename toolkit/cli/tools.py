@@ -78,8 +78,7 @@ def sim(
     overwrite: bool,
 ) -> None:
     """Write a synthetic race log with ground truth to OUT.mcap."""
-    if not out.parent.is_dir():
-        raise ToolkitError("output directory does not exist", path=out.parent)
+    require_out_parent(out)
     # Like export and viz: a log already there (a recorded one, the bundled sample) is only
     # replaced when asked.
     if out.exists() and not overwrite:
@@ -174,6 +173,14 @@ def config_init(log: Path, out_path: Path | None, overwrite: bool) -> None:
     click.echo(f"wrote {out_path}", err=True)
 
 
+def require_out_parent(out: Path) -> None:
+    """Every verb that writes outside a workspace (sim, viz, export) writes into a folder
+    that exists: a mistyped path is said in one line, never made into a tree of folders."""
+    parent = out.absolute().parent
+    if not parent.is_dir():
+        raise ToolkitError("output directory does not exist", path=parent)
+
+
 def _out_option(name: str, help: str, **kind: bool) -> Callable[[Any], Any]:
     """``--out``, where ``viz`` and ``export`` write (``kind``: a file or a folder)."""
     return click.option(
@@ -206,6 +213,7 @@ def viz(workspace: Path, log_id: str, out_path: Path, overwrite: bool) -> None:
     """A Foxglove view of one log's results: pose, points by predicted roughness, events."""
     from toolkit.publish.viz import run_viz
 
+    require_out_parent(out_path)
     _publish(workspace, lambda ws, cfg: run_viz(ws, log_id, out_path, cfg, overwrite=overwrite))
 
 
@@ -221,6 +229,7 @@ def export(workspace: Path, out_dir: Path, overwrite: bool) -> None:
     """The labelled training and test tables as a dataset other teams load (datasets, Croissant)."""
     from toolkit.publish.export import run_export
 
+    require_out_parent(out_dir)
     _publish(workspace, lambda ws, cfg: run_export(ws, out_dir, cfg, overwrite=overwrite))
 
 
