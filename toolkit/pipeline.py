@@ -290,12 +290,17 @@ class _Run:
         them makes it. None run after a log failed a per-log stage: tables reads every log
         of the workspace, and one whose stage just failed would enter with older outputs."""
         report_path: Path | None = None
-        for stage in stages:
+        for k, stage in enumerate(stages):
             if any(r.failures for r in self.reports):
                 self.notes.append("workspace stages not run: a log failed a per-log stage")
                 break
             spec = registry.stage(stage)
             if not self._workspace_stage(stage, spec, bar):
+                later = stages[k + 1 :]
+                if later:  # said, as a per-log stage no log reached is
+                    self.notes.append(
+                        f"{', '.join(later)} not run: {stage} failed (its error is below)"
+                    )
                 break
             if "index" in spec.makes:
                 report_path = self.ws.index_path

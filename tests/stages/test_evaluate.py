@@ -407,3 +407,29 @@ def test_a_report_killed_mid_write_is_the_old_one(
     assert sorted(p.name for p in ws.report_dir.iterdir()) == sorted(before)
     gens = [p for p in ws.root.iterdir() if p.name.startswith(".report.") and p.suffix == ".gen"]
     assert gens == [ws.report_dir.resolve()]  # the current report alone, nothing left over
+
+
+def test_a_failed_learn_inside_run_says_evaluate_was_not_run(
+    pipeline: Pipeline, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``terrain run`` whose learn fails: its line, then a line saying evaluate was not run
+    because of it (as a per-log stage no log reached says so), exit 1 with the cause."""
+    import dataclasses
+
+    from toolkit.stages import learn
+
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+
+    def fail(call: Any) -> Any:
+        raise StageError("no pair of events to learn from", path=ws.root)
+
+    monkeypatch.setattr(learn, "SPEC", dataclasses.replace(learn.SPEC, compute=fail))
+    from tests.conftest import SAMPLE_LOG
+
+    args = ["run", str(SAMPLE_LOG), "-w", str(ws.root), "--from", "learn", "--overwrite"]
+    result = CliRunner().invoke(main, args)
+    assert result.exit_code == 1, result.output
+    lines = result.stdout.splitlines()
+    assert any(line.startswith("learn") and "1 failed" in line for line in lines), lines
+    assert "evaluate not run: learn failed (its error is below)" in lines
+    assert "no pair of events to learn from" in result.stderr

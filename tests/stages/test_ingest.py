@@ -428,8 +428,9 @@ def test_a_topic_typo_is_said_with_the_topic_it_meant(
         ingest_log(log, ws, make_config(imu="/imu/dta"))
     hints = [r.getMessage() for r in caplog.records if "did you mean" in r.getMessage()]
     assert len(hints) == 1
-    assert "role imu: topic /imu/dta not in the log; did you mean /imu (sensor_msgs/msg/Imu" in (
-        hints[0]
+    assert (
+        "role imu: topic /imu/dta not in the log; did you mean /imu (sensor_msgs/msg/Imu"
+        in (hints[0])
     )
     assert str(log) in hints[0]
     caplog.clear()
