@@ -18,9 +18,11 @@ from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from toolkit.arrays import BoolArray, FloatArray, IntArray
+from toolkit.config import PipelineConfig
 from toolkit.errors import StageError
 from toolkit.layout import LogFiles, log_file_name
 from toolkit.manifest import Manifest, file_sha256, require_finished
+from toolkit.stages.runner import remedy
 from toolkit.stages.tables import EVENT_COLUMNS
 from toolkit.tableio import iter_table_batches, read_table, read_table_metadata
 from toolkit.workspace import Workspace
@@ -206,9 +208,12 @@ def read_scored_events(
     return EventRows(cols, r, predicted, scored, low)
 
 
-def checked_inputs(workspace: Workspace, log_dir: Path, warnings: list[str]) -> dict[str, str]:
+def checked_inputs(
+    workspace: Workspace, log_dir: Path, config: PipelineConfig, warnings: list[str]
+) -> dict[str, str]:
     """Which inputs there are (name -> sha256), each checked to be the file the stage that
-    wrote it recorded (a WorkspaceError naming the file otherwise)."""
+    wrote it recorded (a WorkspaceError naming the file otherwise); for each missing one, a
+    warning saying how the log would get it, or why it cannot (under ``config``)."""
     files = LogFiles(log_dir)
     manifest = Manifest(files.manifest)
     pose_path = files.pose
@@ -234,7 +239,7 @@ def checked_inputs(workspace: Workspace, log_dir: Path, warnings: list[str]) -> 
         (log_file_name("events"), TOPIC_EVENTS, "label"),
     ):
         if name not in hashes:
-            warnings.append(f"no {name}, so no {topic} (run `terrain {stage}` for it)")
+            warnings.append(f"no {name}, so no {topic} ({remedy(stage, files, config)})")
     ws_manifest = Manifest(workspace.manifest_path)
     scores_key = str(workspace.scores_table.relative_to(workspace.root))
     model_key = workspace.model_path.name
@@ -297,10 +302,12 @@ class Scene:
         return log_file_name(name) in self.inputs_sha256
 
 
-def read_scene(workspace: Workspace, log_id: str, log_dir: Path, warnings: list[str]) -> Scene:
+def read_scene(
+    workspace: Workspace, log_id: str, log_dir: Path, config: PipelineConfig, warnings: list[str]
+) -> Scene:
     """The scene of the log in ``log_dir`` (a snapshot of ``log_id``'s folder), every input
     checked; what is missing or stale is appended to ``warnings``."""
-    hashes = checked_inputs(workspace, log_dir, warnings)
+    hashes = checked_inputs(workspace, log_dir, config, warnings)
     pose_path = LogFiles(log_dir).pose
     pose = read_pose(pose_path)
     pose_meta = read_table_metadata(pose_path)

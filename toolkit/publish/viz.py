@@ -180,7 +180,7 @@ def _write_view(
     start: float,
 ) -> VizResult:
     warnings: list[str] = []
-    scene = read_scene(workspace, log_id, log_dir, warnings)
+    scene = read_scene(workspace, log_id, log_dir, config, warnings)
     metadata = _view_metadata(log_id, scene, config, clouds)
     tmp = temp_path_beside(out_path)
     try:

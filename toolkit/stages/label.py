@@ -87,7 +87,7 @@ from toolkit.stages.label_inputs import (
     streamed_path_events,
 )
 from toolkit.stages.label_truth import TruthUnder, truth_under_events
-from toolkit.tableio import TableWriter
+from toolkit.tableio import TableWriter, table_num_rows
 
 _log = logging.getLogger(__name__)
 
@@ -463,9 +463,19 @@ def _compute(call: Call[LabelSettings]) -> Made[LabelResult]:
     return _made(call, ev, shocks, keep, rejects, written, timings, warnings)
 
 
+def _require_shock_band(files: LogFiles, config: LabelSettings) -> None:
+    """StageError when the log's IMU samples too slowly for the shock filter's band (a
+    30 Hz robot IMU against the 10-15 Hz band): nothing to label, whatever is run before."""
+    if files.imu.is_file() and table_num_rows(files.imu, "imu"):
+        cfg = config.label
+        rate_hz = 1e9 / imu_period_ns(files.imu)
+        design_shock_fir(rate_hz, cfg.fir_taps, cfg.fir_stop_hz, cfg.fir_pass_hz, where=files.imu)
+
+
 SPEC = Stage(
     STAGE,
     "log",
+    check=_require_shock_band,
     needs=(
         Need("imu", "ingest"),
         *(Need(name, "ingest", optional=True) for name in INGEST_EXTRAS),

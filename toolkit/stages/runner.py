@@ -30,7 +30,7 @@ from pathlib import Path
 from typing import Any, Generic
 
 from toolkit.config import PipelineConfig
-from toolkit.errors import StageError, WorkspaceError
+from toolkit.errors import StageError, ToolkitError, WorkspaceError
 from toolkit.layout import LogFiles, log_file_name
 from toolkit.manifest import (
     FileDigest,
@@ -195,6 +195,22 @@ class _Here(Generic[SettingsT, OutcomeT]):
     def _made_path(self, files: LogFiles, name: str) -> Path:
         """Where an output of layout name ``name`` is: in the log, or in the workspace."""
         return files.path(name) if self.spec.scope == "log" else self.workspace.path(name)
+
+
+def remedy(stage: str, files: LogFiles, config: PipelineConfig) -> str:
+    """How a log lacking ``stage``'s outputs would get them: "run `terrain STAGE` on it",
+    or, when the stage's own check refuses the log (a role it needs that the log lacks, an
+    IMU too slow for the shock band), that it cannot, and why: advice a user can follow."""
+    spec = registry.stage(stage)
+    if spec.check is not None:
+        try:
+            spec.check(files, spec.settings_from(config))
+        except ToolkitError as exc:
+            reason = str(exc.args[0]) if exc.args else str(exc)
+            if exc.path is not None:  # the message without the path it starts with
+                reason = reason.removeprefix(f"{exc.path}: ")
+            return f"this log cannot feed {stage}: {reason}"
+    return f"run `terrain {stage}` on it"
 
 
 def hash_needs(

@@ -61,6 +61,7 @@ from toolkit.manifest import (
 )
 from toolkit.model.tyre_match import PathSource
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
+from toolkit.stages.runner import remedy
 from toolkit.stages.tables_points import (
     EVENT_COLUMNS,
     FINAL_MARGIN_NS,
@@ -156,8 +157,8 @@ def _log_inputs(workspace: Workspace, config: PipelineConfig) -> tuple[list[LogI
         ]
         if missing:
             warnings.append(
-                f"{log_id}: left out (no finished {', '.join(missing)}; run `terrain "
-                f"{missing[0]}` on it)"
+                f"{log_id}: left out (no finished {', '.join(missing)}; "
+                f"{remedy(missing[0], files, config)})"
             )
             continue
         hashes = {name: file_sha256(files.path(name)) for name in made_by}
@@ -231,9 +232,10 @@ def _gather(
     logs with the warnings on those left out."""
     logs, warnings = _log_inputs(workspace, config)
     if not logs:
+        # What each log lacks and how it would get it, or why it cannot (the first three).
+        why = "; ".join(warnings[:3]) + ("; ..." if len(warnings) > 3 else "")
         raise StageError(
-            "no log has finished events, points and pose; run `terrain label` and "
-            "`terrain project` first",
+            f"no log has finished events, points and pose: {why or 'the workspace has none'}",
             path=workspace.logs_dir,
         )
     inputs = {f"{li.log_id}/{n}": h for li in logs for n, h in sorted(li.hashes.items())}
