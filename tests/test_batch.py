@@ -10,6 +10,7 @@ import dataclasses
 import logging
 import os
 import random
+import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -302,8 +303,15 @@ class RecordingBatch:
 
 
 def invoke(args: list[str], fake: RecordingBatch, monkeypatch: pytest.MonkeyPatch) -> Any:
+    """The command line with ``fake`` for the batch, in an empty folder holding the
+    ``.mcap`` files named (empty: the verb refuses a log argument that is no file)."""
     monkeypatch.setattr(batch, "run_ingest_batch", fake)
-    return CliRunner().invoke(main, args)
+    with tempfile.TemporaryDirectory() as folder, monkeypatch.context() as here:
+        here.chdir(folder)
+        for arg in args:
+            if arg.endswith(".mcap"):
+                Path(arg).touch()
+        return CliRunner().invoke(main, args)
 
 
 def test_cli_ingest_help() -> None:

@@ -142,8 +142,10 @@ class RunSummary:
             else None,
         }
 
-    def render(self) -> str:
-        lines = [s.line() for s in self.stages]
+    def render(self, *, stages: bool = True) -> str:
+        """The summary a person reads: a line per stage (left out with ``stages=False``,
+        when each was said as it ended), the totals, the notes and where the report is."""
+        lines = [s.line() for s in self.stages] if stages else []
         lines.append(f"run: {len(self.log_ids)} log(s) in {self.seconds:.1f} s")
         lines.extend(self.notes)
         if self.report is not None and self.report.is_file():
@@ -295,6 +297,7 @@ class _Run:
                 self.notes.append("workspace stages not run: a log failed a per-log stage")
                 break
             spec = registry.stage(stage)
+            bar.set_description(stage)
             if not self._workspace_stage(stage, spec, bar):
                 later = stages[k + 1 :]
                 if later:  # said, as a per-log stage no log reached is
@@ -391,6 +394,7 @@ def run_pipeline(
             total = len(run_logs.every) * len(per_log) + len(workspace_stages)
             with progress(total=total, desc="run", unit="step") as bar:
                 for stage in per_log:
+                    bar.set_description(stage)  # the bar names the stage it counts
                     run.per_log_stage(stage, run_logs, pool, bar)
                 report_path = run.workspace_stages(workspace_stages, bar)
         run.adopt_config_if_used()

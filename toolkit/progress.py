@@ -69,6 +69,25 @@ def note(line: str) -> None:
         print(f"{PROG}: {line}", file=sys.stderr, flush=True)
 
 
+def say(line: str) -> None:
+    """One result line on stdout as it comes (a stage of ``terrain run`` finished): above
+    the bars on a terminal (``tqdm.write``, so no bar is cut), a plain line off it. Unlike
+    :func:`note`, printed with ``-q`` too: it is a result, not progress."""
+    if progress_enabled():
+        tqdm.write(line, file=sys.stdout)
+        sys.stdout.flush()
+    else:
+        print(line, flush=True)
+
+
+def write_above_bars(text: str) -> None:
+    """``text`` on stderr without cutting a bar on a terminal (log records, warnings)."""
+    if progress_enabled():
+        tqdm.write(text, file=sys.stderr)
+    else:
+        print(text, file=sys.stderr, flush=True)
+
+
 def _duration(seconds: float) -> str:
     minutes, secs = divmod(int(seconds), 60)
     return f"{minutes} min {secs:02d} s" if minutes else f"{secs} s"
@@ -119,6 +138,9 @@ class Heartbeat:
 
     def set_postfix_str(self, text: str = "", refresh: bool = True) -> None:
         self.postfix = text
+
+    def set_description(self, desc: str | None = None, refresh: bool = True) -> None:
+        self.desc = desc or ""
 
     def close(self) -> None:
         self._stop.set()

@@ -32,8 +32,10 @@ def test_pose_carries_on_past_a_failing_log_and_exits_1(runner: CliRunner, tmp_p
 def test_point_stages_on_a_log_without_lasers_say_why_in_one_line(
     runner: CliRunner, tmp_path: Path
 ) -> None:
-    """The Husky has no lasers: project names the missing role, label the missing pose,
-    tables what it needs; each exits 1 with one line, never a traceback."""
+    """The Husky has no lasers and a 30 Hz IMU: project names the missing role, label the
+    IMU too slow for the shock band (before asking for a pose it could not use), tables
+    why this log cannot feed it, never advising a stage that cannot run; each exits 1 with
+    one line, never a traceback."""
     data = REPO / "tests" / "data" / "real-logs" / "husky-gps-imu-odom.mcap"
     config = REPO / "pipelines" / "husky.toml"
     ws = str(tmp_path / "ws")
@@ -45,10 +47,11 @@ def test_point_stages_on_a_log_without_lasers_say_why_in_one_line(
     )
     label = runner.invoke(main, ["label", "-w", ws])
     assert label.exit_code == 1
-    assert "run `terrain pose` first" in assert_one_error_line(label.stderr)
+    assert "cannot carry the shock band" in assert_one_error_line(label.stderr)
     tables = runner.invoke(main, ["tables", "-w", ws])
     assert tables.exit_code == 1
-    assert "run `terrain label`" in assert_one_error_line(tables.stderr)
+    line = assert_one_error_line(tables.stderr)
+    assert "this log cannot feed label: IMU rate" in line and "run `terrain" not in line
 
 
 def test_summaries_say_what_they_count(runner: CliRunner, tmp_path: Path) -> None:

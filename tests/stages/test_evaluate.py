@@ -433,3 +433,29 @@ def test_a_failed_learn_inside_run_says_evaluate_was_not_run(
     assert any(line.startswith("learn") and "1 failed" in line for line in lines), lines
     assert "evaluate not run: learn failed (its error is below)" in lines
     assert "no pair of events to learn from" in result.stderr
+
+
+def test_run_says_each_stage_once_as_it_ends_after_its_warnings(
+    pipeline: Pipeline, tmp_path: Path
+) -> None:
+    """``terrain run ... 2>&1 | tee``: each stage's line once (on stdout, as the stage
+    ends), its warnings before it, then the totals; with --json, stdout is the JSON alone."""
+    from tests.conftest import SAMPLE_LOG
+
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    args = ["run", str(SAMPLE_LOG), "-w", str(ws.root), "--from", "tables", "--to", "learn"]
+    result = CliRunner().invoke(main, [*args, "--overwrite"])
+    assert result.exit_code == 0, result.output
+    merged = result.output.splitlines()  # stdout and stderr as a terminal shows them
+
+    def said(stage: str) -> list[int]:  # the stage's line, with a prefix or without
+        return [k for k, line in enumerate(merged) if re.search(rf"\b{stage} +[\d.]+ s ", line)]
+
+    tables, learn = said("tables"), said("learn")
+    assert len(tables) == 1 and len(learn) == 1, merged
+    warned = [k for k, line in enumerate(merged) if "events dropped" in line]
+    assert warned and max(warned) < tables[0] < learn[0]
+    out = result.stdout.splitlines()
+    assert [line.split()[0] for line in out] == ["tables", "learn", "run:"]
+    doc = CliRunner().invoke(main, [*args, "--json"])
+    assert doc.exit_code == 0 and json.loads(doc.stdout)["stages"]

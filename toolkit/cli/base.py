@@ -15,7 +15,7 @@ from typing import Any
 import click
 
 from toolkit.errors import ToolkitError
-from toolkit.progress import set_quiet
+from toolkit.progress import set_quiet, write_above_bars
 from toolkit.stopping import Stopped
 
 PROG = "terrain"
@@ -133,6 +133,17 @@ class _OneLineFormatter(logging.Formatter):
         return line
 
 
+class _AboveBars(logging.Handler):
+    """Each record one line on stderr, written above the progress bars on a terminal: a
+    warning is never glued to a bar's line."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            write_above_bars(self.format(record))
+        except Exception:  # noqa: BLE001 - logging's contract: a handler never raises
+            self.handleError(record)
+
+
 def configure_logging(verbose: int, quiet: bool, debug: bool) -> None:
     """Route log records to stderr: WARNING by default, INFO with -v, DEBUG with -vv."""
     if quiet:
@@ -146,7 +157,7 @@ def configure_logging(verbose: int, quiet: bool, debug: bool) -> None:
     root = logging.getLogger()
     for handler in [h for h in root.handlers if getattr(h, "_terrain", False)]:
         root.removeHandler(handler)
-    handler = logging.StreamHandler(sys.stderr)
+    handler = _AboveBars()
     handler.setFormatter(_OneLineFormatter(show_traces=debug))
     handler._terrain = True  # type: ignore[attr-defined]
     root.addHandler(handler)

@@ -248,6 +248,11 @@ def run(
     except WorkspaceError as exc:
         raise click.UsageError(str(exc), ctx) from None
     _require_log_files(batch.logs)
+    from toolkit.progress import say
+
+    # Each stage's line on stdout as it ends (above the bar on a terminal), then the totals:
+    # every line once, whether stdout and stderr go to one pipe or not. With --json, stdout
+    # is the JSON alone and the lines are progress on stderr (off a terminal).
     summary = run_pipeline(
         batch.logs,
         batch.workspace,
@@ -256,8 +261,9 @@ def run(
         last=last,
         overwrite=overwrite,
         executors=batch.executors,
+        echo=None if as_json else say,
     )
-    click.echo(strict_json.dumps(summary.to_dict()) if as_json else summary.render())
+    click.echo(strict_json.dumps(summary.to_dict()) if as_json else summary.render(stages=False))
     if summary.ok:
         return
     for report in summary.stages:
