@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import multiprocessing
+import multiprocessing.util
 import os
 import signal
 import sys
@@ -26,6 +27,8 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing.context import BaseContext
 from typing import Any
+
+from tqdm import tqdm
 
 #: How often a pool worker checks that its parent is still alive (s).
 PARENT_CHECK_S = 1.0
@@ -60,6 +63,10 @@ def _init_worker(
     # terminate must end it wherever it is, as SIGTERM's default action does.
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     _exit_when_orphaned(parent_pid)
+    # tqdm's first bar (a disabled one too) makes a multiprocessing lock, a named semaphore
+    # that a terminated worker never unlinks: multiprocessing's resource tracker would warn
+    # of it after the command's last line. A worker draws no bar, so a thread lock will do.
+    tqdm.set_lock(threading.RLock())
     if initializer is not None:
         initializer(*initargs)
 
@@ -117,6 +124,12 @@ def exit_without_waiting(code: int) -> None:
     clean up: the command line's last step."""
     if not _STOPPED_MID_TASK.is_set():
         return
+    # The pools' queues hold named semaphores that multiprocessing unlinks in its exit
+    # finalizers, which os._exit skips: its resource tracker then warns of "leaked semaphore
+    # objects" after the command's own last line. Those finalizers (exit priority 0 and
+    # above: the semaphores' unlinking, the queues' closing; never the joins of threads,
+    # which are below 0) run here first. multiprocessing's atexit hook runs the same.
+    multiprocessing.util._run_finalizers(0)  # type: ignore[attr-defined]
     logging.shutdown()
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(Exception):
