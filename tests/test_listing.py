@@ -55,14 +55,26 @@ def test_every_stage_verb_prints_json_a_script_reads(pipeline: Pipeline) -> None
         result = runner.invoke(main, [verb, "-w", ws, "--json"])
         assert result.exit_code == 0, result.output
         doc = json.loads(result.stdout)
-        assert doc["stage"] == verb and doc["status"] == "up_to_date"
+        assert doc["stage"] == verb and doc["status"] == "up_to_date" and doc["ok"] is True
         assert doc["record"]["row_counts"] and doc["summary"]
+    # The verbs that write outside the workspace: their result, its summary, ok first.
+    out = pipeline.ws.root.parent / "json-out"
+    out.mkdir(exist_ok=True)
+    for args in (
+        ["export", "-w", ws, "--out", str(out / "dataset"), "--overwrite"],
+        ["viz", "-w", ws, "--log", log_id, "--out", str(out / "view.mcap"), "--overwrite"],
+    ):
+        result = runner.invoke(main, [*args, "--json"])
+        assert result.exit_code == 0, result.output
+        doc = json.loads(result.stdout)
+        assert list(doc)[0] == "ok" and doc["ok"] is True and doc["summary"]
+        assert Path(doc.get("out_dir") or doc["out_path"]).exists()
     source = json.loads(runner.invoke(main, ["logs", "-w", ws, "--json"]).stdout)["logs"][0]
     result = runner.invoke(main, ["ingest", source["source"], "-w", ws, "--json"])
     assert result.exit_code == 0, result.output
     (outcome,) = json.loads(result.stdout)["logs"]
     assert outcome == {
-        "log": source["source"], "status": "up to date", "log_id": log_id, "error": None,
+        "log": source["source"], "status": "up_to_date", "log_id": log_id, "error": None,
     }  # fmt: skip
 
 
@@ -104,7 +116,11 @@ def test_a_tampered_number_in_a_manifest_is_one_line_naming_the_file_and_field(
     for extra in ([], ["--json"]):
         result = runner.invoke(main, ["logs", "-w", str(ws.root), *extra])
         assert result.exit_code == 1, result.output
-        assert result.stdout == ""
+        if extra:  # the failure's one document (docs/json.md)
+            doc = json.loads(result.stdout)
+            assert doc["ok"] is False and field in doc["error"]["message"]
+        else:
+            assert result.stdout == ""
         (line,) = result.stderr.splitlines()
         assert str(manifest) in line and field in line and "internal error" not in line
 

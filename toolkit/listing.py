@@ -60,9 +60,13 @@ class Listing:
     workspace_stages: dict[str, str]
     workspace_stale: dict[str, str] = field(default_factory=dict)
 
+    def to_dict(self) -> dict[str, Any]:
+        """The listing as a JSON document's fields."""
+        return asdict(self)
+
     def to_json(self) -> str:
         """The listing as strict JSON (:func:`toolkit.strict_json.dumps`)."""
-        return strict_json.dumps(asdict(self))
+        return strict_json.dumps(self.to_dict())
 
     def text(self) -> str:
         """A table a person reads: a line per log, then the workspace stages."""

@@ -14,6 +14,7 @@ from typing import Any
 
 import click
 
+from toolkit.cli.json_out import emit_failure, json_asked
 from toolkit.errors import ToolkitError
 from toolkit.progress import set_quiet, write_above_bars
 from toolkit.stopping import Stopped
@@ -93,18 +94,30 @@ class TerrainGroup(click.Group):
         super().add_command(cmd, name)
 
     def invoke(self, ctx: click.Context) -> Any:
+        # With --json, a verb that fails before printing its own document prints this one
+        # (toolkit.cli.json_out); the error line goes to stderr either way.
+        as_json = json_asked(ctx.args)
         try:
             return super().invoke(ctx)
-        except (click.exceptions.ClickException, click.exceptions.Exit, click.Abort):
-            raise  # usage errors (exit 2), explicit exits, Ctrl-C: click handles them
+        except click.exceptions.ClickException as exc:  # usage errors (exit 2)
+            if as_json and not getattr(exc, "json_said", False):
+                emit_failure("usage", exc.format_message(), None, exc.exit_code)
+                exc.json_said = True  # type: ignore[attr-defined]  # once, nested groups
+            raise
+        except (click.exceptions.Exit, click.Abort):
+            raise  # explicit exits (the verb said its own), click's Ctrl-C
         except Stopped as exc:
             error_line(exc.line)  # said here, not in the signal handler
             exc.said = True
+            if as_json:
+                emit_failure("stopped", exc.line, None, int(exc.code or 1))
             raise
         except ToolkitError as exc:
             if debug_on(ctx):
                 traceback.print_exc(file=sys.stderr)
             error_line(str(exc))
+            if as_json:
+                emit_failure("input", str(exc), exc.path, 1)
             ctx.exit(1)
         except Exception as exc:
             if debug_on(ctx):
@@ -115,6 +128,8 @@ class TerrainGroup(click.Group):
                     f"internal error: {type(exc).__name__}: {exc} "
                     f"(run '{PROG} --debug ...' for the traceback)"
                 )
+            if as_json:
+                emit_failure("internal", f"{type(exc).__name__}: {exc}", None, 1)
             ctx.exit(1)
 
 

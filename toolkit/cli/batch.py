@@ -11,9 +11,9 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from toolkit import strict_json
 from toolkit.cli.base import debug_on, error_line
 from toolkit.cli.group import main
+from toolkit.cli.json_out import emit, status_word
 from toolkit.cli.stages import StageName
 
 if TYPE_CHECKING:  # the runners load numpy and pyarrow: imported when a verb runs
@@ -197,13 +197,13 @@ def ingest(ctx: click.Context, batch: BatchArgs, overwrite: bool, as_json: bool)
         outcomes = [
             {
                 "log": str(o.item),
-                "status": o.label,
+                "status": status_word(o.label),
                 "log_id": getattr(o.result, "log_id", None),
                 "error": o.reason or None,
             }
             for o in summary.outcomes
         ]
-        click.echo(strict_json.dumps({"stage": "ingest", "logs": outcomes}))
+        emit({"stage": "ingest", "logs": outcomes}, ok=summary.ok)
     else:
         click.echo(summary.render(with_reasons=False))
     if summary.ok:
@@ -263,7 +263,10 @@ def run(
         executors=batch.executors,
         echo=None if as_json else say,
     )
-    click.echo(strict_json.dumps(summary.to_dict()) if as_json else summary.render(stages=False))
+    if as_json:
+        emit(summary.to_dict(), ok=summary.ok)
+    else:
+        click.echo(summary.render(stages=False))
     if summary.ok:
         return
     for report in summary.stages:

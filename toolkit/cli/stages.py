@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from toolkit import strict_json
 from toolkit.cli.base import WORKSPACE_OPTION, error_line, workspace_option
+from toolkit.cli.json_out import emit
 from toolkit.errors import ToolkitError
 from toolkit.stages import registry
 
@@ -75,13 +75,17 @@ def each_log(
         ws.require_log(log_id)
         ids = [log_id]
     if not ids:
-        click.echo(f"nothing to {verb}: no ingested log in {ws.root} (run `terrain ingest` first)")
+        message = f"nothing to {verb}: no ingested log in {ws.root} (run `terrain ingest` first)"
+        if as_json:
+            emit({"stage": verb, "logs": [], "summary": message})
+        else:
+            click.echo(message)
         return
     with ws.lock():
         results = [_one_log(spec, ws, cfg, one, overwrite, as_json) for one in ids]
     failed = sum(r["status"] == "failed" for r in results)
     if as_json:
-        click.echo(strict_json.dumps({"stage": verb, "logs": results}))
+        emit({"stage": verb, "logs": results}, ok=not failed)
     elif len(ids) > 1 or failed:
         done: dict[str, int] = {}
         for r in results:
@@ -158,4 +162,4 @@ def _echo_stage(ws: Workspace, stage: str, status: str, text: str, as_json: bool
         "summary": text,
         "record": record.to_json() if record is not None else None,
     }
-    click.echo(strict_json.dumps(doc))
+    emit(doc)

@@ -10,14 +10,18 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 import click
 
-from toolkit import strict_json
 from toolkit.cli.base import WORKSPACE_OPTION, TerrainGroup
 from toolkit.cli.group import main
+from toolkit.cli.json_out import emit, result_doc
 from toolkit.errors import LogReadError, ToolkitError
 
 if TYPE_CHECKING:
     from toolkit.config import PipelineConfig
     from toolkit.workspace import Workspace
+
+
+#: The help of --json on the verbs that write outside a workspace.
+JSON_HELP = "Print the result as JSON on stdout (docs/json.md)."
 
 
 def _require_file(path: Path, error: type[ToolkitError] = ToolkitError) -> None:
@@ -67,6 +71,7 @@ def _require_file(path: Path, error: type[ToolkitError] = ToolkitError) -> None:
     "ouster-ros point clouds on /ouster/points (docs/simulator.md).",
 )
 @click.option("--overwrite", is_flag=True, help="Replace an existing OUT.mcap.")
+@click.option("--json", "as_json", is_flag=True, help=JSON_HELP)
 def sim(
     out: Path,
     profile: str,
@@ -76,6 +81,7 @@ def sim(
     no_lasers: bool,
     lidar: bool,
     overwrite: bool,
+    as_json: bool,
 ) -> None:
     """Write a synthetic race log with ground truth to OUT.mcap."""
     require_out_parent(out)
@@ -98,7 +104,10 @@ def sim(
         lasers=not no_lasers,
         lidar=lidar,
     )
-    click.echo(result.summary())
+    if as_json:
+        emit(result_doc(result))
+    else:
+        click.echo(result.summary())
 
 
 @main.command()
@@ -120,7 +129,7 @@ def info(log: Path, as_json: bool, full: bool) -> None:
         doc = log_info.to_dict()
         for topic in doc["topics"]:
             topic["roles"] = list(roles[topic["topic"]])
-        click.echo(strict_json.dumps(doc))
+        emit(doc)
     else:
         click.echo(render_table(log_info, roles))
 
@@ -140,7 +149,13 @@ def config() -> None:
     help="Write the configuration to this file (default: stdout).",
 )
 @click.option("--overwrite", is_flag=True, help="Replace an existing --out file.")
-def config_init(log: Path, out_path: Path | None, overwrite: bool) -> None:
+@click.option(
+    "--json",
+    "as_json",
+    is_flag=True,
+    help="Print JSON on stdout: the configuration's text, and where it went with --out.",
+)
+def config_init(log: Path, out_path: Path | None, overwrite: bool, as_json: bool) -> None:
     """A starting configuration for LOG.mcap's robot, written from the log itself.
 
     Topics are matched to roles by message type, then by name; mounts come from /tf_static
@@ -164,13 +179,15 @@ def config_init(log: Path, out_path: Path | None, overwrite: bool) -> None:
     from toolkit.config_init import init_config
 
     text = init_config(log)
-    if out_path is None:
-        click.echo(text, nl=False)
-        return
-    from toolkit.atomic import atomic_write_text
+    if out_path is not None:
+        from toolkit.atomic import atomic_write_text
 
-    atomic_write_text(out_path, text)
-    click.echo(f"wrote {out_path}", err=True)
+        atomic_write_text(out_path, text)
+        click.echo(f"wrote {out_path}", err=True)
+    if as_json:
+        emit({"log": str(log), "out": None if out_path is None else str(out_path), "toml": text})
+    elif out_path is None:
+        click.echo(text, nl=False)
 
 
 def require_out_parent(out: Path) -> None:
@@ -192,16 +209,22 @@ class _Summarised(Protocol):
     def summary(self) -> str: ...
 
 
-def _publish(workspace: Path, write: Callable[[Workspace, PipelineConfig], _Summarised]) -> None:
-    """Write a workspace's results for others (``write``) and print its summary. Under the
-    shared lock: learn and evaluate cannot replace the scores or the model mid-read."""
+def _publish(
+    workspace: Path, write: Callable[[Workspace, PipelineConfig], _Summarised], as_json: bool
+) -> None:
+    """Write a workspace's results for others (``write``) and print its summary (or with
+    ``as_json`` its document). Under the shared lock: learn and evaluate cannot replace the
+    scores or the model mid-read."""
     from toolkit.workspace import Workspace
 
     ws = Workspace(workspace).require()
     cfg = ws.read_config()
     with ws.lock(shared=True):
         result = write(ws, cfg)
-    click.echo(result.summary())
+    if as_json:
+        emit(result_doc(result))
+    else:
+        click.echo(result.summary())
 
 
 @main.command()
@@ -209,12 +232,17 @@ def _publish(workspace: Path, write: Callable[[Workspace, PipelineConfig], _Summ
 @click.option("--log", "log_id", required=True, help="The log to show (its workspace id).")
 @_out_option("out_path", "The MCAP file to write (Foxglove opens it).", dir_okay=False)
 @click.option("--overwrite", is_flag=True, help="Replace an existing output file.")
-def viz(workspace: Path, log_id: str, out_path: Path, overwrite: bool) -> None:
+@click.option("--json", "as_json", is_flag=True, help=JSON_HELP)
+def viz(workspace: Path, log_id: str, out_path: Path, overwrite: bool, as_json: bool) -> None:
     """A Foxglove view of one log's results: pose, points by predicted roughness, events."""
     from toolkit.publish.viz import run_viz
 
     require_out_parent(out_path)
-    _publish(workspace, lambda ws, cfg: run_viz(ws, log_id, out_path, cfg, overwrite=overwrite))
+    _publish(
+        workspace,
+        lambda ws, cfg: run_viz(ws, log_id, out_path, cfg, overwrite=overwrite),
+        as_json,
+    )
 
 
 @main.command()
@@ -225,12 +253,13 @@ def viz(workspace: Path, log_id: str, out_path: Path, overwrite: bool) -> None:
     file_okay=False,
 )
 @click.option("--overwrite", is_flag=True, help="Replace an earlier export in that folder.")
-def export(workspace: Path, out_dir: Path, overwrite: bool) -> None:
+@click.option("--json", "as_json", is_flag=True, help=JSON_HELP)
+def export(workspace: Path, out_dir: Path, overwrite: bool, as_json: bool) -> None:
     """The labelled training and test tables as a dataset other teams load (datasets, Croissant)."""
     from toolkit.publish.export import run_export
 
     require_out_parent(out_dir)
-    _publish(workspace, lambda ws, cfg: run_export(ws, out_dir, cfg, overwrite=overwrite))
+    _publish(workspace, lambda ws, cfg: run_export(ws, out_dir, cfg, overwrite=overwrite), as_json)
 
 
 @main.command("logs")
@@ -242,4 +271,7 @@ def logs_(workspace: Path, as_json: bool) -> None:
     from toolkit.workspace import Workspace
 
     listing = list_workspace(Workspace(workspace))
-    click.echo(listing.to_json() if as_json else listing.text())
+    if as_json:
+        emit(listing.to_dict())
+    else:
+        click.echo(listing.text())
