@@ -13,7 +13,14 @@ import pytest
 from matplotlib.cbook import STEP_LOOKUP_MAP
 
 from toolkit.analysis import figures
-from toolkit.analysis.report import METHOD_NAMES, ReportInputs, index_html, roc_png
+from toolkit.analysis.report import (
+    METHOD_NAMES,
+    METHOD_STYLES,
+    ReportInputs,
+    index_html,
+    roc_lines,
+    roc_png,
+)
 from toolkit.model.roc import RocSummary, summarise
 
 if TYPE_CHECKING:
@@ -32,7 +39,10 @@ def tied_summary(seed: int, n: int = 3000) -> RocSummary:
 
 
 def drawn_lines(
-    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, curves: dict[str, Any]
+    monkeypatch: pytest.MonkeyPatch,
+    tmp_path: Path,
+    curves: dict[str, Any],
+    aucs: dict[str, float | None] | None = None,
 ) -> dict[str, np.ndarray]:
     """Draw ``curves`` with :func:`roc_png` and return, by legend label, the vertices (K, 2)
     of each line as rendered: a line's data with its draw style applied (a staircase's
@@ -45,7 +55,7 @@ def drawn_lines(
         return save(fig, path)
 
     monkeypatch.setattr("toolkit.analysis.report.save_png_atomic", keep)
-    png = roc_png(tmp_path / "roc.png", curves)
+    png = roc_png(tmp_path / "roc.png", curves, aucs or {})
     assert png.is_file() and png.stat().st_size > 0
     (ax,) = drawn[0].axes
     out = {}
@@ -64,12 +74,44 @@ def test_the_drawn_roc_encloses_the_tables_auc_under_heavy_ties(
     smooth events is drawn as one diagonal segment, as scikit-learn draws it, not as a
     step along the FPR axis and then up."""
     summaries = {"self_supervised": tied_summary(0), "no_learning": tied_summary(1)}
-    lines = drawn_lines(monkeypatch, tmp_path, {k: v.curve for k, v in summaries.items()})
+    aucs = {k: v.auc for k, v in summaries.items()}
+    lines = drawn_lines(monkeypatch, tmp_path, {k: v.curve for k, v in summaries.items()}, aucs)
     for name, summary in summaries.items():
-        v = lines[METHOD_NAMES[name]]
+        v = lines[f"{METHOD_NAMES[name]} (AUC {summary.auc:.3f})"]
         assert summary.zero_share > 0.9
         assert float(np.trapezoid(v[:, 1], v[:, 0])) == pytest.approx(summary.auc, abs=1e-9)
     assert "chance" in lines
+
+
+def test_the_roc_figure_merges_identical_curves_and_keeps_each_methods_look(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """Two methods with the same curve are one line naming both (the second no longer
+    hides under the first); every label carries its AUC; a method keeps its colour
+    whatever rows the run has; the headline is drawn last, thickest, in black."""
+    a, b = tied_summary(0), tied_summary(1)
+    curves = {
+        "self_supervised": a.curve,
+        "baseline_closest_laser": b.curve,
+        "model_closest_laser": a.curve,  # the same points as the headline
+        "no_learning": b.curve,  # the same points as the race's test
+    }
+    aucs = {"self_supervised": a.auc, "baseline_closest_laser": b.auc}
+    lines = roc_lines(curves, aucs | {"model_closest_laser": a.auc, "no_learning": b.auc})
+    assert [d.names for d in lines] == [
+        ("baseline_closest_laser", "no_learning"),
+        ("self_supervised", "model_closest_laser"),
+    ]
+    head = lines[-1]
+    assert head.color == "black" and head.linewidth > lines[0].linewidth
+    assert head.label == (
+        f"{METHOD_NAMES['self_supervised']} = {METHOD_NAMES['model_closest_laser']} "
+        f"(AUC {a.auc:.3f})"
+    )
+    alone = roc_lines({"no_learning": a.curve}, {"no_learning": a.auc})
+    assert alone[0].color == METHOD_STYLES["no_learning"][0] != lines[0].color
+    drawn = drawn_lines(monkeypatch, tmp_path, curves, aucs)
+    assert len(drawn) == 3  # two merged lines and chance
 
 
 def page(summary: dict[str, Any]) -> str:
@@ -134,3 +176,31 @@ def test_index_html_puts_the_warnings_first() -> None:
     assert "&lt;noise&gt;</li>" in text and "<li>no oracle</li>" in text
     assert text.count("<h2>Warnings</h2>") == 1
     assert "Warnings" not in page({"warnings": [], "test_events": 10})
+
+
+def test_the_page_concludes_in_words_with_intervals_and_says_when_learning_did_not_help() -> None:
+    """Under the table, a conclusion: the model against the race's test on the closest
+    laser, with both intervals and whether they overlap; and the model against its own
+    unlearned start, "did not help" when it is not above it (the sample: 0.869 < 0.895)."""
+    rates = {"tpr_at_fpr": {"0.1": 0.5}, "tpr_at_fpr_ci95": {"0.1": [0.3, 0.7]}}
+    summary: dict[str, Any] = {
+        "test_events": 435,
+        "test_positives": 6,
+        "self_supervised": {"auc": 0.869, "auc_ci95": [0.781, 0.946], **rates},
+        "baseline_closest_laser": {"auc": 0.809, "auc_ci95": [0.70, 0.90], **rates},
+        "ablations": {"no_learning": {"auc": 0.895, "auc_ci95": [0.80, 0.96], **rates}},
+    }
+    text = " ".join(page(summary).split())
+    assert (
+        "The learned model's test AUC is 0.869 (95 % interval 0.781-0.946), above the race's "
+        "obstacle test on the closest laser, 0.809 (95 % interval 0.700-0.900), but the "
+        "intervals overlap: this test split cannot tell the two apart (6 rough events among "
+        "435)." in text
+    )
+    assert "<b>Learning did not help here</b>" in text and "(-0.026)" in text
+    summary["baseline_closest_laser"]["auc_ci95"] = [0.60, 0.75]
+    summary["ablations"]["no_learning"]["auc"] = 0.850
+    text = " ".join(page(summary).split())
+    assert "and the intervals do not overlap" in text
+    assert "Learning helped: the model is 0.019 above its own unlearned start" in text
+    assert "did not help" not in text

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from toolkit.analysis.figures import new_figure, save_png_atomic, write_bytes_atomic
 
 #: Display names of the methods, in the report's order.
@@ -67,11 +69,79 @@ PARAMETER_MEANINGS: tuple[tuple[str, str], ...] = (
 )
 
 
+#: The method the report is about: drawn last (on top), thick and black.
+HEADLINE = "self_supervised"
+
+#: One colour and line style per method, fixed whatever rows a run has, so a method looks
+#: the same in every report (matplotlib's tab10 colours; dashed: ablations, dash-dot: the
+#: oracle, dotted: beyond the paper).
+METHOD_STYLES: dict[str, tuple[str, str]] = {
+    "self_supervised": ("black", "-"),
+    "paper_exact": ("tab:blue", "-"),
+    "baseline_all_lasers": ("tab:red", "-"),
+    "baseline_closest_laser": ("tab:orange", "-"),
+    "baseline_model_points": ("tab:brown", "-"),
+    "model_closest_laser": ("tab:green", "-"),
+    "boosted": ("tab:purple", ":"),
+    "oracle": ("tab:gray", "-."),
+    "no_time_term": ("tab:cyan", "--"),
+    "no_rate_terms": ("tab:olive", "--"),
+    "no_learning": ("tab:pink", "--"),
+}
+
+
+@dataclass(frozen=True)
+class Drawn:
+    """One line of the ROC figure: the methods whose curves are the same points (shown
+    once, named together), its legend label with the AUC, and its style."""
+
+    names: tuple[str, ...]
+    label: str
+    color: str
+    linestyle: str
+    linewidth: float
+    zorder: int
+
+
+def roc_lines(curves: Mapping[str, Any], aucs: Mapping[str, float | None]) -> list[Drawn]:
+    """The figure's lines, in drawing order: curves that are the same points merged into
+    one line naming every method (identical curves would hide each other), each labelled
+    with its AUC, the headline's line last (on top), thicker."""
+    groups: list[list[str]] = []
+    for name, curve in curves.items():
+        for group in groups:
+            first = curves[group[0]]
+            if np.array_equal(first.fpr, curve.fpr) and np.array_equal(first.tpr, curve.tpr):
+                group.append(name)
+                break
+        else:
+            groups.append([name])
+    lines = []
+    for group in groups:
+        # The line takes the style of its most important method: the headline, else the
+        # first in the report's order.
+        lead = HEADLINE if HEADLINE in group else group[0]
+        color, linestyle = METHOD_STYLES.get(lead, ("tab:gray", "-"))
+        auc = aucs.get(lead)
+        names = " = ".join(METHOD_NAMES.get(n, n) for n in group)
+        label = f"{names} (AUC {auc:.3f})" if auc is not None else names
+        top = HEADLINE in group
+        lines.append(
+            Drawn(tuple(group), label, color, linestyle, 2.6 if top else 1.3, 3 if top else 2)
+        )
+    return sorted(lines, key=lambda d: d.zorder)
+
+
 def roc_png(
-    path: Path, curves: Mapping[str, Any], title: str = "Fig. 6 analogue: ROC on the test split"
+    path: Path,
+    curves: Mapping[str, Any],
+    aucs: Mapping[str, float | None],
+    title: str = "Fig. 6 analogue: ROC on the test split",
 ) -> Path:
     """The ROC curves of each method, one figure: objects with ``fpr`` and ``tpr`` arrays
-    (K,), scikit-learn's points with every threshold kept (``toolkit.model.roc.RocCurve``).
+    (K,), scikit-learn's points with every threshold kept (``toolkit.model.roc.RocCurve``),
+    and each method's AUC; drawn as :func:`roc_lines` says, the legend beside the axes (it
+    covered the curves' lower left inside them).
 
     Consecutive points are joined by straight lines, as scikit-learn draws them: a tie
     between rough and smooth events (many events score exactly 0) is one diagonal segment,
@@ -79,18 +149,36 @@ def roc_png(
     draw each tie's FPR rise before its TPR rise and, with a large tie, lose much of that
     area (the tie counts half in the AUC, as the Mann-Whitney counts it).
     """
-    fig = new_figure(6.5, 5.5)
-    ax = fig.add_subplot(1, 1, 1)
-    for name, curve in curves.items():
-        style = "--" if name.startswith("no_") else ("-." if name == "oracle" else "-")
-        ax.plot(curve.fpr, curve.tpr, linestyle=style, label=METHOD_NAMES.get(name, name))
-    ax.plot([0, 1], [0, 1], color="0.7", linewidth=0.8, label="chance")
+    fig = new_figure(11.0, 5.5)
+    ax = fig.add_axes((0.07, 0.1, 0.45, 0.8))
+    for line in roc_lines(curves, aucs):
+        curve = curves[line.names[0]]
+        ax.plot(
+            curve.fpr,
+            curve.tpr,
+            color=line.color,
+            linestyle=line.linestyle,
+            linewidth=line.linewidth,
+            zorder=line.zorder,
+            label=line.label,
+        )
+    ax.plot([0, 1], [0, 1], color="0.7", linewidth=0.8, label="chance", zorder=1)
     ax.set_xlabel("false-positive rate")
     ax.set_ylabel("true-positive rate")
     ax.set_xlim(0, 1)
     ax.set_ylim(0, 1.01)
     ax.set_title(title)
-    ax.legend(loc="lower right", fontsize=7)
+    handles, labels = ax.get_legend_handles_labels()
+    # The legend lists the headline first (it is drawn last, to lie on top).
+    order = sorted(range(len(labels)), key=lambda k: 0 if handles[k].get_zorder() == 3 else 1)
+    ax.legend(
+        [handles[k] for k in order],
+        [labels[k] for k in order],
+        loc="upper left",
+        bbox_to_anchor=(1.03, 1.0),
+        fontsize=7,
+        frameon=False,
+    )
     ax.grid(alpha=0.3)
     return save_png_atomic(fig, path)
 
@@ -240,8 +328,57 @@ def _roc_section(s: Mapping[str, Any], roc_figures: Sequence[str]) -> list[str]:
         f"<th>unscored: all / rough</th>{head}<th>Spearman</th><th>points scored</th></tr>",
         *_roc_rows(s, len(fprs)),
         "</table>",
+        *conclusion(s),
         *[f"<p><img src='{html.escape(f)}' alt='ROC curves'></p>" for f in roc_figures],
     ]
+
+
+def _auc_with_interval(entry: Mapping[str, Any]) -> str:
+    lo, hi = (entry.get("auc_ci95") or [None, None])[:2]
+    return f"{_fmt(entry.get('auc'))} (95 % interval {_fmt(lo)}-{_fmt(hi)})"
+
+
+def conclusion(s: Mapping[str, Any]) -> list[str]:
+    """What the table says, in words: whether the learned model beats the race's obstacle
+    test on its closest laser (the paper's comparison, Fig. 6), with both intervals and
+    whether they overlap; and whether learning helped, against the model's own unlearned
+    start (the ``no_learning`` row), said plainly when it did not."""
+    model = s.get("self_supervised")
+    if not isinstance(model, Mapping) or model.get("auc") is None:
+        return []
+    said: list[str] = []
+    race = s.get("baseline_closest_laser")
+    if isinstance(race, Mapping) and race.get("auc") is not None:
+        ours, theirs = float(model["auc"]), float(race["auc"])
+        lo, hi = model.get("auc_ci95") or (ours, ours)
+        rlo, rhi = race.get("auc_ci95") or (theirs, theirs)
+        apart = None not in (lo, hi, rlo, rhi) and (lo > rhi or hi < rlo)
+        verdict = "above" if ours > theirs else ("equal to" if ours == theirs else "below")
+        how = (
+            "and the intervals do not overlap"
+            if apart
+            else "but the intervals overlap: this test split cannot tell the two apart"
+        )
+        said.append(
+            f"The learned model's test AUC is {_auc_with_interval(model)}, {verdict} the race's "
+            f"obstacle test on the closest laser, {_auc_with_interval(race)}, {how} "
+            f"({_fmt(s.get('test_positives'))} rough events among {_fmt(s.get('test_events'))})."
+        )
+    start = (s.get("ablations") or {}).get("no_learning")
+    if isinstance(start, Mapping) and start.get("auc") is not None:
+        gain = float(model["auc"]) - float(start["auc"])
+        if gain > 0:
+            said.append(
+                f"Learning helped: the model is {gain:.3f} above its own unlearned start "
+                f"({_auc_with_interval(start)})."
+            )
+        else:
+            said.append(
+                f"<b>Learning did not help here</b>: the learned model is not above its own "
+                f"unlearned start, {_auc_with_interval(start)} ({gain:+.3f}); what the table "
+                "shows of it is the hand-set starting guess, not what was learned."
+            )
+    return [f"<p class='conclusion'>{' '.join(said)}</p>"] if said else []
 
 
 def _model_section(s: Mapping[str, Any], m: Mapping[str, Any]) -> list[str]:
@@ -333,4 +470,13 @@ def write_index_html(path: Path, inputs: ReportInputs) -> Path:
     return write_bytes_atomic(path, index_html(inputs).encode("utf-8"))
 
 
-__all__ = ["METHOD_NAMES", "ReportInputs", "index_html", "roc_png", "write_index_html"]
+__all__ = [
+    "METHOD_NAMES",
+    "METHOD_STYLES",
+    "Drawn",
+    "ReportInputs",
+    "index_html",
+    "roc_lines",
+    "roc_png",
+    "write_index_html",
+]

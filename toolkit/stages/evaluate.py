@@ -464,7 +464,8 @@ def _write_report(
             config_hash=call.config_hash,
         )
         curves = {n: r.curve for n, r in rocs.items() if r is not None}
-        figures = [roc_png(report / ROC_PNG, curves)]
+        aucs = {n: r.auc for n, r in rocs.items() if r is not None}
+        figures = [roc_png(report / ROC_PNG, curves, aucs)]
         copied = _copy_log_figures(run.workspace, t.events, report)
         atomic_write_json(report / SUMMARY_NAME, summary)
         write_index_html(
