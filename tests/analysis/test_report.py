@@ -204,3 +204,26 @@ def test_the_page_concludes_in_words_with_intervals_and_says_when_learning_did_n
     assert "and the intervals do not overlap" in text
     assert "Learning helped: the model is 0.019 above its own unlearned start" in text
     assert "did not help" not in text
+
+
+def test_the_speed_control_result_is_stated_at_a_time_budget_with_its_count() -> None:
+    """Not only the best point of the sweep: the reduction within 1.25x and 1.5x the drive
+    time, the largest with its time, and the shocks it rests on (few: said)."""
+    from toolkit.analysis.report import speed_headline
+
+    sp = {
+        "no_change": {"shocks_over_floor": 11},
+        "reductions_along_reactive_front": [
+            {"time_norm": 1.2, "reduction": 0.31},
+            {"time_norm": 1.4, "reduction": 0.42},
+            {"time_norm": 1.9, "reduction": 0.80},
+        ],
+    }
+    text = speed_headline(sp)
+    assert "within 1.25x the drive time, 31 %; within 1.5x the drive time, 42 %" in text
+    assert "the largest, 80 %, at 1.90x the drive time" in text
+    assert "11 shock(s)" in text and "too few" in text
+    sp["no_change"]["shocks_over_floor"] = 120
+    assert "too few" not in speed_headline(sp)
+    assert "n/a" in speed_headline({})
+    assert "faint point is one setting" in page({"speed_control": sp})
