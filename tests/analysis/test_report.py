@@ -227,3 +227,33 @@ def test_the_speed_control_result_is_stated_at_a_time_budget_with_its_count() ->
     assert "too few" not in speed_headline(sp)
     assert "n/a" in speed_headline({})
     assert "faint point is one setting" in page({"speed_control": sp})
+
+
+def test_the_page_says_first_where_its_numbers_come_from() -> None:
+    """Simulated or recorded (which logs), the configuration, the toolkit's version: at the
+    top; and why Fig. 5 is missing when no log is a calibration drive."""
+    summary: dict[str, Any] = {
+        "toolkit_version": "9.9",
+        "provenance": {
+            "logs": [
+                {"log_id": "sample-1", "source": "/data/sample.mcap", "kind": "simulated"},
+            ],
+            "configuration": {"name": "stanley2005"},
+        },
+    }
+    text = index_html(
+        ReportInputs(
+            summary=summary,
+            model={},
+            roc_figures=[],
+            speed_files=[],
+            log_figures=[("Fig. 4 analogue: sample-1", "sample-1_fig4.png")],
+        )
+    )
+    head = text.split("<h2>")[0]
+    assert "From <b>simulated data</b>: 1 log(s) of the toolkit's simulator" in head
+    assert "<code>sample-1</code> (sample.mcap)" in head and "stanley2005" in head
+    assert "terrain 9.9" in head
+    assert "no log here is one" in text  # Fig. 5 needs a calibration drive
+    summary["provenance"]["logs"][0]["kind"] = "recorded"
+    assert "1 recorded log(s)" in page(summary) and "simulated" not in page(summary)

@@ -283,6 +283,7 @@ def _page_head(s: Mapping[str, Any]) -> list[str]:
         "td,th{border:1px solid #ccc;padding:.25em .6em;text-align:left}"
         "img{max-width:100%}</style></head><body>",
         "<h1>Terrain roughness: evaluation report</h1>",
+        *_provenance(s),
         *_warnings_box(s.get("warnings")),
         "<p>A reproduction of Stavens &amp; Thrun (2006), <i>A Self-Supervised Terrain Roughness "
         "Estimator for Off-Road Autonomous Driving</i>. Each event is a 1.4 m stretch of the rear "
@@ -291,6 +292,33 @@ def _page_head(s: Mapping[str, Any]) -> list[str]:
         "seen ahead of the rear tyres before the vehicle got there; the learned model's "
         "parameters come from the training split only; everything below is on the test split "
         "unless it says otherwise.</p>",
+    ]
+
+
+def _provenance(s: Mapping[str, Any]) -> list[str]:
+    """Where the numbers come from, first: simulated or recorded logs (which), the
+    configuration and the toolkit's version; a report of simulated data says so."""
+    prov = s.get("provenance")
+    if not isinstance(prov, Mapping):
+        return []
+    logs = [g for g in prov.get("logs") or [] if isinstance(g, Mapping)]
+    simulated = sum(g.get("kind") == "simulated" for g in logs)
+    recorded = len(logs) - simulated
+    if logs and simulated == len(logs):
+        kind = f"<b>simulated data</b>: {simulated} log(s) of the toolkit's simulator"
+    elif simulated:
+        kind = f"{recorded} recorded and <b>{simulated} simulated</b> log(s)"
+    else:
+        kind = f"{recorded} recorded log(s)"
+    names = ", ".join(
+        f"<code>{html.escape(str(g.get('log_id')))}</code> "
+        f"({html.escape(Path(str(g.get('source') or '')).name or 'source unknown')})"
+        for g in logs
+    )
+    cfg = prov.get("configuration") or {}
+    return [
+        f"<p class='provenance'>From {kind}: {names}. Configuration "
+        f"<code>{_fmt(cfg.get('name'))}</code>; terrain {_fmt(s.get('toolkit_version'))}.</p>"
     ]
 
 
@@ -478,6 +506,14 @@ def _log_figures_section(log_figures: Sequence[tuple[str, str]]) -> list[str]:
     if not log_figures:
         return []
     parts = ["<h2>Per-log figures (Figs. 4 and 5)</h2>"]
+    if not any(caption.startswith("Fig. 5") for caption, _ in log_figures):
+        parts.append(
+            "<p>Fig. 4 (how far apart two scans see the same ground, against the time "
+            "between them) is drawn for every log. Fig. 5 (shock against speed over one "
+            "obstacle type) needs a calibration drive, the same obstacle passed at several "
+            "speeds (<code>terrain sim --profile calibration</code>), and no log here is "
+            "one.</p>"
+        )
     for caption, name in log_figures:
         parts.append(
             f"<h3>{html.escape(caption)}</h3><p><img src='{html.escape(name)}' "

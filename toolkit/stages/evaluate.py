@@ -23,6 +23,7 @@ model, picks each method's points, and writes the report as a whole (a new gener
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
@@ -66,11 +67,12 @@ from toolkit.config import EvaluateConfig, LearnConfig, ModelConfig, PipelineCon
 from toolkit.errors import StageError
 from toolkit.generations import open_generation
 from toolkit.layout import workspace_file_name
-from toolkit.manifest import file_sha256, require_finished
+from toolkit.manifest import Manifest, file_sha256, require_finished
 from toolkit.model.baseline import BaselineParams
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roc import caveats, small_sample_warnings
 from toolkit.model.roughness import Blockwise, RoughnessParams, model_pairs, score_events
+from toolkit.sim.record import SIM_RECORD
 from toolkit.stages import learn as learn_stage
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.label import FIG5_PNG
@@ -456,6 +458,7 @@ def _write_report(
         model = model_entry(model_doc, run.config.model.point_sample, t.order)
         bp = _baseline_params(ev)
         summary = summary_json(run.rows, rocs, speed, counts, closest, model, bp, warnings)
+        summary["provenance"] = provenance(run.workspace, t.events, call.config_hash)
         write_table(
             report / SCORES_NAME,
             scores_table(t.events, learned, run.rows, t.rough, t.ruggedness),
@@ -519,6 +522,38 @@ def _compute(call: Call[EvaluateSettings]) -> Made[EvaluateResult]:
         },
         warnings=tuple(warnings),
     )
+
+
+def provenance(workspace: Workspace, events: pa.Table, config_hash: str) -> dict[str, Any]:
+    """Where the report's numbers come from, as the dataset card says it: each log (its id,
+    the file it was ingested from, simulated or recorded), the configuration in force (its
+    name and the hash of what evaluate read of it). A log is simulated when its file carries
+    the simulator's record (``terrain_sim``)."""
+    logs = []
+    for log_id in sorted(set(events.column("log_id").to_pylist())):
+        files = workspace.log(log_id)
+        header = Manifest(files.manifest).read()
+        source = header.get("source") if isinstance(header.get("source"), dict) else {}
+        metadata: Any = {}
+        if files.mcap_metadata.is_file():
+            with contextlib.suppress(OSError, ValueError):
+                metadata = json.loads(files.mcap_metadata.read_text(encoding="utf-8"))
+        simulated = isinstance(metadata, dict) and SIM_RECORD in metadata
+        logs.append(
+            {
+                "log_id": log_id,
+                "source": str((source or {}).get("path", "")),
+                "kind": "simulated" if simulated else "recorded",
+            }
+        )
+    config = workspace.read_config() if workspace.config_path.is_file() else None
+    return {
+        "logs": logs,
+        "configuration": {
+            "name": None if config is None else config.name,
+            "evaluate_config_hash": config_hash,
+        },
+    }
 
 
 def _copy_log_figures(
