@@ -22,7 +22,8 @@ from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation, Slerp
 
 from toolkit.mcapio.cdr import decode_batch
-from toolkit.sim.world import World, WorldParams, make_world
+from toolkit.sim.world import World, make_world
+from toolkit.sim.world_params import WorldParams
 
 from .reference_labeller import Events, label_events
 

@@ -39,7 +39,8 @@ from toolkit.sim.features import (
 )
 from toolkit.sim.profiles import make_profile
 from toolkit.sim.route import make_route
-from toolkit.sim.world import WorldParams, make_world
+from toolkit.sim.world import make_world
+from toolkit.sim.world_params import WorldParams
 
 SEED = 11  # no other test uses it
 TRACK_M = 1.65

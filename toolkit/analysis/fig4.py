@@ -21,6 +21,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -281,6 +282,26 @@ def fit_reach_s(bins: Fig4Bins, usable: BoolArray) -> float:
     return float(hi[order][min(k, hi.size - 1)])
 
 
+def _draw_fit(ax: Any, bins: Fig4Bins, usable: BoolArray) -> None:
+    """The fit of the medians on ``ax``, over the gaps it speaks for (:func:`fit_reach_s`)."""
+    fit = bins.fit_medians
+    if not (math.isfinite(fit.slope_m_per_s) and bins.count.size):
+        return
+    reach = fit_reach_s(bins, usable)
+    xs = np.array([0.0, reach])
+    ax.plot(
+        xs,
+        fit.intercept_m + fit.slope_m_per_s * xs,
+        "-",
+        color="black",
+        lw=1.2,
+        label=(
+            "least-squares fit of the medians, bins weighted by pairs (drawn where "
+            f"{100 * FIT_DRAWN_SHARE:.0f} % of the pairs lie, dt < {reach:.2g} s)"
+        ),
+    )
+
+
 def write_fig4(result: ScanAgreementResult, out_dir: Path, log_id: str) -> tuple[Path, Path]:
     """Write :data:`CSV_NAME` (every non-empty bin of every pair class, one row each, columns
     :data:`CSV_HEADER`) and :data:`PNG_NAME` (bin medians of all pairs against dt with the
@@ -334,20 +355,7 @@ def write_fig4(result: ScanAgreementResult, out_dir: Path, log_id: str) -> tuple
         label=f"median |dz|, all pairs (bins of >= {result.config.min_bin_pairs})",
     )
     fit = allp.fit_medians
-    if math.isfinite(fit.slope_m_per_s) and allp.count.size:
-        reach = fit_reach_s(allp, ok)
-        xs = np.array([0.0, reach])
-        ax.plot(
-            xs,
-            fit.intercept_m + fit.slope_m_per_s * xs,
-            "-",
-            color="black",
-            lw=1.2,
-            label=(
-                "least-squares fit of the medians, bins weighted by pairs (drawn where "
-                f"{100 * FIT_DRAWN_SHARE:.0f} % of the pairs lie, dt < {reach:.2g} s)"
-            ),
-        )
+    _draw_fit(ax, allp, ok)
     ax.set_xlabel("time between the two scans, dt (s)")
     ax.set_ylabel("z-difference of the same ground cell, |dz| (m)")
     ax.set_xlim(left=0.0)

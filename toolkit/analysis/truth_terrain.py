@@ -174,7 +174,8 @@ def true_ground(log_dir: Path) -> TrueGround | None:
     malformed, or the pose table is missing or has no geodetic ``enu_origin`` (a log posed
     without GPS is in a frame of its own, which the simulator's cannot be mapped onto).
     """
-    from toolkit.sim.world import WorldParams, make_world
+    from toolkit.sim.world import make_world
+    from toolkit.sim.world_params import WorldParams
 
     log_dir = Path(log_dir)
     meta_path = LogFiles(log_dir).mcap_metadata

@@ -17,10 +17,9 @@ from toolkit.arrays import AnyFloatArray as FloatArray
 
 if TYPE_CHECKING:
     from toolkit.sim.route import Route
-    from toolkit.sim.world import WorldParams
+    from toolkit.sim.world_params import WorldParams
 
 
-FEATURE_KINDS = ("washboard", "pothole", "rock", "rut", "cattle_guard")
 # Height (peak-to-peak, or depth) range of each kind, metres: washboard corrugations are
 # shallow but periodic (0.5-2 cm: the corrugations of a graded road between gradings;
 # judgement), ruts and cattle-guard decks are bounded by what traffic leaves.

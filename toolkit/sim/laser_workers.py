@@ -23,7 +23,8 @@ from toolkit.arrays import AnyFloatArray as FloatArray
 from toolkit.pools import process_pool
 from toolkit.sim.raycast import RayCaster
 from toolkit.sim.terrain import WindowCache
-from toolkit.sim.world import WorldParams, make_world
+from toolkit.sim.world import make_world
+from toolkit.sim.world_params import WorldParams
 
 # Casting the rays is about two thirds of a race log's CPU time and the rest (the vehicle,
 # the other sensors, writing) stays in the main process: on two cores two casters and the

@@ -19,7 +19,7 @@ from toolkit.sim.lidar import LidarParams
 from toolkit.sim.sensors import GpsParams, SensorParams
 from toolkit.sim.speed_control import ReactiveSpeedParams
 from toolkit.sim.vehicle import VehicleParams
-from toolkit.sim.world import WorldParams
+from toolkit.sim.world_params import WorldParams
 
 PROFILE_NAMES = ("sample", "race", "calibration")
 

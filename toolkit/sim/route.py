@@ -17,7 +17,7 @@ import numpy as np
 from toolkit.arrays import AnyFloatArray as FloatArray
 
 if TYPE_CHECKING:
-    from toolkit.sim.world import WorldParams
+    from toolkit.sim.world_params import WorldParams
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ from toolkit.sim.features import RoughFeature, feature_height
 from toolkit.sim.route import Route
 
 if TYPE_CHECKING:
-    from toolkit.sim.world import WorldParams
+    from toolkit.sim.world_params import WorldParams
 
 
 ISO8608_N0_CYCLES_PER_M = 0.1

@@ -39,7 +39,8 @@ from toolkit.geometry.map_frame import move_between_frames
 from toolkit.layout import LogFiles
 from toolkit.sim.record import SIM_RECORD, sim_origin
 from toolkit.sim.route import Route
-from toolkit.sim.world import WorldParams, make_world
+from toolkit.sim.world import make_world
+from toolkit.sim.world_params import WorldParams
 from toolkit.tableio import iter_table_batches, read_table_metadata
 
 #: Largest distance (m) between a feature's published centre and the rebuilt route's point
