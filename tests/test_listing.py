@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 from click.testing import CliRunner
@@ -78,10 +79,26 @@ def test_every_stage_verb_prints_json_a_script_reads(pipeline: Pipeline) -> None
     }  # fmt: skip
 
 
+def _current(
+    ws: Workspace, stage: str, inputs: dict[str, str], rows: dict[str, int] | None = None
+) -> Any:
+    """The record a run of ``stage`` by this code with ``ws``'s configuration leaves."""
+    from toolkit.manifest import StageRecord
+    from toolkit.stages.registry import stage as registered
+
+    spec = registered(stage)
+    return StageRecord(
+        inputs,
+        spec.config_hash(ws.read_config()),
+        row_counts=rows or {},
+        code_version=spec.code_version,
+    )
+
+
 def _tiny_workspace(tmp_path: Path) -> tuple[Workspace, Path]:
     """A workspace of one log whose manifest records an ingest and a pose (no table: the
     listing reads manifests only); the workspace and that manifest's path."""
-    from toolkit.manifest import Manifest, StageRecord
+    from toolkit.manifest import Manifest
 
     ws = Workspace(tmp_path / "ws").create()
     ws.config_path.write_text("")
@@ -89,7 +106,7 @@ def _tiny_workspace(tmp_path: Path) -> tuple[Workspace, Path]:
     manifest = Manifest(ws.log_manifest_path("tiny-0123456789ab"))
     manifest.set_header(source={"path": str(tmp_path / "tiny.mcap"), "size_bytes": 1234})
     for stage, rows in (("ingest", {"imu": 10}), ("pose", {"pose": 7})):
-        manifest.record_stage(stage, StageRecord({"log": "aa" * 32}, "cc" * 32, row_counts=rows))
+        manifest.record_stage(stage, _current(ws, stage, {"log": "aa" * 32}, rows))
     return ws, manifest.path
 
 
@@ -130,18 +147,14 @@ def test_a_log_whose_folder_is_gone_is_listed_missing_not_no_log_yet(tmp_path: P
     folder as missing (on the terminal too), shows none of the log's stages done (its
     manifest went with it) and the workspace's stages as recorded; never "no log yet"."""
     from tests.test_workspace import _dangling
-    from toolkit.manifest import StageRecord
 
     ws = Workspace(tmp_path / "ws").create()
     ws.config_path.write_text("")
     target = _dangling(ws, "gone-0123456789ab")
-    from toolkit.stages.registry import stage
 
     ws.manifest().record_stage(
         "tables",
-        StageRecord(
-            {"gone-0123456789ab/events": "aa"}, "cc", code_version=stage("tables").code_version
-        ),
+        _current(ws, "tables", {"gone-0123456789ab/events": "aa"}),
     )
     runner = CliRunner()
     result = runner.invoke(main, ["logs", "-w", str(ws.root)])
@@ -158,15 +171,11 @@ def test_a_log_whose_folder_is_gone_is_listed_missing_not_no_log_yet(tmp_path: P
 
 
 def test_no_log_left_but_workspace_stages_recorded_says_both(tmp_path: Path) -> None:
-    from toolkit.manifest import StageRecord
 
     ws = Workspace(tmp_path / "ws").create()
     ws.config_path.write_text("")
-    from toolkit.stages.registry import stage
 
-    ws.manifest().record_stage(
-        "learn", StageRecord({}, "cc", code_version=stage("learn").code_version)
-    )
+    ws.manifest().record_stage("learn", _current(ws, "learn", {}))
     result = CliRunner().invoke(main, ["logs", "-w", str(ws.root)])
     assert result.exit_code == 0 and "no log yet" not in result.stdout
     assert "no log in logs/" in result.stdout and "learn 20" in result.stdout
@@ -212,3 +221,15 @@ def test_a_stage_whose_output_is_gone_or_whose_code_changed_is_listed_stale(
     manifest.record_stage("pose", dataclasses.replace(pose, code_version="0" * 64))
     doc = json.loads(runner.invoke(main, ["logs", "-w", str(ws.root), "--json"]).stdout)
     assert doc["logs"][0]["stale"]["pose"].startswith("made by other code")
+    # Made with another configuration: the workspace's is now another ([pose] changed, as
+    # `ingest --overwrite -c new.toml` leaves the other logs).
+    manifest.record_stage(
+        "pose", dataclasses.replace(pose, code_version=stage("pose").code_version)
+    )
+    cfg = ws.read_config()
+    noisier = dataclasses.replace(cfg.pose, gps_noise_m=cfg.pose.gps_noise_m * 2)
+    ws.write_config(dataclasses.replace(cfg, pose=noisier))
+    doc = json.loads(runner.invoke(main, ["logs", "-w", str(ws.root), "--json"]).stdout)
+    assert doc["logs"][0]["stale"]["pose"] == (
+        "made with another configuration than the workspace's"
+    )

@@ -5,9 +5,10 @@ as finished, and the rows they wrote (pose rows, laser points, events); then the
 all logs (tables, learn, evaluate) with when they finished. Nothing is recomputed or hashed:
 a listing of a season's workspace takes milliseconds per log. A recorded stage is marked
 stale, with the reason, when what costs no hashing shows it: an output it wrote is gone, or
-another version of its code made it (:mod:`toolkit.code_version`); ``terrain run`` makes
-those again. Whether its inputs and configuration still match is for the stage itself to
-say (``terrain run`` skips those that do).
+another version of its code made it (:mod:`toolkit.code_version`), or another
+configuration than the workspace's (``ingest --overwrite`` with a new one leaves the other
+logs on the old); ``terrain run`` makes those again. Whether its inputs still match is for
+the stage itself to say (``terrain run`` skips those that do).
 
 A log whose link points to nothing (its folder removed by hand or lost) is listed as
 missing, naming that folder, with no stage done (its manifest went with it), and said on the
@@ -22,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from toolkit import strict_json
+from toolkit.config import PipelineConfig
 from toolkit.errors import WorkspaceError
 from toolkit.manifest import Manifest, StageRecord, code_changed, whole_number
 from toolkit.stages import registry
@@ -108,14 +110,20 @@ def _done(stage: str, entry: LogEntry) -> str:
     return f"{stage}{'*' if stage in entry.stale else ''}"
 
 
-def _stale(record: StageRecord, stage: str, directory: Path) -> str | None:
+def _stale(
+    record: StageRecord, stage: str, directory: Path, config: PipelineConfig | None
+) -> str | None:
     """Why a recorded stage's outputs are stale, from what costs no hashing (an output
-    gone, or another code's), or None. ``directory``: where its outputs are recorded from."""
+    gone, another code's, another configuration's than the workspace's ``config``), or
+    None. ``directory``: where its outputs are recorded from."""
     for output in record.outputs:
         if not (directory / output).exists():
             return f"output missing: {output}"
-    if record.code_version != registry.stage(stage).code_version:
+    spec = registry.stage(stage)
+    if record.code_version != spec.code_version:
         return code_changed(record)
+    if config is not None and record.config_hash != spec.config_hash(config):
+        return "made with another configuration than the workspace's"
     return None
 
 
@@ -123,13 +131,14 @@ def list_workspace(workspace: Workspace) -> Listing:
     """The :class:`Listing` of ``workspace`` (which must exist); each missing log said on
     the terminal."""
     workspace.require()
-    entries = {log_id: _entry(workspace, log_id) for log_id in workspace.log_ids()}
+    config = workspace.read_config() if workspace.config_path.is_file() else None
+    entries = {log_id: _entry(workspace, log_id, config) for log_id in workspace.log_ids()}
     for log_id, target in workspace.missing_logs().items():
         _log.warning("%s: %s", workspace.log_dir(log_id), missing_log_problem(target))
         entries[log_id] = LogEntry(log_id, "", None, (), missing=str(target))
     overall = workspace.manifest().stages()
     done = [s for s in registry.over_workspace() if s in overall]
-    stale = {s: _stale(overall[s], s, workspace.root) for s in done}
+    stale = {s: _stale(overall[s], s, workspace.root, config) for s in done}
     return Listing(
         workspace=str(workspace.root),
         logs=tuple(entries[k] for k in sorted(entries)),
@@ -138,8 +147,9 @@ def list_workspace(workspace: Workspace) -> Listing:
     )
 
 
-def _entry(workspace: Workspace, log_id: str) -> LogEntry:
-    """The :class:`LogEntry` of a log that is there, from its manifest."""
+def _entry(workspace: Workspace, log_id: str, config: PipelineConfig | None) -> LogEntry:
+    """The :class:`LogEntry` of a log that is there, from its manifest (stale against the
+    workspace's ``config``)."""
     per_log, shown = registry.per_log(), _rows_shown()
     manifest = Manifest(workspace.log_manifest_path(log_id))
     found = manifest.read().get("source")
@@ -151,7 +161,7 @@ def _entry(workspace: Workspace, log_id: str) -> LogEntry:
         if s in records and s in shown
     }
     done = tuple(s for s in per_log if s in records)
-    stale = {s: _stale(records[s], s, manifest.path.parent) for s in done}
+    stale = {s: _stale(records[s], s, manifest.path.parent, config) for s in done}
     return LogEntry(
         log_id=log_id,
         source=str(source.get("path", "")),
