@@ -98,3 +98,39 @@ def test_a_signal_during_start_up_is_one_line(signum: int, code: int) -> None:
     assert done.stderr.count("terrain: error: stopped (") == 1, done.stderr
     assert "Traceback" not in done.stderr
     assert done.stdout == ""
+
+
+class _Thing:
+    """Something a weak reference can point at."""
+
+
+def test_a_stop_landing_where_python_can_only_print_it_is_not_printed(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A Ctrl-C landing in a weakref callback (importlib's module-lock callback took one):
+    Python hands such an exception to ``sys.unraisablehook``, which prints it ("Exception
+    ignored in ...", a traceback), and goes on. Inside the block a stop there reaches no
+    hook (it is raised again when the block ends); any other exception there still does."""
+    import weakref
+
+    seen: list[object] = []
+    monkeypatch.setattr(sys, "unraisablehook", lambda u: seen.append(u.exc_value))
+
+    def stop_here(_ref: object) -> None:
+        os.kill(os.getpid(), signal.SIGINT)
+
+    with pytest.raises(Interrupted), stop_on_signals():
+        thing = _Thing()
+        ref = weakref.ref(thing, stop_here)
+        del thing  # the callback runs, and the stop lands in it
+        assert ref() is None
+    assert seen == []
+
+    def fail_here(_ref: object) -> None:
+        raise ValueError("not a stop")
+
+    with stop_on_signals():
+        thing = _Thing()
+        ref = weakref.ref(thing, fail_here)
+        del thing
+    assert [type(e) for e in seen] == [ValueError]

@@ -23,8 +23,9 @@ from __future__ import annotations
 
 import contextlib
 import signal
+import sys
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from typing import Any, TypeVar
 
 T = TypeVar("T")
@@ -102,6 +103,21 @@ def checked(iterable: Iterable[T]) -> Iterator[T]:
 _depth = 0
 
 
+def _quiet_about_stops(previous: Callable[[Any], object]) -> Callable[[Any], None]:
+    """An ``sys.unraisablehook`` that says nothing of a stop raised where Python can only
+    print it and carry on (a weakref callback, a ``__del__``: importlib's module-lock
+    callback took a Ctrl-C once and printed its traceback): the stop is remembered and
+    raised again at the next checkpoint, so nothing is lost by not printing it. Any other
+    unraisable exception goes to ``previous``."""
+
+    def hook(unraisable: Any) -> None:
+        if isinstance(unraisable.exc_value, Stopped):
+            return
+        previous(unraisable)
+
+    return hook
+
+
 @contextlib.contextmanager
 def stop_on_signals() -> Iterator[None]:
     """Within the block, Ctrl-C and SIGTERM stop the command (module docstring). Blocks
@@ -114,8 +130,10 @@ def stop_on_signals() -> Iterator[None]:
         yield
         return
     previous: dict[int, Any] = {}
+    unraisable = sys.unraisablehook
     if _depth == 0:
         previous = {s: signal.signal(s, _handle) for s in SIGNAL_NAMES}
+        sys.unraisablehook = _quiet_about_stops(unraisable)
     _depth += 1
     try:
         yield
@@ -130,6 +148,7 @@ def stop_on_signals() -> Iterator[None]:
         if _depth == 0:
             for s, handler in previous.items():
                 signal.signal(s, handler)
+            sys.unraisablehook = unraisable
             _requested = None
 
 
