@@ -87,11 +87,13 @@ def _current(
     from toolkit.stages.registry import stage as registered
 
     spec = registered(stage)
+    config = ws.read_config()
     return StageRecord(
         inputs,
-        spec.config_hash(ws.read_config()),
+        spec.config_hash(config),
         row_counts=rows or {},
         code_version=spec.code_version,
+        config_sections=spec.hashed_sections(config),
     )
 
 

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from toolkit import strict_json
-from toolkit.config import PipelineConfig
+from toolkit.config import PipelineConfig, config_hash
 from toolkit.errors import WorkspaceError
 from toolkit.manifest import Manifest, StageRecord, code_changed, whole_number
 from toolkit.stages import registry
@@ -119,10 +119,12 @@ def _stale(
     for output in record.outputs:
         if not (directory / output).exists():
             return f"output missing: {output}"
-    spec = registry.stage(stage)
-    if record.code_version != spec.code_version:
+    # Neither check imports the stage: the registry finds its code's version from the
+    # source, and the record names the sections its configuration hash covers.
+    if record.code_version != registry.code_version_of(stage):
         return code_changed(record)
-    if config is not None and record.config_hash != spec.config_hash(config):
+    sections = record.config_sections
+    if config is not None and sections and record.config_hash != config_hash(config, sections):
         return "made with another configuration than the workspace's"
     return None
 

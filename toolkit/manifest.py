@@ -134,6 +134,9 @@ class StageRecord:
     finished_utc: str = ""
     output_files: Mapping[str, FileDigest] = field(default_factory=dict)
     code_version: str = ""
+    #: The configuration sections (or ``section.key``) ``config_hash`` was taken over, so a
+    #: reader can tell a record made with another configuration without the stage's code.
+    config_sections: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         """A JSON-ready dict."""
@@ -149,6 +152,7 @@ class StageRecord:
             "finished_utc": self.finished_utc,
             "output_files": {k: v.to_json() for k, v in self.output_files.items()},
             "code_version": self.code_version,
+            "config_sections": list(self.config_sections),
         }
 
     @classmethod
@@ -171,6 +175,7 @@ class StageRecord:
             finished_utc=str(obj.get("finished_utc", "")),
             output_files={str(k): _digest(k, v) for k, v in obj.get("output_files", {}).items()},
             code_version=str(obj.get("code_version", "")),
+            config_sections=tuple(str(c) for c in obj.get("config_sections", ())),
         )
 
 

@@ -64,4 +64,5 @@ def crafted_record(
         outputs=tuple(outputs),
         output_files=digest_files(log_dir, outputs),
         code_version=spec.code_version,
+        config_sections=spec.hashed_sections(default_config()),
     )

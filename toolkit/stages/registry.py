@@ -74,6 +74,15 @@ def listed(name: str) -> Listed:
     return line
 
 
+def code_version_of(name: str) -> str:
+    """The code version of registered stage ``name`` (:mod:`toolkit.code_version`): of the
+    module that declares it and all it imports, found without importing any of them, so
+    ``terrain logs`` tells stale outputs in milliseconds."""
+    from toolkit.code_version import code_version
+
+    return code_version([listed(name).module])
+
+
 def stage(name: str) -> Stage[Any, Any]:
     """The declaration of stage ``name`` (ToolkitError when there is none, or it does not
     match its line)."""
@@ -108,4 +117,14 @@ def over_workspace() -> tuple[str, ...]:
     return tuple(n for n, line in REGISTRY.items() if line.scope == "workspace")
 
 
-__all__ = ["REGISTRY", "Listed", "listed", "names", "over_workspace", "per_log", "stage", "stages"]
+__all__ = [
+    "code_version_of",
+    "REGISTRY",
+    "Listed",
+    "listed",
+    "names",
+    "over_workspace",
+    "per_log",
+    "stage",
+    "stages",
+]

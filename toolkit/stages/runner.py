@@ -189,7 +189,16 @@ class _Here(Generic[SettingsT, OutcomeT]):
             found,
         )
         made = spec.compute(call)
-        record_made(manifest, spec.name, made, inputs, cfg_hash, directory, spec.code_version)
+        record_made(
+            manifest,
+            spec.name,
+            made,
+            inputs,
+            cfg_hash,
+            directory,
+            spec.code_version,
+            spec.hashed_sections(self.config),
+        )
         return made.outcome
 
     def _made_path(self, files: LogFiles, name: str) -> Path:
@@ -271,6 +280,7 @@ def record_made(
     cfg_hash: str,
     directory: Path,
     code_version: str = "",
+    config_sections: tuple[str, ...] = (),
 ) -> None:
     """Record a stage's run in ``manifest``: its header fields, then its record (inputs,
     configuration hash, outputs with their digests, rows, rejects, timings, warnings, the
@@ -290,6 +300,7 @@ def record_made(
             # Keyed by file name, as the up-to-date check looks them up.
             output_files={Path(o).name: FileDigest.of(directory / o) for o in made.outputs},
             code_version=code_version,
+            config_sections=tuple(config_sections),
         ),
     )
 
