@@ -85,6 +85,7 @@ def _current(
     """The record a run of ``stage`` by this code with ``ws``'s configuration leaves."""
     from toolkit.manifest import StageRecord
     from toolkit.stages.registry import stage as registered
+    from toolkit.stages.runner import code_version_for
 
     spec = registered(stage)
     config = ws.read_config()
@@ -92,7 +93,7 @@ def _current(
         inputs,
         spec.config_hash(config),
         row_counts=rows or {},
-        code_version=spec.code_version,
+        code_version=code_version_for(spec),
         config_sections=spec.hashed_sections(config),
     )
 
@@ -193,6 +194,7 @@ def test_a_stage_whose_output_is_gone_or_whose_code_changed_is_listed_stale(
 
     from toolkit.manifest import Manifest
     from toolkit.stages.registry import stage
+    from toolkit.stages.runner import code_version_for
 
     ws, path = _tiny_workspace(tmp_path)
     manifest = Manifest(path)
@@ -204,7 +206,9 @@ def test_a_stage_whose_output_is_gone_or_whose_code_changed_is_listed_stale(
         outputs = ("pose.parquet",) if name == "pose" else ("imu.parquet",)
         manifest.record_stage(
             name,
-            dataclasses.replace(record, outputs=outputs, code_version=stage(name).code_version),
+            dataclasses.replace(
+                record, outputs=outputs, code_version=code_version_for(stage(name))
+            ),
         )
     ws.manifest().record_stage(
         "learn", dataclasses.replace(record, outputs=(), inputs={}, code_version="")
@@ -226,7 +230,7 @@ def test_a_stage_whose_output_is_gone_or_whose_code_changed_is_listed_stale(
     # Made with another configuration: the workspace's is now another ([pose] changed, as
     # `ingest --overwrite -c new.toml` leaves the other logs).
     manifest.record_stage(
-        "pose", dataclasses.replace(pose, code_version=stage("pose").code_version)
+        "pose", dataclasses.replace(pose, code_version=code_version_for(stage("pose")))
     )
     cfg = ws.read_config()
     noisier = dataclasses.replace(cfg.pose, gps_noise_m=cfg.pose.gps_noise_m * 2)

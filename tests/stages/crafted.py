@@ -56,6 +56,7 @@ def crafted_record(
     for ``outputs`` of ``log_dir`` as they are now, made from ``inputs``."""
     from toolkit.config import default_config
     from toolkit.stages.registry import stage as registered
+    from toolkit.stages.runner import code_version_for
 
     spec = registered(stage)
     return StageRecord(
@@ -63,6 +64,6 @@ def crafted_record(
         config_hash=spec.config_hash(default_config()),
         outputs=tuple(outputs),
         output_files=digest_files(log_dir, outputs),
-        code_version=spec.code_version,
+        code_version=code_version_for(spec),
         config_sections=spec.hashed_sections(default_config()),
     )

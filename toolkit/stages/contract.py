@@ -203,15 +203,10 @@ class Stage(Generic[SettingsT, OutcomeT]):
 
     @property
     def code_version(self) -> str:
-        """The version of the code that makes this stage's outputs, a part of its up-to-date
-        key (:mod:`toolkit.code_version`): for a registered stage, that of the module
-        declaring it and all it imports (:func:`toolkit.stages.registry.code_version_of`,
-        which ``terrain logs`` reads without importing the stage); for another (a test's
-        toy stage), that of the modules of its functions."""
-        from toolkit.stages import registry
-
-        if self.name in registry.names():
-            return registry.code_version_of(self.name)
+        """The version of the code of this stage's functions: their modules and all they
+        import (:mod:`toolkit.code_version`). A registered stage is keyed by its registry
+        module's instead (:func:`toolkit.stages.runner.code_version_for`), the same code
+        found without importing it."""
         functions = (self.compute, self.recall, self.check, self.gather, self.locate)
         return code_version(f.__module__ for f in functions if f is not None)
 

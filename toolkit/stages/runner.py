@@ -168,7 +168,7 @@ class _Here(Generic[SettingsT, OutcomeT]):
                 inputs=inputs,
                 config_hash=cfg_hash,
                 outputs=written,
-                code_version=spec.code_version,
+                code_version=code_version_for(spec),
             )
             if fresh:
                 seconds = time.perf_counter() - self.start
@@ -196,7 +196,7 @@ class _Here(Generic[SettingsT, OutcomeT]):
             inputs,
             cfg_hash,
             directory,
-            spec.code_version,
+            code_version_for(spec),
             spec.hashed_sections(self.config),
         )
         return made.outcome
@@ -204,6 +204,16 @@ class _Here(Generic[SettingsT, OutcomeT]):
     def _made_path(self, files: LogFiles, name: str) -> Path:
         """Where an output of layout name ``name`` is: in the log, or in the workspace."""
         return files.path(name) if self.spec.scope == "log" else self.workspace.path(name)
+
+
+def code_version_for(spec: Stage[Any, Any]) -> str:
+    """The code version a stage's runs are keyed and recorded by: a registered stage's is
+    its registry module's (:func:`toolkit.stages.registry.code_version_of`, which
+    ``terrain logs`` reads without importing the stage); another's (a test's toy stage),
+    that of its functions' modules (:attr:`Stage.code_version`)."""
+    if spec.name in registry.names():
+        return registry.code_version_of(spec.name)
+    return spec.code_version
 
 
 def remedy(stage: str, files: LogFiles, config: PipelineConfig) -> str:
@@ -262,7 +272,7 @@ def require_current(
     why = ""
     if record.config_hash != maker.config_hash(config):
         why = "made with another configuration than the one in force"
-    elif record.code_version != maker.code_version:
+    elif record.code_version != code_version_for(maker):
         why = code_changed(record)
     if why:
         raise WorkspaceError(
@@ -305,4 +315,4 @@ def record_made(
     )
 
 
-__all__ = ["hash_needs", "record_made", "run_stage"]
+__all__ = ["code_version_for", "hash_needs", "record_made", "remedy", "run_stage"]
