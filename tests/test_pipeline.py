@@ -33,8 +33,8 @@ SAMPLE_LOG = Path(__file__).resolve().parents[1] / "sample_logs" / "sample.mcap"
 #: Manifest fields that differ between two runs of the same stage on the same input.
 VOLATILE = {"timings_s", "finished_utc", "x_real_time", "seconds"}
 SEED = 20261125
-#: The line `terrain run` (not quiet, off a terminal) writes on stderr as each stage ends.
-STAGE_LINE = re.compile(rf"terrain: ({'|'.join(STAGES)}) +\d+\.\d s  ")
+#: The line `terrain run` writes on stdout as each stage ends (with or without a prefix).
+STAGE_LINE = re.compile(rf"(?<![\w-])({'|'.join(STAGES)}) +\d+\.\d s  ")
 #: Longest wait for a stage's line or a run's end, s.
 TIMEOUT_S = 600.0
 
@@ -44,9 +44,10 @@ def terrain(*args: str | Path, quiet: bool = True) -> list[str]:
 
 
 class StageLines:
-    """The stages a running `terrain run` (started with ``stderr=PIPE``, not quiet) has
-    finished, in order, each with when its line came (s after ``t0``), read from its stderr
-    by a thread; ``text`` keeps the whole stderr for a failure's message."""
+    """The stages a running `terrain run` (its stdout and stderr in one pipe, not quiet) has
+    finished, in order, each with when its line came (s after ``t0``: `run` says a stage's
+    line on stdout as it ends), read by a thread; ``text`` keeps the whole output for a
+    failure's message."""
 
     def __init__(self, stream: IO[str], t0: float) -> None:
         self.t0 = t0
@@ -71,14 +72,14 @@ class StageLines:
             self._cond.notify_all()
 
     def wait_for(self, stage: str) -> bool:
-        """Wait until ``stage`` has finished (True) or stderr closed without it (False)."""
+        """Wait until ``stage`` has finished (True) or the output closed without it (False)."""
         with self._cond:
             ok = self._cond.wait_for(lambda: stage in self.ends or self.eof, TIMEOUT_S)
             assert ok, f"no line for {stage} within {TIMEOUT_S} s"
             return stage in self.ends
 
     def finished(self) -> list[str]:
-        """The stages finished so far, once stderr is closed."""
+        """The stages finished so far, once the output is closed."""
         self._thread.join(TIMEOUT_S)
         with self._cond:
             return list(self.ends)
@@ -90,13 +91,13 @@ def start_run(logs: list[Path], ws: Path) -> tuple[subprocess.Popen[str], StageL
     t0 = time.perf_counter()
     child = subprocess.Popen(
         terrain("run", *logs, "-w", ws, "--workers", "2", quiet=False),
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
         text=True,
         start_new_session=True,
     )
-    assert child.stderr is not None
-    return child, StageLines(child.stderr, t0)
+    assert child.stdout is not None
+    return child, StageLines(child.stdout, t0)
 
 
 def _strip(obj: Any) -> Any:
