@@ -19,6 +19,15 @@ SEED_A = 3
 SEED_B = 4
 
 
+def messages(path: Path) -> dict[str, list[tuple[int, bytes]]]:
+    """A log's messages by topic: (log time, bytes) in the order written."""
+    out: dict[str, list[tuple[int, bytes]]] = {}
+    with path.open("rb") as f:
+        for _, channel, message in make_reader(f).iter_messages():
+            out.setdefault(channel.topic, []).append((message.log_time, message.data))
+    return out
+
+
 @pytest.fixture(scope="module")
 def short_logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     d = tmp_path_factory.mktemp("determinism")
@@ -53,13 +62,6 @@ def test_a_log_without_lasers_is_the_same_log_less_its_scans(
         tmp_path / "bare.mcap", profile="sample", distance_m=DISTANCE_M, seed=SEED_A, lasers=False
     ).path
 
-    def messages(path: Path) -> dict[str, list[tuple[int, bytes]]]:
-        out: dict[str, list[tuple[int, bytes]]] = {}
-        with path.open("rb") as f:
-            for _, channel, message in make_reader(f).iter_messages():
-                out.setdefault(channel.topic, []).append((message.log_time, message.data))
-        return out
-
     full, without = messages(short_logs["a1"]), messages(bare)
     lasers = {t for t in full if t.startswith("/laser/")}
     assert lasers and not lasers & set(without)
@@ -83,14 +85,7 @@ def test_laser_spans_scan_only_there_and_change_no_other_sensor(
         laser_spans_m=spans,
     ).path
 
-    def by_topic(path: Path) -> dict[str, list[tuple[int, bytes]]]:
-        out: dict[str, list[tuple[int, bytes]]] = {}
-        with path.open("rb") as f:
-            for _, channel, message in make_reader(f).iter_messages():
-                out.setdefault(channel.topic, []).append((message.log_time, message.data))
-        return out
-
-    full, scanned = by_topic(short_logs["a1"]), by_topic(part)
+    full, scanned = messages(short_logs["a1"]), messages(part)
     for topic, rows in full.items():
         if not topic.startswith("/laser/"):
             assert scanned[topic] == rows, topic
