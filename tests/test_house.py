@@ -113,3 +113,36 @@ def test_no_modules_import_each_other_not_even_for_types() -> None:
     assert _circles(_import_graph()) == []
     # The rule sees a circle: two toy modules that import each other.
     assert _circles({"a": {"b"}, "b": {"a"}, "c": {"a"}}) == [["a", "b"]]
+
+
+def _layers_contract() -> list[str]:
+    """pyproject's layers contract: each layer ("a : b" or "a | b"), top first."""
+    import tomllib
+
+    pyproject = tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text(encoding="utf-8"))
+    contracts = pyproject["tool"]["importlinter"]["contracts"]
+    (layers,) = [c["layers"] for c in contracts if c["id"] == "layers"]
+    return [" ".join(layer.split()) for layer in layers]
+
+
+def test_every_module_of_the_package_sits_in_one_named_layer() -> None:
+    # A new top-level module outside the contract would escape every layer rule unseen.
+    placed = [m.strip() for layer in _layers_contract() for m in layer.replace("|", ":").split(":")]
+    assert len(placed) == len(set(placed))
+    tops = {p.stem for p in PACKAGE.glob("*.py")} | {
+        p.parent.name for p in PACKAGE.glob("*/__init__.py")
+    }
+    assert tops - {"__init__", "__main__"} == set(placed)
+
+
+def test_the_architecture_page_draws_the_layers_the_contract_checks() -> None:
+    # docs/architecture.md draws each layer on one line, "name  a : b : c" (or "a | b"),
+    # and says what it holds on indented lines under it.
+    page = (PACKAGE.parent / "docs" / "architecture.md").read_text(encoding="utf-8")
+    drawing = page.split("```\n", 2)[1].split("\n```", 1)[0]
+    drawn = [
+        " ".join(line.split()[1:])
+        for line in drawing.splitlines()
+        if line and not line.startswith(" ")
+    ]
+    assert drawn == _layers_contract()
