@@ -42,12 +42,12 @@ import numpy as np
 import pyarrow.parquet as pq
 from sklearn.metrics import roc_auc_score, roc_curve
 
-from toolkit.analysis.methods import METHOD_NAMES
+from toolkit.analysis.method_registry import METHOD_KEYS, RACE_TEST
 
 REPO = Path(__file__).resolve().parent.parent
 #: Every method of the report, in its order (``scores.parquet`` names each one's column).
-METHODS = METHOD_NAMES
-REFERENCE = "baseline_closest_laser"
+METHODS = METHOD_KEYS
+REFERENCE = RACE_TEST
 FPRS = (0.05, 0.10, 0.20)
 #: ``pipelines/lidar.toml``'s keys, as overrides of the default (``--lidar``).
 LIDAR_OVERRIDES = (

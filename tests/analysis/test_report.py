@@ -13,9 +13,8 @@ import pytest
 from matplotlib.cbook import STEP_LOOKUP_MAP
 
 from toolkit.analysis import figures
+from toolkit.analysis.method_registry import method, title
 from toolkit.analysis.report import (
-    METHOD_NAMES,
-    METHOD_STYLES,
     ReportInputs,
     index_html,
     roc_lines,
@@ -77,7 +76,7 @@ def test_the_drawn_roc_encloses_the_tables_auc_under_heavy_ties(
     aucs = {k: v.auc for k, v in summaries.items()}
     lines = drawn_lines(monkeypatch, tmp_path, {k: v.curve for k, v in summaries.items()}, aucs)
     for name, summary in summaries.items():
-        v = lines[f"{METHOD_NAMES[name]} (AUC {summary.auc:.3f})"]
+        v = lines[f"{title(name)} (AUC {summary.auc:.3f})"]
         assert summary.zero_share > 0.9
         assert float(np.trapezoid(v[:, 1], v[:, 0])) == pytest.approx(summary.auc, abs=1e-9)
     assert "chance" in lines
@@ -105,11 +104,10 @@ def test_the_roc_figure_merges_identical_curves_and_keeps_each_methods_look(
     head = lines[-1]
     assert head.color == "black" and head.linewidth > lines[0].linewidth
     assert head.label == (
-        f"{METHOD_NAMES['self_supervised']} = {METHOD_NAMES['model_closest_laser']} "
-        f"(AUC {a.auc:.3f})"
+        f"{title('self_supervised')} = {title('model_closest_laser')} (AUC {a.auc:.3f})"
     )
     alone = roc_lines({"no_learning": a.curve}, {"no_learning": a.auc})
-    assert alone[0].color == METHOD_STYLES["no_learning"][0] != lines[0].color
+    assert alone[0].color == method("no_learning").color != lines[0].color
     drawn = drawn_lines(monkeypatch, tmp_path, curves, aucs)
     assert len(drawn) == 3  # two merged lines and chance
 
@@ -119,8 +117,8 @@ def page(summary: dict[str, Any]) -> str:
 
 
 def row_of(text: str, method: str) -> str:
-    """The ROC table's row of ``method`` (its key in METHOD_NAMES)."""
-    name = html.escape(METHOD_NAMES[method])
+    """The ROC table's row of ``method`` (its key in the method registry)."""
+    name = html.escape(title(method))
     (row,) = re.findall(rf"<tr><td>{re.escape(name)}</td>.*?</tr>", text)
     return str(row)
 

@@ -12,10 +12,10 @@ import pytest
 
 from toolkit import __version__
 from toolkit.analysis import fig7
-from toolkit.analysis.methods import ABLATION_NAMES, MAIN_METHODS, MethodScores, Rows
+from toolkit.analysis.method_registry import ABLATION_NAMES, MAIN_METHODS, SCORE_COLUMNS
+from toolkit.analysis.methods import MethodScores, Rows
 from toolkit.analysis.summary import (
     MODEL_KEYS,
-    SCORE_COLUMNS,
     _routes,
     method_entry,
     method_rocs,

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from toolkit.analysis.method_registry import METHOD_KEYS, method
 from toolkit.arrays import BoolArray, FloatArray
 from toolkit.config import LearnConfig, ModelConfig
 from toolkit.model import boosted
@@ -43,26 +44,8 @@ ABLATIONS: dict[str, tuple[dict[int, float], tuple[int, ...]]] = {
     "no_time_term": ({2: 0.0}, (2, 3)),
     "no_rate_terms": ({6: 0.0, 8: 0.0}, (6, 7, 8, 9)),
 }
-#: The ablations' names in the summary and in scores.parquet: the two above, and the
-#: initial guess itself, unlearned (mu chosen on the training split), what learning buys.
-ABLATION_NAMES = (*ABLATIONS, "no_learning")
 #: The baseline learns only upsilon, omega and zeta (and mu): sect. 7.1.
 BASELINE_FREE = (False,) * 10 + (True, True, True)
-#: Every method, in the report's order (its table and the ROC figure's curves); a method a
-#: run cannot train (no oracle off the simulator, no closest laser) is left out.
-METHOD_NAMES = (
-    "self_supervised",
-    "paper_exact",
-    "baseline_all_lasers",
-    "baseline_closest_laser",
-    "baseline_model_points",
-    "model_closest_laser",
-    "boosted",
-    "oracle",
-    *ABLATION_NAMES,
-)
-#: The methods beside the ablations that the summary lists at its top level.
-MAIN_METHODS = METHOD_NAMES[: -len(ABLATION_NAMES)]
 
 
 @dataclass(frozen=True)
@@ -82,13 +65,15 @@ class Rows:
     why (the report says so on their line)."""
 
     methods: dict[str, MethodScores | None] = field(
-        default_factory=lambda: dict.fromkeys(METHOD_NAMES)
+        default_factory=lambda: dict.fromkeys(METHOD_KEYS)
     )
     points: dict[str, dict[str, Any]] = field(default_factory=dict)
     not_run: dict[str, str] = field(default_factory=dict)
 
     def add(self, name: str, scores: MethodScores | None, points: dict[str, Any]) -> None:
-        """Row ``name``: its scores, and the points it scored."""
+        """Row ``name``: its scores, and the points it scored (a name no method declares:
+        :class:`~toolkit.analysis.method_registry.UnknownMethodError`)."""
+        method(name)
         self.methods[name] = scores
         self.points[name] = points
 
@@ -222,10 +207,7 @@ def no_learning(trainer: Trainer, everything: TopScores) -> MethodScores:
 
 __all__ = [
     "ABLATIONS",
-    "ABLATION_NAMES",
     "BASELINE_FREE",
-    "MAIN_METHODS",
-    "METHOD_NAMES",
     "MethodScores",
     "Rows",
     "Trainer",

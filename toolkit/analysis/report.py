@@ -17,21 +17,15 @@ from typing import Any
 import numpy as np
 
 from toolkit.analysis.figures import new_figure, save_png_atomic, write_bytes_atomic
-
-#: Display names of the methods, in the report's order.
-METHOD_NAMES: dict[str, str] = {
-    "self_supervised": "self-supervised (this model)",
-    "paper_exact": "self-supervised, the paper's method as written",
-    "baseline_all_lasers": "race obstacle test, all lasers",
-    "baseline_closest_laser": "race obstacle test, closest laser",
-    "baseline_model_points": "race obstacle test, on this model's points",
-    "model_closest_laser": "self-supervised, on the closest laser's points",
-    "boosted": "beyond the paper: gradient-boosted trees on patch features",
-    "oracle": "oracle: model on true terrain heights",
-    "no_time_term": "ablation: no time term (alpha_3 = 0)",
-    "no_rate_terms": "ablation: no roll/pitch-rate terms (alpha_7 = alpha_9 = 0)",
-    "no_learning": "ablation: the initial guess, not learned",
-}
+from toolkit.analysis.method_registry import (
+    HEADLINE,
+    METHOD_KEYS,
+    RACE_TEST,
+    UNLEARNED_START,
+    UnknownMethodError,
+    method,
+    title,
+)
 
 #: What the search's steps had to raise (``model.json``'s ``accepted_by``), in words.
 _ACCEPTED = {
@@ -69,27 +63,6 @@ PARAMETER_MEANINGS: tuple[tuple[str, str], ...] = (
 )
 
 
-#: The method the report is about: drawn last (on top), thick and black.
-HEADLINE = "self_supervised"
-
-#: One colour and line style per method, fixed whatever rows a run has, so a method looks
-#: the same in every report (matplotlib's tab10 colours; dashed: ablations, dash-dot: the
-#: oracle, dotted: beyond the paper).
-METHOD_STYLES: dict[str, tuple[str, str]] = {
-    "self_supervised": ("black", "-"),
-    "paper_exact": ("tab:blue", "-"),
-    "baseline_all_lasers": ("tab:red", "-"),
-    "baseline_closest_laser": ("tab:orange", "-"),
-    "baseline_model_points": ("tab:brown", "-"),
-    "model_closest_laser": ("tab:green", "-"),
-    "boosted": ("tab:purple", ":"),
-    "oracle": ("tab:gray", "-."),
-    "no_time_term": ("tab:cyan", "--"),
-    "no_rate_terms": ("tab:olive", "--"),
-    "no_learning": ("tab:pink", "--"),
-}
-
-
 @dataclass(frozen=True)
 class Drawn:
     """One line of the ROC figure: the methods whose curves are the same points (shown
@@ -101,6 +74,16 @@ class Drawn:
     linestyle: str
     linewidth: float
     zorder: int
+
+
+def _style(key: str) -> tuple[str, str]:
+    """A method's colour and line style; grey for a row no method declares (an old
+    summary's)."""
+    try:
+        m = method(key)
+    except UnknownMethodError:
+        return "tab:gray", "-"
+    return m.color, m.linestyle
 
 
 def roc_lines(curves: Mapping[str, Any], aucs: Mapping[str, float | None]) -> list[Drawn]:
@@ -121,9 +104,9 @@ def roc_lines(curves: Mapping[str, Any], aucs: Mapping[str, float | None]) -> li
         # The line takes the style of its most important method: the headline, else the
         # first in the report's order.
         lead = HEADLINE if HEADLINE in group else group[0]
-        color, linestyle = METHOD_STYLES.get(lead, ("tab:gray", "-"))
+        color, linestyle = _style(lead)
         auc = aucs.get(lead)
-        names = " = ".join(METHOD_NAMES.get(n, n) for n in group)
+        names = " = ".join(title(n) for n in group)
         label = f"{names} (AUC {auc:.3f})" if auc is not None else names
         top = HEADLINE in group
         lines.append(
@@ -219,11 +202,11 @@ def _roc_rows(summary: Mapping[str, Any], n_fprs: int) -> list[str]:
     rows = []
     ablations = summary.get("ablations") or {}
     entries: list[tuple[str, Any]] = [
-        (k, summary.get(k)) for k in METHOD_NAMES if k not in ablations and k in summary
+        (k, summary.get(k)) for k in METHOD_KEYS if k not in ablations and k in summary
     ]
     entries += list(ablations.items())
     for key, m in entries:
-        name = html.escape(METHOD_NAMES.get(key, key))
+        name = html.escape(title(key))
         if not m:
             why = (summary.get("not_run") or {}).get(key)
             text = f"not run: {html.escape(why)}" if why else "not evaluated"
@@ -255,7 +238,7 @@ def _points_text(points: Mapping[str, Any] | None) -> str:
     }.get(str(points.get("sample")), str(points.get("sample")))
     text = f"{points['only_laser']} only" if points.get("only_laser") else sample
     if points.get("same_as"):
-        text += f" (the same points as {METHOD_NAMES.get(points['same_as'], points['same_as'])})"
+        text += f" (the same points as {title(points['same_as'])})"
     return f"{text}; true heights" if points.get("z") else text
 
 
@@ -332,11 +315,10 @@ def _events_section(s: Mapping[str, Any]) -> list[str]:
 
 
 def _roc_section(s: Mapping[str, Any], roc_figures: Sequence[str]) -> list[str]:
-    """Fig. 6's analogue: the ROC table (columns: the FPRs of the self-supervised or the
-    oracle entry) and the ROC figures."""
-    fprs = next(
-        (list(v["tpr_at_fpr"]) for v in (s.get("self_supervised"), s.get("oracle")) if v), []
-    )
+    """Fig. 6's analogue: the ROC table (columns: the FPRs of the first method evaluated)
+    and the ROC figures."""
+    entries = [s.get(k) for k in METHOD_KEYS] + list((s.get("ablations") or {}).values())
+    fprs = next((list(v["tpr_at_fpr"]) for v in entries if isinstance(v, Mapping)), [])
     head = "".join(f"<th>TPR at FPR {html.escape(f)}</th>" for f in fprs)
     return [
         "<h2>Sensitivity against specificity (Fig. 6)</h2>",
@@ -371,11 +353,11 @@ def conclusion(s: Mapping[str, Any]) -> list[str]:
     test on its closest laser (the paper's comparison, Fig. 6), with both intervals and
     whether they overlap; and whether learning helped, against the model's own unlearned
     start (the ``no_learning`` row), said plainly when it did not."""
-    model = s.get("self_supervised")
+    model = s.get(HEADLINE)
     if not isinstance(model, Mapping) or model.get("auc") is None:
         return []
     said: list[str] = []
-    race = s.get("baseline_closest_laser")
+    race = s.get(RACE_TEST)
     if isinstance(race, Mapping) and race.get("auc") is not None:
         ours, theirs = float(model["auc"]), float(race["auc"])
         lo, hi = model.get("auc_ci95") or (ours, ours)
@@ -392,7 +374,7 @@ def conclusion(s: Mapping[str, Any]) -> list[str]:
             f"obstacle test on the closest laser, {_auc_with_interval(race)}, {how} "
             f"({_fmt(s.get('test_positives'))} rough events among {_fmt(s.get('test_events'))})."
         )
-    start = (s.get("ablations") or {}).get("no_learning")
+    start = (s.get("ablations") or {}).get(UNLEARNED_START)
     if isinstance(start, Mapping) and start.get("auc") is not None:
         gain = float(model["auc"]) - float(start["auc"])
         if gain > 0:
@@ -423,7 +405,7 @@ def _model_section(s: Mapping[str, Any], m: Mapping[str, Any]) -> list[str]:
         f"threshold: Tp - {_fmt(m.get('lambda'), 1)} Fp = {_fmt(m.get('objective'))} (Tp "
         f"{_fmt(m.get('tp_rate'))}, Fp {_fmt(m.get('fp_rate'), 4)}) after "
         f"{_fmt(m.get('iterations'))} iterations. Its points: "
-        f"{html.escape(_points_text((s.get('self_supervised') or {}).get('points')))}. The row "
+        f"{html.escape(_points_text((s.get(HEADLINE) or {}).get('points')))}. The row "
         "<i>the paper's method as written</i> is the same search accepting steps by eq. (6) "
         "itself, on a uniform sample of every laser's points.</p>",
         "<table><tr><th>parameter</th><th>value</th></tr>",
@@ -543,8 +525,6 @@ def write_index_html(path: Path, inputs: ReportInputs) -> Path:
 
 
 __all__ = [
-    "METHOD_NAMES",
-    "METHOD_STYLES",
     "Drawn",
     "ReportInputs",
     "index_html",

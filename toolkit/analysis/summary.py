@@ -19,7 +19,8 @@ import pyarrow as pa
 
 from toolkit import __version__
 from toolkit.analysis import fig7
-from toolkit.analysis.methods import ABLATION_NAMES, MAIN_METHODS, MethodScores, Rows
+from toolkit.analysis.method_registry import ABLATION_NAMES, MAIN_METHODS, SCORE_COLUMNS
+from toolkit.analysis.methods import MethodScores, Rows
 from toolkit.arrays import BoolArray, FloatArray
 from toolkit.config import EvaluateConfig
 from toolkit.model import speed_control as sc
@@ -39,17 +40,6 @@ MODEL_KEYS = (
     "tp_rate",
     "fp_rate",
     "iterations",
-)
-#: scores.parquet's columns of the methods besides the learned model, in the table's order.
-SCORE_COLUMNS = (
-    "baseline_all_lasers",
-    "baseline_closest_laser",
-    "paper_exact",
-    "baseline_model_points",
-    "model_closest_laser",
-    "boosted",
-    "oracle",
-    *ABLATION_NAMES,
 )
 
 
@@ -259,7 +249,6 @@ def speed_control(
 
 __all__ = [
     "MODEL_KEYS",
-    "SCORE_COLUMNS",
     "method_entry",
     "method_rocs",
     "model_entry",

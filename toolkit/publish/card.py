@@ -13,6 +13,7 @@ import pyarrow.compute as pc
 from numpy.typing import NDArray
 
 from toolkit import __version__
+from toolkit.analysis.method_registry import HEADLINE, title
 from toolkit.config import PipelineConfig
 from toolkit.publish.dataset import (
     CITATION,
@@ -418,7 +419,8 @@ def _model_scores(facts: DatasetFacts) -> list[str]:
         "",
         "## The model's scores",
         "",
-        "The `events` files carry the scores of the roughness model `terrain learn` fitted "
+        f"The `events` files carry the scores of the report's headline method, "
+        f"{title(HEADLINE)}: the roughness model `terrain learn` fitted "
         "on the train split: `r_combined` (eq. 5) and `predicted` = `r_combined` > mu"
         f"{mu}. On the train split they are in-sample; only the test split measures the "
         "model. They are not labels: a new model should ignore them.",

@@ -38,9 +38,9 @@ import pyarrow as pa
 
 from toolkit.analysis.fig4 import PNG_NAME as FIG4_PNG
 from toolkit.analysis.figures import write_bytes_atomic
+from toolkit.analysis.method_registry import HEADLINE, MAIN_METHODS, UNLEARNED_START
 from toolkit.analysis.methods import (
     ABLATIONS,
-    MAIN_METHODS,
     MethodScores,
     Rows,
     Trainer,
@@ -273,7 +273,7 @@ class _Run:
         self.tell("scoring the learned model")
         everything = model_pairs(self.tables.patches)
         learned = MethodScores(score_events(everything, params), None, params)
-        self.rows.add("self_supervised", learned, self.model_points)
+        self.rows.add(HEADLINE, learned, self.model_points)
         if not self.trainer.learnable:
             self.warnings.append(
                 "the training split lacks rough or smooth events: baselines, oracle and "
@@ -357,9 +357,7 @@ class _Run:
             return
         closest_points = self.rows.points["baseline_closest_laser"]
         if sets.same:
-            self.rows.add(
-                "model_closest_laser", learned, {**closest_points, "same_as": "self_supervised"}
-            )
+            self.rows.add("model_closest_laser", learned, {**closest_points, "same_as": HEADLINE})
         elif not self.config.evaluate.model_on_closest_laser:
             self.rows.not_run["model_closest_laser"] = "off ([evaluate] model_on_closest_laser)"
         else:
@@ -380,7 +378,7 @@ class _Run:
             self.rows.add(name, ablation(trainer, name, train_pairs, everything), self.model_points)
         self.tell("scoring the initial guess")
         if trainer.learnable:
-            self.rows.add("no_learning", no_learning(trainer, everything), self.model_points)
+            self.rows.add(UNLEARNED_START, no_learning(trainer, everything), self.model_points)
 
     def oracle(self) -> None:
         """The model's search on the true terrain heights (simulated logs only)."""
@@ -444,7 +442,7 @@ def _write_report(
         counts = split_counts(t.train, t.test, t.rough)
         # What a reader must know of the learned row (and of an oracle below it).
         warnings += caveats(
-            rocs.get("self_supervised"),
+            rocs.get(HEADLINE),
             rocs.get("oracle"),
             int(learned.scores.predicted[t.test].sum()),
             float(model_doc.get("objective", 0.0)),
