@@ -284,7 +284,7 @@ def test_tables_of_another_configuration_or_label_rule_are_refused(
     other = dataclasses.replace(
         config, tables=dataclasses.replace(config.tables, train_fraction=0.6)
     )
-    with pytest.raises(StageError, match="another configuration") as err:
+    with pytest.raises(WorkspaceError, match="tables outputs are stale .made with another") as err:
         run_export(ws, out, other)
     assert err.value.path == ws.tables_dir
 

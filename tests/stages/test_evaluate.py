@@ -272,7 +272,7 @@ def test_evaluating_again_is_up_to_date_and_rewrites_nothing(pipeline: Pipeline)
     assert report_mtimes(pipeline) == before
     record = pipeline.ws.manifest().stage("evaluate")
     assert record is not None
-    assert record.inputs["model.json"] == file_sha256(pipeline.ws.model_path)
+    assert record.inputs["model"] == file_sha256(pipeline.ws.model_path)
 
 
 def test_a_changed_model_is_refused_not_silently_used(pipeline: Pipeline, tmp_path: Path) -> None:

@@ -267,7 +267,11 @@ def test_model_json_holds_the_parameters_and_how_they_were_trained(
     record = ws.manifest().stage("learn")
     assert record is not None
     assert record.output_files["model.json"].sha256 == file_sha256(ws.model_path)
-    assert dict(record.inputs) == training["tables_sha256"]
+    # The record keys them by layout name, as the runner checks every stage's needs.
+    assert dict(record.inputs) == {
+        "events_table": file_sha256(ws.events_table),
+        "event_points_table": file_sha256(ws.event_points_table),
+    }
     assert record.row_counts["train_events"] == training["events"]
     assert record.row_counts["train_positives"] == training["positives"]
 
@@ -446,10 +450,57 @@ def test_tables_of_another_configuration_are_refused_by_learn_and_evaluate(
     other = default_config()
     other = dataclasses.replace(other, tables=dataclasses.replace(other.tables, train_fraction=0.4))
     for stage in (LEARN, EVALUATE):
-        with pytest.raises(StageError, match="made with another configuration") as err:
+        with pytest.raises(
+            WorkspaceError, match="tables outputs are stale .made with another configuration"
+        ) as err:
             run_stage(stage, ws, other, overwrite=True)
         assert err.value.path == ws.tables_dir
     run_stage(LEARN, ws, default_config())  # the configuration they were made with: up to date
+
+
+def test_learn_evaluate_and_export_refuse_what_other_code_made_upstream(
+    pipeline: Pipeline, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The runner holds a workspace stage's needs to their makers' code as it does a log
+    stage's: tables made by another version of the tables stage are refused by learn,
+    evaluate and export alike, one line naming the maker and why; a model made by another
+    learn is refused by evaluate."""
+    from toolkit.publish.export import run_export
+    from toolkit.stages import registry
+
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    real = registry.code_version_of
+    for maker, readers in (("tables", (LEARN, EVALUATE)), ("learn", (EVALUATE,))):
+        monkeypatch.setattr(
+            registry, "code_version_of", lambda n, m=maker: "e" * 64 if n == m else real(n)
+        )
+        for stage in readers:
+            with pytest.raises(
+                WorkspaceError, match=f"{maker} outputs are stale .made by other code"
+            ):
+                run_stage(stage, ws, default_config(), overwrite=True)
+    monkeypatch.setattr(
+        registry, "code_version_of", lambda n: "e" * 64 if n == "tables" else real(n)
+    )
+    with pytest.raises(WorkspaceError, match="tables outputs are stale .made by other code"):
+        run_export(ws, tmp_path / "export", default_config())
+    monkeypatch.setattr(registry, "code_version_of", real)
+    assert run_stage(EVALUATE, ws, default_config()).status == "up_to_date"
+
+
+def test_evaluate_refuses_a_model_learned_from_other_tables(
+    pipeline: Pipeline, tmp_path: Path
+) -> None:
+    """The tables made again (new labels) after learn: evaluate would score a model on
+    events it may have trained on. The runner's upstream check refuses it, naming the
+    tables' file and the stage to run again."""
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    events = read_table(ws.events_table, "tables_events")
+    rough = events.column("rough").to_numpy(zero_copy_only=False)
+    rewrite_events_table(ws, with_rough(events, ~rough))
+    with pytest.raises(WorkspaceError, match="learn outputs beside it are stale") as err:
+        run_stage(EVALUATE, ws, default_config(), overwrite=True)
+    assert err.value.path == ws.events_table
 
 
 def test_an_initial_guess_that_overflows_is_a_config_error(

@@ -15,7 +15,7 @@ import pytest
 
 from tests.stages.crafted import record_stage_outputs
 from toolkit.config import default_config
-from toolkit.errors import StageError
+from toolkit.errors import StageError, WorkspaceError
 from toolkit.manifest import file_sha256
 from toolkit.stages.ingest import ingest_log
 from toolkit.stages.runner import run_stage
@@ -225,7 +225,9 @@ def test_events_and_points_of_an_earlier_pose_are_refused(tabled, tmp_path: Path
         log_dir / "pose.parquet", pose, "pose", source_sha256="crafted", config_hash="crafted"
     )
     record_stage_outputs(log_dir, "pose", ["pose.parquet"])
-    with pytest.raises(StageError, match="made from an earlier pose; run `terrain label"):
+    with pytest.raises(
+        WorkspaceError, match=r"label outputs beside it are stale \(made from another pose"
+    ):
         run_stage(TABLES, copy, default_config(), overwrite=True)
 
 

@@ -266,7 +266,7 @@ class _Provenance:
             extra_metadata={
                 "dataset_config": config_name,
                 "dataset_split": split,
-                "tables_sha256": self.tables[f"tables/{config_name}.parquet"],
+                "tables_sha256": self.tables[f"{config_name}_table"],
             },
         )
 

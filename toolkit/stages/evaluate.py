@@ -63,17 +63,15 @@ from toolkit.analysis.summary import (
 )
 from toolkit.arrays import BoolArray, FloatArray
 from toolkit.atomic import atomic_write_json
-from toolkit.config import EvaluateConfig, LearnConfig, ModelConfig, PipelineConfig
-from toolkit.errors import StageError
+from toolkit.config import EvaluateConfig, LearnConfig, ModelConfig
 from toolkit.generations import open_generation
 from toolkit.layout import workspace_file_name
-from toolkit.manifest import Manifest, file_sha256, require_finished
+from toolkit.manifest import Manifest
 from toolkit.model.baseline import BaselineParams
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roc import caveats, small_sample_warnings
 from toolkit.model.roughness import Blockwise, RoughnessParams, model_pairs, score_events
 from toolkit.sim.record import SIM_RECORD
-from toolkit.stages import learn as learn_stage
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
 from toolkit.stages.label import FIG5_PNG
 from toolkit.stages.training_data import (
@@ -83,7 +81,6 @@ from toolkit.stages.training_data import (
     pair_table,
     patches_of,
     split_events,
-    table_inputs,
 )
 from toolkit.tableio import write_table
 from toolkit.workspace import Workspace
@@ -136,37 +133,6 @@ class EvaluateSettings:
     model: ModelConfig
     learn: LearnConfig
     evaluate: EvaluateConfig
-
-
-def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str], None]:
-    """The tables' and the model's hashes, refused unless the model was learned from these
-    tables with this configuration."""
-    inputs = table_inputs(workspace, config)
-    model_path = workspace.model_path
-    if not model_path.is_file():
-        raise StageError("no model; run `terrain learn` first", path=model_path)
-    model_sha = file_sha256(model_path)
-    learned_from = workspace.manifest().stage("learn")
-    require_finished(learned_from, "learn", {MODEL_NAME: model_sha}, workspace.root)
-    # The model must come from these tables: one learned before a relabelling or a new split
-    # would be scored on events it may have trained on, and its rates would not be these.
-    if learned_from is not None and dict(learned_from.inputs) != inputs:
-        raise StageError(
-            "the model was learned from other training tables than the ones here; run "
-            "`terrain learn` again",
-            path=model_path,
-        )
-    # ... and with this configuration: the patches evaluate builds ([model]) must be the
-    # ones the model was learned on, and the ablations search as [learn] now says.
-    learn_hash = learn_stage.SPEC.config_hash(config)
-    if learned_from is not None and learned_from.config_hash != learn_hash:
-        raise StageError(
-            "the model was learned with another [model] or [learn] configuration than the "
-            "one in force; run `terrain learn` again",
-            path=model_path,
-        )
-    inputs[MODEL_NAME] = model_sha
-    return inputs, None
 
 
 def _recall(last: Recalled[EvaluateSettings]) -> EvaluateResult:
@@ -580,7 +546,6 @@ SPEC = Stage(
     ),
     makes=("scores", "summary", "index"),
     settings=EvaluateSettings,
-    gather=_gather,
     compute=_compute,
     recall=_recall,
     rows=("scores",),

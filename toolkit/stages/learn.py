@@ -29,7 +29,7 @@ import numpy as np
 
 from toolkit import __version__
 from toolkit.atomic import atomic_write_json
-from toolkit.config import LearnConfig, ModelConfig, PipelineConfig
+from toolkit.config import LearnConfig, ModelConfig
 from toolkit.errors import ConfigError, StageError
 from toolkit.layout import workspace_file_name
 from toolkit.model.ascent import AscentConfig, AscentResult, b_names, coordinate_ascent
@@ -40,9 +40,7 @@ from toolkit.stages.training_data import (
     pair_table,
     patches_of,
     split_events,
-    table_inputs,
 )
-from toolkit.workspace import Workspace
 
 _log = logging.getLogger(__name__)
 
@@ -152,11 +150,6 @@ class LearnSettings:
     learn: LearnConfig
 
 
-def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str], None]:
-    """The tables' hashes (:func:`table_inputs`)."""
-    return table_inputs(workspace, config), None
-
-
 def _recall(last: Recalled[LearnSettings]) -> LearnResult:
     """The outcome of an up-to-date model: the model as written."""
     doc = json.loads(last.workspace.model_path.read_text())
@@ -194,7 +187,10 @@ def _compute(call: Call[LearnSettings]) -> Made[LearnResult]:
         points=int(patches.count.sum()),
         model=config.model,
         laser_order=order,
-        inputs=dict(inputs),
+        # Keyed by the tables' paths in the workspace, as a reader of model.json finds them.
+        inputs={
+            workspace.path(n).relative_to(workspace.root).as_posix(): h for n, h in inputs.items()
+        },
         cfg_hash=cfg_hash,
     )
     atomic_write_json(workspace.model_path, doc)
@@ -218,7 +214,6 @@ SPEC = Stage(
     needs=(Need("events_table", "tables"), Need("event_points_table", "tables")),
     makes=("model",),
     settings=LearnSettings,
-    gather=_gather,
     compute=_compute,
     recall=_recall,
     rows=("train_events", "points", "pairs"),

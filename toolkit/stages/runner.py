@@ -4,8 +4,11 @@ For every stage, :func:`run_stage`
 
 1. opens a new generation of the log (a per-log stage), committed in one atomic switch only
    when the stage computed something: killed at any moment, the log is as before or after;
-2. hashes the files the stage needs (:attr:`Stage.needs`), refusing one missing, or one its
-   maker's last finished run did not write (changed, partial, left by an interrupted run);
+2. hashes the files the stage needs (:attr:`Stage.needs`), refusing one missing, one its
+   maker's last finished run did not write (changed, partial, left by an interrupted run),
+   or one its maker made with another configuration, other code or other upstream files
+   (:func:`check_needs`; a stage that gathers its inputs itself, tables over many logs,
+   calls it per log);
 3. hashes the configuration the stage reads and, unless ``overwrite``, compares both with
    the stage's last record and its outputs as written: when nothing changed it returns the
    stage's recalled outcome (``up_to_date``) without work;
@@ -24,14 +27,14 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Generic
 
 from toolkit.config import PipelineConfig
 from toolkit.errors import StageError, ToolkitError, WorkspaceError
-from toolkit.layout import LogFiles, log_file_name
+from toolkit.layout import LogFiles
 from toolkit.manifest import (
     FileDigest,
     Manifest,
@@ -42,7 +45,7 @@ from toolkit.manifest import (
     require_finished,
 )
 from toolkit.stages import registry
-from toolkit.stages.contract import Call, Made, OutcomeT, Recalled, SettingsT, Stage
+from toolkit.stages.contract import Call, Made, Need, OutcomeT, Recalled, SettingsT, Stage
 from toolkit.workspace import Workspace
 
 
@@ -156,7 +159,8 @@ class _Here(Generic[SettingsT, OutcomeT]):
         elif spec.gather is not None:
             inputs, found = spec.gather(self.workspace, self.config)
         else:
-            inputs = hash_needs(spec, files, manifest, self.config)
+            where = files.path if spec.scope == "log" else self.workspace.path
+            inputs = check_needs(spec.needs, where, manifest, self.config, spec.name)
         cfg_hash = spec.config_hash(self.config)
         record = manifest.stage(spec.name)
         if not self.overwrite and record is not None:
@@ -235,30 +239,84 @@ def remedy(stage: str, files: LogFiles, config: PipelineConfig) -> str:
 def hash_needs(
     spec: Stage[Any, Any], files: LogFiles, manifest: Manifest, config: PipelineConfig
 ) -> dict[str, str]:
-    """Layout name -> sha256 of every file ``spec`` needs that is there, each checked
-    against the last finished run of the stage that makes it, which must also have been
-    made by this code with ``config`` (:func:`require_current`). StageError naming the first
-    required file missing; WorkspaceError naming a file its maker did not write, or the
-    maker's stale record."""
-    for need in spec.needs:
-        path = files.path(need.name)
+    """A per-log stage's needs in the log ``files`` (:func:`check_needs`)."""
+    return check_needs(spec.needs, files.path, manifest, config, spec.name)
+
+
+def check_needs(
+    needs: Sequence[Need],
+    path_of: Callable[[str], Path],
+    manifest: Manifest,
+    config: PipelineConfig,
+    reader: str,
+) -> dict[str, str]:
+    """Layout name -> sha256 of every file in ``needs`` that is there (``path_of`` says
+    where a layout name is: in a log, or in the workspace; ``manifest`` holds their makers'
+    records), each refused unless its maker's outputs are current. For each maker:
+
+    - its last finished run wrote the file as it is now (:func:`require_finished`);
+    - that run was made by this code with ``config`` (:func:`require_current`);
+    - it was made from the same upstream files as the ones the reader reads beside it
+      (:func:`require_same_upstream`: events labelled from another pose than the one the
+      tables read; a model learned from other tables than the ones evaluate scores).
+
+    The one place upstream freshness is checked, for every stage of either scope; ``terrain
+    export`` holds the tables to it too. StageError naming the first required file missing;
+    WorkspaceError naming a file or a maker's record that is not current."""
+    inputs = hash_inputs(needs, path_of)
+    require_inputs_current(needs, inputs, path_of, manifest, config, reader)
+    return inputs
+
+
+def hash_inputs(needs: Sequence[Need], path_of: Callable[[str], Path]) -> dict[str, str]:
+    """Layout name -> sha256 of every file in ``needs`` that is there; StageError naming
+    the first required file missing and the stage that makes it."""
+    for need in needs:
+        path = path_of(need.name)
         if not need.optional and not path.is_file():
             raise StageError(f"input table missing; run `terrain {need.made_by}` first", path=path)
-    inputs = {
-        n.name: file_sha256(files.path(n.name)) for n in spec.needs if files.path(n.name).is_file()
-    }
+    return {n.name: file_sha256(path_of(n.name)) for n in needs if path_of(n.name).is_file()}
+
+
+def require_inputs_current(
+    needs: Sequence[Need],
+    inputs: Mapping[str, str],
+    path_of: Callable[[str], Path],
+    manifest: Manifest,
+    config: PipelineConfig,
+    reader: str,
+) -> None:
+    """The checks of :func:`check_needs` on ``inputs`` hashed already."""
     by_maker: dict[str, dict[str, str]] = {}
-    for need in spec.needs:
+    for need in needs:
         if need.name in inputs:
-            by_maker.setdefault(need.made_by, {})[log_file_name(need.name)] = inputs[need.name]
+            by_maker.setdefault(need.made_by, {})[need.name] = inputs[need.name]
     for maker, made in by_maker.items():
         record = manifest.stage(maker)
-        require_finished(record, maker, made, files.dir)
+        directory = path_of(next(iter(made))).parent
+        require_finished(record, maker, {path_of(n).name: h for n, h in made.items()}, directory)
         # A maker outside the registry (a test's toy stage) has no declaration to hold its
         # record against; every stage the command line runs is in it.
-        if maker != spec.name and record is not None and maker in registry.names():
-            require_current(record, registry.stage(maker), config, files.dir)
-    return inputs
+        if maker != reader and record is not None and maker in registry.names():
+            require_current(record, registry.stage(maker), config, directory)
+            require_same_upstream(record, maker, inputs, path_of)
+
+
+def require_same_upstream(
+    record: StageRecord, maker: str, inputs: Mapping[str, str], path_of: Callable[[str], Path]
+) -> None:
+    """Refuse a maker's outputs made from another version of a file the reader also reads:
+    each input both read (by layout name) must have the same sha256 in the maker's record
+    as now. Tyre paths from one pose matched against points placed with another, or scores
+    of a model learned on other tables, would be quietly wrong. WorkspaceError naming the
+    file."""
+    for name, sha in inputs.items():
+        if record.inputs.get(name, sha) != sha:
+            raise WorkspaceError(
+                f"the {maker} outputs beside it are stale (made from another {name} than "
+                f"this one); run `terrain {maker}` again (or `terrain run`, which does)",
+                path=path_of(name),
+            )
 
 
 def require_current(
@@ -315,4 +373,15 @@ def record_made(
     )
 
 
-__all__ = ["code_version_for", "hash_needs", "record_made", "remedy", "run_stage"]
+__all__ = [
+    "check_needs",
+    "code_version_for",
+    "hash_inputs",
+    "hash_needs",
+    "record_made",
+    "remedy",
+    "require_current",
+    "require_inputs_current",
+    "require_same_upstream",
+    "run_stage",
+]

@@ -53,15 +53,13 @@ from numpy.typing import NDArray
 
 from toolkit.config import ModelConfig, PipelineConfig, TablesConfig, VehicleConfig
 from toolkit.errors import StageError
-from toolkit.layout import LogFiles, log_file_name
+from toolkit.layout import LogFiles
 from toolkit.manifest import (
     Manifest,
-    file_sha256,
-    require_finished,
 )
 from toolkit.model.tyre_match import PathSource
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
-from toolkit.stages.runner import remedy
+from toolkit.stages.runner import hash_inputs, remedy, require_inputs_current
 from toolkit.stages.tables_points import (
     EVENT_COLUMNS,
     FINAL_MARGIN_NS,
@@ -139,8 +137,10 @@ class TablesResult:
 
 def _log_inputs(workspace: Workspace, config: PipelineConfig) -> tuple[list[LogInputs], list[str]]:
     """The logs that have finished events, points and pose (in time order), and a warning
-    for each log left out and why. StageError when a log's events or points come from
-    another pose than its own, or its points were cut near other tyre paths than ``config``
+    for each log left out and why. WorkspaceError when a log's events, points or pose are
+    not current (:func:`~toolkit.stages.runner.check_needs`: another configuration, other
+    code, events or points from another pose than its own); StageError when its points were
+    cut near other tyre paths than ``config``
     draws (:func:`~toolkit.stages.tables_points.require_cut_fits`): refused before any
     up-to-date check, so tables made from such a cloud are never current."""
     usable: list[LogInputs] = []
@@ -161,21 +161,9 @@ def _log_inputs(workspace: Workspace, config: PipelineConfig) -> tuple[list[LogI
                 f"{remedy(missing[0], files, config)})"
             )
             continue
-        hashes = {name: file_sha256(files.path(name)) for name in made_by}
-        for name, stage in made_by.items():
-            require_finished(
-                manifest.stage(stage), stage, {log_file_name(name): hashes[name]}, log_dir
-            )
-        # Events and points must both come from the pose there is now: tyre paths from one
-        # pose matched against points placed with another would be quietly wrong.
-        for stage in ("label", "project"):
-            record = manifest.stage(stage)
-            if record is not None and record.inputs.get("pose") != hashes["pose"]:
-                raise StageError(
-                    f"{log_id}: its {stage} was made from an earlier pose; run `terrain "
-                    f"{stage} -w {workspace.root} --log {log_id}` again",
-                    path=LogFiles(log_dir).pose,
-                )
+        hashes = hash_inputs(SPEC.needs, files.path)
+        # A cloud cut for other tyre paths is said as such (what to widen), before the
+        # general staleness of its configuration.
         require_cut_fits(
             files.points,
             log_id,
@@ -183,6 +171,10 @@ def _log_inputs(workspace: Workspace, config: PipelineConfig) -> tuple[list[LogI
             config.model.wheel_window_radius_m,
             workspace.root,
         )
+        # Each file as its maker last wrote it, with this configuration and code, and
+        # events and points both from the pose there is now: tyre paths from one pose
+        # matched against points placed with another would be quietly wrong.
+        require_inputs_current(SPEC.needs, hashes, files.path, manifest, config, STAGE)
         # The pose is in time order: its first row is its first time (read alone).
         head = next(
             iter_table_batches(LogFiles(log_dir).pose, "pose", columns=["t_ns"], batch_rows=1),

@@ -2,7 +2,7 @@
 tyres as patches, their pairs, and the learned model.
 
 ``table_inputs`` checks the tables are the ones the last finished ``terrain tables`` wrote
-with the configuration in force; ``split_events`` reads the events of a split;
+with the configuration in force and this code; ``split_events`` reads the events of a split;
 ``patches_of`` streams the event points into tyre patches (:mod:`toolkit.model.patches`),
 sampled as ``[model]`` says, with the lasers ranked nearest first
 (``lasers_nearest_first``) on the training split alone; ``pair_table`` turns patches into
@@ -23,10 +23,11 @@ import pyarrow.compute as pc
 
 from toolkit.config import ModelConfig, PipelineConfig
 from toolkit.errors import StageError
-from toolkit.manifest import file_sha256, require_finished
 from toolkit.model.patches import POINT_COLUMNS, TyrePatches, build_patches, lead_order
 from toolkit.model.roughness import PairTable, RoughnessParams
 from toolkit.stages import tables as tables_stage
+from toolkit.stages.contract import Need
+from toolkit.stages.runner import check_needs
 from toolkit.tableio import iter_table_batches, read_table
 from toolkit.workspace import Workspace
 
@@ -42,25 +43,13 @@ DICTIONARY_COLUMNS = ("log_id", "wheel", "laser")
 
 
 def table_inputs(workspace: Workspace, config: PipelineConfig) -> dict[str, str]:
-    """sha256 of the two tables (keyed ``tables/<name>``), refused unless they are what the
-    last finished ``terrain tables`` wrote (WorkspaceError naming the file), and made with
-    ``config``, the configuration in force (StageError): tables of another configuration
-    (a ``run -c B --from tables`` whose learn failed leaves B's tables under A's
-    ``config.toml``) would be learned from, scored and reported as this one's."""
-    paths = (workspace.events_table, workspace.event_points_table)
-    missing = [p for p in paths if not p.is_file()]
-    if missing:
-        raise StageError("no training tables; run `terrain tables` first", path=missing[0])
-    hashes = {p.name: file_sha256(p) for p in paths}
-    record = workspace.manifest().stage(tables_stage.STAGE)
-    require_finished(record, tables_stage.STAGE, hashes, workspace.tables_dir)
-    if record is not None and record.config_hash != tables_stage.SPEC.config_hash(config):
-        raise StageError(
-            "the tables were made with another configuration than the workspace's "
-            f"({workspace.config_path.name}); run `terrain tables` again",
-            path=workspace.tables_dir,
-        )
-    return {f"tables/{name}": sha for name, sha in hashes.items()}
+    """sha256 of the two tables, by layout name, refused unless they are what the last
+    finished ``terrain tables`` wrote, with ``config``, the configuration in force, and this
+    code (:func:`~toolkit.stages.runner.check_needs`, as the runner checks every stage's
+    needs): tables of another configuration (a ``run -c B --from tables`` whose learn failed
+    leaves B's tables under A's ``config.toml``) would otherwise be exported as this one's."""
+    tables = tuple(Need(name, tables_stage.STAGE) for name in tables_stage.SPEC.makes)
+    return check_needs(tables, workspace.path, workspace.manifest(), config, "export")
 
 
 def split_events(workspace: Workspace, split: str | None) -> pa.Table:
