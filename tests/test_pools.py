@@ -248,3 +248,45 @@ def test_ctrl_c_while_a_runs_workers_are_busy_says_one_line_and_leaks_nothing(
     assert code == 128 + signal.SIGINT, err
     assert "leaked" not in err and "Traceback" not in err and "Warning" not in err, err
     assert err.splitlines()[-1] == "terrain: error: stopped (Ctrl-C)"
+
+
+@pytest.mark.slow  # a run to learn first (~20 s); run by .ci/run
+def test_ctrl_c_while_evaluate_trains_its_rows_stops_every_forked_worker(
+    tmp_path: Path,
+) -> None:
+    """``terrain run`` stopped by Ctrl-C while evaluate trains its rows in forked workers:
+    exit 130, the stop's line last, no traceback or leak warning, and no process of the
+    command left behind."""
+    from tests.conftest import SAMPLE_LOG
+
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "toolkit", "run", str(SAMPLE_LOG), "-w", str(tmp_path / "ws")],
+        cwd=ROOT,
+        start_new_session=True,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    for line in proc.stdout:
+        if line.startswith("learn "):
+            break
+    time.sleep(4.0)  # past scoring the learned model: the rows' workers at work
+    os.killpg(proc.pid, signal.SIGINT)
+    code = proc.wait(timeout=STOP_WITHIN_S)
+    err = proc.stderr.read()
+    assert code == 128 + signal.SIGINT, err
+    assert "leaked" not in err and "Traceback" not in err and "Warning" not in err, err
+    assert err.splitlines()[-1] == "terrain: error: stopped (Ctrl-C)"
+    # Nothing of the command's session is left (multiprocessing's resource tracker ends
+    # once the command has; init reaps it).
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.1)
+    with pytest.raises(ProcessLookupError):
+        os.killpg(proc.pid, 0)
+    assert not (tmp_path / "ws" / "report").exists()

@@ -67,6 +67,7 @@ upsilon, omega or zeta reuses the sorted top scores (the learner caches them).
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -179,7 +180,7 @@ class PairTable:
     (:meth:`hold`). ``log_dz`` is -inf for a pair with a padding point (no height term).
     """
 
-    def __init__(self, patches: TyrePatches, pool: ThreadPoolExecutor | None = None) -> None:
+    def __init__(self, patches: TyrePatches) -> None:
         r, c = np.tril_indices(patches.n_max, -1)
         self.r = r.astype(np.intp)
         self.c = c.astype(np.intp)
@@ -207,7 +208,6 @@ class PairTable:
         # Without look-ahead times the term cannot be asked for (it would read -inf logs).
         self.log_lead = None if patches.lead is None else _log_abs(patches.lead)
         self._groups = patches.groups
-        self._pool = pool if pool is not None else new_pool()
         self._held: tuple[tuple[object, ...], tuple[object, ...]] | None = None
         self._cache: dict[tuple[object, ...], Float32Array] = {}
 
@@ -303,10 +303,11 @@ class PairTable:
         if not chunks:
             return np.zeros((0, k))
         work = self._top_chunk if self._held is None else self._cached_chunker(alpha)
-        if self._pool is None:
+        pool = scoring_threads()
+        if pool is None:
             parts = [work(alpha, k, s) for s in chunks]
         else:
-            parts = list(self._pool.map(lambda s: work(alpha, k, s), chunks))
+            parts = list(pool.map(lambda s: work(alpha, k, s), chunks))
         if self._held is not None:
             self._keep_only({*self._held, *_term_keys(alpha)})
         return np.concatenate(parts, axis=0)
@@ -361,9 +362,23 @@ def _term_keys(alpha: Sequence[float]) -> tuple[tuple[object, ...], tuple[object
     return ("height", a[0], a[1]), ("penalty", *penalty)
 
 
-def new_pool() -> ThreadPoolExecutor | None:
-    """The threads a :class:`PairTable` scores its chunks on (None: the calling thread)."""
-    return ThreadPoolExecutor(THREADS) if THREADS > 1 else None
+#: This process's scoring threads, by process id (:func:`scoring_threads`).
+_THREADS_OF: dict[int, ThreadPoolExecutor] = {}
+
+
+def scoring_threads() -> ThreadPoolExecutor | None:
+    """The threads every :class:`PairTable` of this process scores its chunks on (None with
+    one :data:`THREADS`: the calling thread), made on first use. A child forked to train
+    rows beside this process (evaluate) makes its own: a pool's threads are not forked with
+    it, and one inherited would wait for them for ever."""
+    if THREADS <= 1:
+        return None
+    pid = os.getpid()
+    pool = _THREADS_OF.get(pid)
+    if pool is None:
+        _THREADS_OF.clear()  # a parent's, in a forked child: its threads are not here
+        pool = _THREADS_OF[pid] = ThreadPoolExecutor(THREADS, thread_name_prefix="pairs")
+    return pool
 
 
 class Blockwise:
@@ -405,9 +420,8 @@ class Blockwise:
 
 
 def model_pairs(patches: TyrePatches) -> Blockwise:
-    """The model's pair scores of ``patches``, built block by block on one thread pool."""
-    pool = new_pool()
-    return Blockwise(patches, lambda block: PairTable(block, pool))
+    """The model's pair scores of ``patches``, built block by block."""
+    return Blockwise(patches, PairTable)
 
 
 def top_k_desc(scores: Float32Array | FloatArray, k: int) -> FloatArray:
@@ -503,7 +517,7 @@ __all__ = [
     "TopScores",
     "combine",
     "model_pairs",
-    "new_pool",
+    "scoring_threads",
     "score_events",
     "signed_power",
     "top_k_desc",
