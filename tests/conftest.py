@@ -88,6 +88,7 @@ LONGEST_FIRST = (
     "test_label.py",  # 50 s
     "test_truth_terrain.py",  # 43 s
     "test_sample_log.py",  # 33 s
+    "test_evaluate_rows.py",  # ~90 s (with the pipeline it shares with test_evaluate.py)
     "test_evaluate.py",  # 30 s
     "test_project_lidar.py",  # 22 s
 )

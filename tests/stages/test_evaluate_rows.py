@@ -19,6 +19,7 @@ def _report_bytes(root: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted(report.iterdir()) if p.is_file()}
 
 
+@pytest.mark.slow  # two evaluations of the sample after its pipeline (~90 s); run by .ci/run
 def test_rows_trained_on_two_cores_make_the_same_report_as_on_one(
     pipeline: Pipeline, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
