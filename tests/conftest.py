@@ -83,12 +83,12 @@ LONGEST_FIRST = (
     "test_kill_anywhere.py",  # 129 s
     "test_pose.py",  # 120 s
     "test_laser_truth.py",  # 117 s
+    "test_evaluate_rows.py",  # ~90 s (with the sample's pipeline, built once a worker)
     "test_croissant.py",  # 70 s
     "test_curved_earth.py",  # 55 s
     "test_label.py",  # 50 s
     "test_truth_terrain.py",  # 43 s
     "test_sample_log.py",  # 33 s
-    "test_evaluate_rows.py",  # ~90 s (with the pipeline it shares with test_evaluate.py)
     "test_evaluate.py",  # 30 s
     "test_project_lidar.py",  # 22 s
 )
