@@ -5,7 +5,12 @@
 2. Each stage again in a fresh process (``terrain <verb> -w WS --overwrite``), for its own
    wall time and peak RSS (``ru_maxrss`` of the child from ``wait4``).
 
-Usage: python benchmarks/bench_run.py LOG.mcap [--keep DIR] [--workers N]
+3. With ``--rows-alone``: evaluate again with its rows trained one at a time
+   (``ROW_WORKERS = 1``) into a copy of the workspace, timed, and its report compared with
+   the run's, file for file (the two-cores report must be byte-identical).
+
+Usage: python benchmarks/bench_run.py LOG.mcap [--keep DIR] [--workers N] [--no-stages]
+[--rows-alone]
 """
 
 from __future__ import annotations
@@ -40,6 +45,8 @@ def main() -> None:
     ap.add_argument("log", type=Path)
     ap.add_argument("--keep", type=Path, default=None)
     ap.add_argument("--workers", type=int, default=None)
+    ap.add_argument("--no-stages", action="store_true", help="only the end-to-end run")
+    ap.add_argument("--rows-alone", action="store_true", help="evaluate one row at a time too")
     args = ap.parse_args()
     root = args.keep or Path(tempfile.mkdtemp(prefix="bench_run_"))
     ws = root / "ws"
@@ -54,12 +61,42 @@ def main() -> None:
     duration_s = (t[-1] - t[0]) * 1e-9
     print(f"run: {duration_s:.0f} s of log in {wall:.1f} s: {duration_s / wall:.1f}x real time "
           f"(main process peak RSS {peak:.0f} MB)")  # fmt: skip
-    for verb in VERBS:
+    if args.rows_alone:
+        rows_alone(ws, root / "ws-rows-alone", duration_s)
+    for verb in () if args.no_stages else VERBS:
         cmd = [*terrain, verb]
         cmd += [str(args.log), "-w", str(ws)] if verb == "ingest" else ["-w", str(ws)]
         wall, peak = timed([*cmd, "--overwrite"])
         print(f"  {verb:<9} {wall:7.1f} s  {duration_s / wall:7.1f}x  peak RSS {peak:6.0f} MB")
     print(f"load average after: {os.getloadavg()}")
+
+
+ROWS_ALONE = """
+import sys
+from pathlib import Path
+from toolkit.config import load_config
+from toolkit.stages import evaluate_rows
+from toolkit.stages.evaluate import SPEC
+from toolkit.stages.runner import run_stage
+from toolkit.workspace import Workspace
+evaluate_rows.ROW_WORKERS = 1
+ws = Workspace(Path(sys.argv[1]))
+run_stage(SPEC, ws, load_config(ws.config_path), overwrite=True)
+"""
+
+
+def rows_alone(ws: Path, copy: Path, duration_s: float) -> None:
+    """Evaluate again, one row at a time, in a copy of ``ws``; its report against the run's."""
+    if copy.exists():
+        shutil.rmtree(copy)
+    shutil.copytree(ws, copy, symlinks=True)
+    wall, peak = timed([sys.executable, "-c", ROWS_ALONE, str(copy)])
+    both, alone = ws / "report", copy / "report"
+    names = sorted(p.name for p in both.iterdir() if p.is_file())
+    differ = [n for n in names if (both / n).read_bytes() != (alone / n).read_bytes()]
+    print(f"  evaluate, one row at a time: {wall:.1f} s ({duration_s / wall:.1f}x), peak RSS "
+          f"{peak:.0f} MB; report files differing from the run's: {differ or 'none'} "
+          f"of {len(names)}")  # fmt: skip
 
 
 if __name__ == "__main__":
