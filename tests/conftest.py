@@ -83,7 +83,6 @@ LONGEST_FIRST = (
     "test_kill_anywhere.py",  # 129 s
     "test_pose.py",  # 120 s
     "test_laser_truth.py",  # 117 s
-    "test_evaluate_rows.py",  # ~90 s (with the sample's pipeline, built once a worker)
     "test_croissant.py",  # 70 s
     "test_curved_earth.py",  # 55 s
     "test_label.py",  # 50 s

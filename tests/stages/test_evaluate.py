@@ -34,6 +34,7 @@ from toolkit.errors import StageError, ToolkitError
 from toolkit.manifest import file_sha256
 from toolkit.model.roc import MIN_ROUGH_EVENTS
 from toolkit.model.roughness import signed_power
+from toolkit.stages import evaluate_rows
 from toolkit.stages.evaluate import SPEC as EVALUATE
 from toolkit.stages.runner import run_stage
 from toolkit.tableio import load_table_schema, read_table
@@ -459,3 +460,23 @@ def test_run_says_each_stage_once_as_it_ends_after_its_warnings(
     assert [line.split()[0] for line in out] == ["tables", "learn", "run:"]
     doc = CliRunner().invoke(main, [*args, "--json"])
     assert doc.exit_code == 0 and json.loads(doc.stdout)["stages"]
+
+
+def _report_bytes(root: Path) -> dict[str, bytes]:
+    report = root / "report"
+    return {p.name: p.read_bytes() for p in sorted(report.iterdir()) if p.is_file()}
+
+
+@pytest.mark.slow  # one more evaluation of the sample (~15 s); run by .ci/run
+def test_rows_trained_on_two_cores_make_the_same_report_as_on_one(
+    pipeline: Pipeline, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The shared pipeline's report was made with the default two workers; made again one
+    row at a time, it is the same, file for file."""
+    assert evaluate_rows.ROW_WORKERS == 2
+    ws = copy_workspace(pipeline.ws, tmp_path / "ws")
+    monkeypatch.setattr(evaluate_rows, "ROW_WORKERS", 1)
+    run_stage(EVALUATE, ws, default_config(), overwrite=True)
+    alone, both = _report_bytes(ws.root), _report_bytes(pipeline.ws.root)
+    assert {"summary.json", "scores.parquet", "index.html", "roc.png"} <= set(both)
+    assert alone == both
