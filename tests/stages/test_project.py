@@ -23,6 +23,7 @@ from toolkit.geometry.rotations import euler_to_rot
 from toolkit.manifest import file_sha256
 from toolkit.model.projection import Counts, PreparedBatch
 from toolkit.stages import project as project_module
+from toolkit.stages.pose import SPEC as POSE
 from toolkit.stages.project import SPEC as PROJECT
 from toolkit.stages.project_scans import LASER_COLUMNS, PoseStream, ScanBatch, project_batch
 from toolkit.stages.runner import run_stage
@@ -178,6 +179,9 @@ def test_a_laser_that_is_not_stanleys(posed_copy: tuple[Workspace, str]) -> None
     # Edited as a re-ingest of such a log would have written it.
     (log_dir / "tf_static.json").write_text(json.dumps(tf))
     write_table(ws.log_table(log_id, "laser"), table, "laser", **_laser_meta(ws, log_id))
+    # A new tf_static reaches the pose too (the runner refuses a pose made from another):
+    # posed again, as `terrain run` would after that re-ingest.
+    run_stage(POSE, ws, default_config(), log_id=log_id)
     result = run_stage(PROJECT, ws, default_config(), log_id=log_id)
     assert result.points == n_scans * beams and not any(result.rejects.values())
     points = read_table(ws.log_table(log_id, "points"), "points")

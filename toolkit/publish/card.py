@@ -410,18 +410,15 @@ def _model_scores(facts: DatasetFacts) -> list[str]:
     """What the model's scores in the events files are (nothing without scores)."""
     if facts.scores is None:
         return []
-    mu = (
-        f" (mu = {facts.scores.mu!r} in the model that was scored)"
-        if facts.scores.mu is not None
-        else ""
-    )
+    scored_mu = facts.scores.mu
+    mu = "" if scored_mu is None else f" (mu = {scored_mu!r} in the model that was scored)"
     return [
         "",
         "## The model's scores",
         "",
-        f"The `events` files carry the scores of the report's headline method, "
-        f"{title(HEADLINE)}: the roughness model `terrain learn` fitted "
-        "on the train split: `r_combined` (eq. 5) and `predicted` = `r_combined` > mu"
+        f"The `events` files carry the scores of the report's headline method, {title(HEADLINE)}"
+        ": the roughness model `terrain learn` fitted on the train split: `r_combined` (eq. 5) "
+        "and `predicted` = `r_combined` > mu"
         f"{mu}. On the train split they are in-sample; only the test split measures the "
         "model. They are not labels: a new model should ignore them.",
     ]

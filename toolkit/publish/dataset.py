@@ -100,7 +100,7 @@ class DatasetFacts:
     #: Each config's columns, in file order.
     columns: Mapping[str, tuple[ColumnSpec, ...]]
     scores: Scores | None
-    #: sha256 of the workspace's tables, keyed ``tables/<name>.parquet``.
+    #: sha256 of the workspace's tables, keyed by layout name (``events_table``...).
     tables: Mapping[str, str]
     #: The tables stage's row counts and rejects, as recorded.
     tables_counts: Mapping[str, int]

@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from toolkit.atomic import atomic_write_text, fsync_dir, temp_path_beside
 from toolkit.config import PipelineConfig
 from toolkit.errors import StageError, WorkspaceError
-from toolkit.layout import LogFiles, workspace_file_name
+from toolkit.layout import LogFiles
 from toolkit.manifest import Manifest, StageRecord, file_sha256, require_finished
 from toolkit.publish.card import dataset_card
 from toolkit.publish.croissant import croissant_metadata
@@ -221,7 +221,7 @@ def model_scores(
         ]
     take = pa.array(rows, pa.int64())
     mu: float | None = None
-    model_sha = record.inputs.get(workspace_file_name("model"))
+    model_sha = record.inputs.get("model")  # evaluate's needs, by layout name
     # mu is quoted only from the model that was scored (model.json may have been relearned).
     if (
         model_sha
@@ -254,7 +254,7 @@ class _Provenance:
 
     source_sha256: tuple[str, ...]
     config_hash: str
-    #: sha256 of the workspace's tables, keyed ``tables/<name>.parquet``.
+    #: sha256 of the workspace's tables, keyed by layout name (``events_table``...).
     tables: Mapping[str, str]
 
     def writer(self, tmp: Path, config_name: str, split: str, schema: str) -> TableWriter:
@@ -418,7 +418,7 @@ def _fsync_tree(directory: Path) -> None:
 class _Inputs:
     """What the export is made from, read and checked before anything is written."""
 
-    #: sha256 of the workspace's tables, keyed ``tables/<name>.parquet``.
+    #: sha256 of the workspace's tables, keyed by layout name (``events_table``...).
     tables: Mapping[str, str]
     #: The record of the ``terrain tables`` run that wrote them.
     record: StageRecord

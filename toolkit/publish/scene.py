@@ -264,7 +264,7 @@ def checked_inputs(
         if (
             scores_key in hashes
             and evaluated is not None
-            and evaluated.inputs.get(model_key) != sha
+            and evaluated.inputs.get("model") != sha  # its needs, by layout name
         ):
             del hashes[scores_key]
             warnings.append(
