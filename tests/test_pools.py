@@ -220,13 +220,10 @@ def test_a_command_that_stopped_a_pool_ends_without_waiting_on_its_threads() -> 
     assert "Traceback" not in proc.stderr
 
 
-def test_ctrl_c_while_a_runs_workers_are_busy_says_one_line_and_leaks_nothing(
-    tmp_path: Path,
-) -> None:
-    """``terrain run`` stopped by Ctrl-C while project's spawned workers work: exit 130,
-    the stop's line last, no traceback and no "leaked semaphore objects" warning from
-    multiprocessing's resource tracker (its queues' semaphores, and tqdm's lock, which a
-    worker's first bar makes and a terminated worker never unlinks)."""
+def _ctrl_c_in_run(tmp_path: Path, after: str, wait_s: float) -> subprocess.Popen[str]:
+    """``terrain run`` on the sample, Ctrl-C to its session ``wait_s`` after stage ``after``
+    said its line: checked to end with exit 130, the stop's line last, no traceback and no
+    "leaked semaphore objects" warning; the ended process, for more checks."""
     from tests.conftest import SAMPLE_LOG
 
     proc = subprocess.Popen(
@@ -239,15 +236,26 @@ def test_ctrl_c_while_a_runs_workers_are_busy_says_one_line_and_leaks_nothing(
     )
     assert proc.stdout is not None and proc.stderr is not None
     for line in proc.stdout:  # each stage's line as it ends
-        if line.startswith("ingest "):
+        if line.startswith(f"{after} "):
             break
-    time.sleep(3.0)  # project's workers at work (it takes ~10 s on the sample)
+    time.sleep(wait_s)
     os.killpg(proc.pid, signal.SIGINT)
     code = proc.wait(timeout=STOP_WITHIN_S)
     err = proc.stderr.read()
     assert code == 128 + signal.SIGINT, err
     assert "leaked" not in err and "Traceback" not in err and "Warning" not in err, err
     assert err.splitlines()[-1] == "terrain: error: stopped (Ctrl-C)"
+    return proc
+
+
+def test_ctrl_c_while_a_runs_workers_are_busy_says_one_line_and_leaks_nothing(
+    tmp_path: Path,
+) -> None:
+    """``terrain run`` stopped by Ctrl-C while project's spawned workers work: exit 130,
+    the stop's line last, no traceback and no "leaked semaphore objects" warning from
+    multiprocessing's resource tracker (its queues' semaphores, and tqdm's lock, which a
+    worker's first bar makes and a terminated worker never unlinks)."""
+    _ctrl_c_in_run(tmp_path, after="ingest", wait_s=3.0)  # project's workers at work
 
 
 @pytest.mark.slow  # a run to learn first (~20 s); run by .ci/run
@@ -257,27 +265,8 @@ def test_ctrl_c_while_evaluate_trains_its_rows_stops_every_forked_worker(
     """``terrain run`` stopped by Ctrl-C while evaluate trains its rows in forked workers:
     exit 130, the stop's line last, no traceback or leak warning, and no process of the
     command left behind."""
-    from tests.conftest import SAMPLE_LOG
-
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "toolkit", "run", str(SAMPLE_LOG), "-w", str(tmp_path / "ws")],
-        cwd=ROOT,
-        start_new_session=True,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-    )
-    assert proc.stdout is not None and proc.stderr is not None
-    for line in proc.stdout:
-        if line.startswith("learn "):
-            break
-    time.sleep(4.0)  # past scoring the learned model: the rows' workers at work
-    os.killpg(proc.pid, signal.SIGINT)
-    code = proc.wait(timeout=STOP_WITHIN_S)
-    err = proc.stderr.read()
-    assert code == 128 + signal.SIGINT, err
-    assert "leaked" not in err and "Traceback" not in err and "Warning" not in err, err
-    assert err.splitlines()[-1] == "terrain: error: stopped (Ctrl-C)"
+    # Past scoring the learned model: the rows' workers at work.
+    proc = _ctrl_c_in_run(tmp_path, after="learn", wait_s=4.0)
     # Nothing of the command's session is left (multiprocessing's resource tracker ends
     # once the command has; init reaps it).
     deadline = time.monotonic() + 5.0
