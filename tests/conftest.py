@@ -80,11 +80,10 @@ def pipeline(
 #: race for 84 s at the very end).
 LONGEST_FIRST = (
     "test_pipeline.py",  # 260 s
-    "test_race_labels.py",  # 137 s (the race log, shared with test_vehicle and test_sensors)
+    "test_race_log.py",  # 137 s (every test of the race log)
     "test_laser_truth.py",  # 101 s
     "test_pose.py",  # 100 s
     "test_kill_anywhere.py",  # 92 s
-    "test_sensors.py",  # 84 s (the race log, unless its worker has it already)
     "test_croissant.py",  # 65 s
     "test_label.py",  # 42 s
     "test_truth_terrain.py",  # 36 s
@@ -93,7 +92,6 @@ LONGEST_FIRST = (
     "test_sample_log.py",  # 27 s
     "test_curved_earth.py",  # 27 s
     "test_project_lidar.py",  # 15 s
-    "test_vehicle.py",  # the race log, unless its worker has it already
 )
 
 

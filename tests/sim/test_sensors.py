@@ -17,10 +17,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
-from scipy.ndimage import uniform_filter1d
 
-from toolkit.geometry.geodesy import GeodeticOrigin
-from toolkit.geometry.map_frame import geodetic_to_world
 from toolkit.sim.profiles import make_profile
 from toolkit.sim.sensors import Mount, SensorParams
 from toolkit.sim.simulate import SimResult
@@ -234,69 +231,7 @@ def test_gyro_noise_against_truth(sample_log: SimLog) -> None:
     np.testing.assert_allclose(acov[:, [0, 4, 8]], p.accel_noise_mps2**2)
 
 
-# -- GPS --------------------------------------------------------------------------------------
-
-
-def _gps_residuals(log: SimLog) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """ENU fix minus the true antenna position (lever arm from /tf_static), at valid fixes;
-    with their true times and the true yaw."""
-    p = _params(log.meta["profile"]).gps
-    fix = log.columns["/gps/fix"]
-    t = on_grid_true_times(
-        log.stamps("/gps/fix"),
-        log.clock_offsets["/gps/fix"],
-        log.start_ns,
-        int(round(NS / p.rate_hz)),
-    )
-    valid = np.asarray(fix["status.status"]) >= 0
-    tr = log.truth
-    k = np.searchsorted(tr.t_ns, t)
-    ok = valid & (k < tr.t_ns.size)
-    ok[ok] &= tr.t_ns[k[ok]] == t[ok]
-    assert ok.sum() > 0.98 * valid.sum()
-    k = k[ok]
-    lever, _ = log.static_transform("gps_antenna")
-    antenna = tr.position[k] + tr.rotation[k].apply(lever)
-    enu = geodetic_to_world(
-        fix["latitude"][ok],
-        fix["longitude"][ok],
-        fix["altitude"][ok],
-        GeodeticOrigin(**log.json("origin")),
-    )
-    yaw = tr.rotation[k].as_euler("ZYX")[:, 0]
-    return enu - antenna, t[ok], yaw
-
-
-@pytest.mark.slow  # reads the 1.4 km race: run by .ci/run, left out of the README's command
-def test_gps_noise_and_drift_against_truth(race_log: SimLog) -> None:
-    """On the race log (7 minutes, every heading): white noise from fix-to-fix differences,
-    slow Gauss-Markov drift from the smoothed residual, and the lever arm applied."""
-    p = _params("race").gps
-    resid, t, yaw = _gps_residuals(race_log)
-    steps = np.diff(resid, axis=0)
-    consecutive = np.diff(t) == int(round(NS / p.rate_hz))
-    white = steps[consecutive].std(axis=0) / np.sqrt(2)
-    smooth = uniform_filter1d(resid, 31, axis=0)  # 3 s: white noise down to 0.02 m
-    drift_rms = float(np.sqrt(np.mean(smooth**2)))
-    total_h = resid[:, :2].std(axis=0)
-    # The antenna's lever arm turns with the vehicle: without it the residual would follow the
-    # heading (0.6 m forward) and sit 2.1 m high.
-    heading = np.stack([np.cos(yaw), np.sin(yaw)], axis=1)
-    along = float(np.mean(np.sum((resid[:, :2] - resid[:, :2].mean(axis=0)) * heading, axis=1)))
-    print(
-        f"\nGPS white std e/n/u {white} (configured {p.horizontal_noise_m}, "
-        f"{p.vertical_noise_m}); drift rms {drift_rms:.3f} (configured {p.drift_std_m}); "
-        f"horizontal std {total_h}; mean {resid.mean(axis=0)}; along-heading {along:.3f}; "
-        f"yaw span {np.ptp(yaw):.2f} rad"
-    )
-    np.testing.assert_allclose(white[:2], p.horizontal_noise_m, rtol=0.15)
-    assert white[2] == pytest.approx(p.vertical_noise_m, rel=0.15)
-    assert 0.5 * p.drift_std_m < drift_rms < 1.6 * p.drift_std_m
-    expected_h = math.hypot(p.horizontal_noise_m, p.drift_std_m)
-    assert np.all((total_h > 0.4 * expected_h) & (total_h < 1.6 * expected_h))
-    assert np.all(np.abs(resid.mean(axis=0)) < 3 * p.drift_std_m)
-    assert abs(along) < 0.2
-    assert np.ptp(yaw) > 3.0  # the heading varied enough for the lever check to bite
+# -- GPS (its noise and drift against the truth: test_race_log.py, on the race log) ----------
 
 
 def test_gps_dropouts(sample_log: SimLog) -> None:

@@ -14,7 +14,7 @@ from functools import cache
 
 import numpy as np
 import pytest
-from scipy.signal import lfilter, welch
+from scipy.signal import lfilter
 
 from toolkit.sim.drive import Driver, TrueBlock, make_driven_path
 from toolkit.sim.features import RoughFeature
@@ -34,7 +34,7 @@ from toolkit.sim.tyre import TyreFootprint
 from toolkit.sim.vehicle import VehicleParams
 from toolkit.sim.world import World, make_world
 
-from .logdata import GRAVITY_MPS2, SimLog, on_grid_true_times
+from .logdata import GRAVITY_MPS2
 from .reference_labeller import shock_filter_taps
 
 VEHICLE = VehicleParams()
@@ -319,85 +319,3 @@ def test_no_tensile_tyre_force_over_a_rough_race_stretch(
     # construction: tyre_force_n is that force, clipped).
     assert np.all(end[down] >= 0.0)
     np.testing.assert_allclose(applied, expected, rtol=0, atol=0.005 * w.min())
-
-
-# -- the IMU's vertical spectrum --------------------------------------------------------------
-
-
-@pytest.mark.slow  # reads the 1.4 km race: run by .ci/run, left out of the README's command
-def test_imu_vertical_spectrum_has_the_wheel_hop_peak(race_log: SimLog) -> None:
-    """The IMU's z acceleration over the race log's ordinary road (ISO class D, 2 s windows
-    at least 3 m before and 8 m after every rough feature the tyres could meet: the rear axle
-    past it, and the wheel hop's ring-down), averaged Hann periodograms: a
-    hump at the wheel hop, a local maximum standing above the 5-8 Hz floor between body and
-    wheel modes, then the fall above it. (On the rough class E stretches the wheels leave
-    the ground so often that the hop cannot build up, and over the whole log the features'
-    own lines blur it; both are printed.) The first model's spectrum fell monotonically from
-    5 Hz here (-3 dB at 10 Hz, seed 1).
-
-    The hump lies at 10-11.5 Hz, below the modes' 12.4-12.7 Hz: what the IMU sees is the
-    hop's response times the road's input, whose displacement spectrum falls as 1/f^2 (ISO
-    8608) and which the tyre's footprint smooths further, so the product peaks below the
-    damped (0.3) mode; hence the band 9-12.5 Hz. +1.5 dB is about four times the scatter of
-    an average of this many half-overlapping 2 s periodograms (~0.4 dB for 100 windows)."""
-    p = make_profile("race").sensors.imu
-    t = on_grid_true_times(
-        race_log.stamps("/imu/data"),
-        race_log.clock_offsets["/imu/data"],
-        race_log.start_ns,
-        int(round(1e9 / p.rate_hz)),
-    )
-    az = np.asarray(race_log.columns["/imu/data"]["linear_acceleration.z"], dtype=np.float64)
-    truth = race_log.truth
-    inside = truth.covers(t)
-    t, az = t[inside], az[inside]
-    s = truth.interp(t, truth.route_s)
-    d = truth.interp(t, truth.route_d)
-    feats = race_log.columns["/truth/features"]["features"][0]
-    near = np.zeros(s.size, dtype=bool)
-    # Features whose box reaches the band the tyres sweep (beside it, none is felt).
-    reach = VEHICLE.track_m / 2 + VEHICLE.tyre_width_m / 2
-    for lo, hi, dc, w in zip(
-        feats["s_start_m"], feats["s_end_m"], feats["d_center_m"], feats["width_m"], strict=True
-    ):
-        near |= (s > lo - 3.0) & (s < hi + 8.0) & (np.abs(d - dc) < reach + w / 2)
-    rough = race_log.world.terrain.roughness_scale(s) > 1.05
-
-    def spectrum(skip: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-        n = int(2 * p.rate_hz)
-        window = np.hanning(n)
-        starts = [i for i in range(0, az.size - n, n // 2) if not skip[i : i + n].any()]
-        segments = np.stack([az[i : i + n] for i in starts])
-        segments = (segments - segments.mean(axis=1, keepdims=True)) * window
-        psd = (np.abs(np.fft.rfft(segments, axis=1)) ** 2).mean(axis=0)
-        return np.fft.rfftfreq(n, 1.0 / p.rate_hz), psd, len(starts)
-
-    def describe(freq: np.ndarray, psd: np.ndarray) -> tuple[float, float, float]:
-        floor = float(psd[(freq >= 5.0) & (freq <= 8.0)].mean())
-        band = (freq >= 8.5) & (freq <= 13.0)
-        i = int(np.argmax(psd[band]))
-        at_16 = float(psd[np.argmin(np.abs(freq - 16.0))])
-        return (
-            float(freq[band][i]),
-            10 * np.log10(psd[band][i] / floor),
-            10 * np.log10(at_16 / floor),
-        )
-
-    freq, psd, windows = spectrum(near | rough)
-    f_peak, above, at_16 = describe(freq, psd)
-    whole = welch(az - az.mean(), fs=p.rate_hz, nperseg=int(2 * p.rate_hz))
-    f_rough, above_rough, _ = describe(*spectrum(near | ~rough)[:2])
-    f_all, above_all, _ = describe(*whole)
-    hop = modal_summary(VEHICLE)
-    print(
-        f"\nIMU z spectrum, ordinary road ({windows} windows of 2 s): peak {f_peak:.1f} Hz, "
-        f"{above:+.1f} dB over the 5-8 Hz floor, 16 Hz {at_16:+.1f} dB; rough stretches: "
-        f"{f_rough:.1f} Hz {above_rough:+.1f} dB; whole log: {f_all:.1f} Hz {above_all:+.1f} dB; "
-        f"wheel-hop modes {hop['wheel_hop_hz_min']:.1f}-{hop['wheel_hop_hz_max']:.1f} Hz"
-    )
-    assert windows >= 100
-    i_peak = int(np.argmin(np.abs(freq - f_peak)))
-    assert psd[i_peak] >= psd[i_peak - 1] and psd[i_peak] >= psd[i_peak + 1]
-    assert 9.0 <= f_peak <= 12.5
-    assert above >= 1.5
-    assert at_16 <= above - 6.0
