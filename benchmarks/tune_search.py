@@ -6,7 +6,8 @@ initial guess is learned on the training split and scored on both splits: AUC, p
 to FPR 0.2 and TPR at FPR 5 / 10 / 20 %, the share of test events at R = 0, and the
 initial guess's own test AUC. What the defaults were chosen from (``benchmarks/README.md``).
 
-Usage: python benchmarks/tune_search.py WS [WS ...] [--quick]
+Usage: python benchmarks/tune_search.py WS [WS ...] [--samples ...] [--accept ...]
+       [--initial ...] [--step-rule halve adapt] [--increments config flat] [--iterations N ...]
 """
 
 from __future__ import annotations
@@ -38,6 +39,15 @@ INITIAL = {
     "linear": ((1.0, 1.0, 0.01, 1.0, 0.1, 1.0, 0.0, 1.0, 0.0, 1.0), 1.05, 3, 1.0),
     # Height alone: what the learner must discover every penalty from.
     "height_only": ((1.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0), 1.05, 3, 1.0),
+    # No tuning at all: the largest height difference of a patch (omega 1, so upsilon has
+    # nothing to weigh), every penalty at zero, the two tyres summed.
+    "uninformed": ((1.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0), 1.0, 1, 1.0),
+}
+#: Increments tried: the configuration's, or one size for every weight and one for every
+#: exponent (no scale chosen per term).
+INCREMENTS = {
+    "config": None,
+    "flat": ((0.05, 0.25) * 5, 0.05, 2.0, 0.25),
 }
 
 
@@ -55,6 +65,9 @@ def main() -> None:
     ap.add_argument("--validation", type=float, nargs="+", default=[0.0])
     ap.add_argument("--lead", type=int, nargs="+", default=[0], help="look-ahead term: 0 off, 1 on")
     ap.add_argument("--baseline", action="store_true", help="also the closest-laser race test")
+    ap.add_argument("--step-rule", nargs="+", default=["halve"], choices=["halve", "adapt"])
+    ap.add_argument("--increments", nargs="+", default=["config"], choices=list(INCREMENTS))
+    ap.add_argument("--iterations", type=int, nargs="+", default=[20])
     args = ap.parse_args()
     for root in args.workspaces:
         ws = Workspace(root)
@@ -87,14 +100,20 @@ def main() -> None:
             patches = training_data.patches_of(ws, events, model, order=order)
             pairs = training_data.pair_table(patches.take(np.repeat(train, 2)), model, root)
             everything = model_pairs(patches)
-            for init, accept, val, lead in itertools.product(
-                args.initial, args.accept, args.validation, args.lead
-            ):
+            for init, accept, val, lead, rule, incs, its in itertools.product(
+                args.initial, args.accept, args.validation, args.lead, args.step_rule,
+                args.increments, args.iterations,
+            ):  # fmt: skip
                 alpha, ups, om, zeta = INITIAL[init]
                 lc = dataclasses.replace(
                     config.learn, initial_alpha=alpha, initial_upsilon=ups, initial_omega=om,
                     initial_zeta=zeta, accept=accept, validation_share=val, lead_term=bool(lead),
+                    step_rule=rule, iterations=its,
                 )  # fmt: skip
+                if INCREMENTS[incs] is not None:
+                    ia, iu, io, iz = INCREMENTS[incs]
+                    lc = dataclasses.replace(lc, increment_alpha=ia, increment_upsilon=iu,
+                                             increment_omega=io, increment_zeta=iz)  # fmt: skip
                 t0 = time.perf_counter()
                 res = coordinate_ascent(pairs, y[train], ascent_config(lc))
                 r = score_events(everything, res.params).r_combined
@@ -105,7 +124,8 @@ def main() -> None:
                 auc_te, tpr = rates(y[test], r[test])
                 zero = float(np.mean(r[test] == 0.0))
                 print(
-                    f"  {sample:13s} {init:11s} {accept:9s} val {val:.2f} lead {lead} "
+                    f"  {sample:13s} {init:11s} {accept:9s} val {val:.2f} lead {lead} {rule} "
+                    f"{incs} x{its} "
                     f"train AUC {auc_tr:.3f} | test AUC "
                     f"{auc_te:.3f} (start {auc0:.3f}) TPR {tpr[0]:.2f}/{tpr[1]:.2f}/{tpr[2]:.2f} "
                     f"at0 {100 * zero:.0f}% J {res.objective:.3f} ({time.perf_counter() - t0:.0f} s)",

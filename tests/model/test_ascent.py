@@ -58,14 +58,17 @@ def test_mu_sits_midway_between_adjacent_scores() -> None:
     assert (t.mu, t.objective, t.tpr, t.fpr) == (2.0, 1.0, 1.0, 0.0)
 
 
-def _planted(rng: np.random.Generator, events: int) -> tuple[list[list[list[Point]]], np.ndarray]:
+def _planted(
+    rng: np.random.Generator, events: int, drift_m: tuple[float, float] | None = None
+) -> tuple[list[list[list[Point]]], np.ndarray]:
     """Smooth events: a slow pose drift, 8 cm between points seen 2 s apart (as Fig. 4's
-    error growing with time). Rough events: a 5 cm step between points seen 0.05 s apart.
-    Height difference alone ranks the drift above the step; the time term (alpha_3 > 0)
-    separates them."""
+    error growing with time; with ``drift_m``, drawn uniformly from that range per event).
+    Rough events: a 5 cm step between points seen 0.05 s apart. Height difference alone
+    ranks the drift above the step; the time term (alpha_3 > 0) separates them."""
     out, labels = [], []
     for e in range(events):
         rough = e % 5 == 0
+        drift = 0.08 if drift_m is None else float(rng.uniform(*drift_m))
         wheels = []
         for w in range(2):
             pts: list[Point] = []
@@ -77,7 +80,7 @@ def _planted(rng: np.random.Generator, events: int) -> tuple[list[list[list[Poin
                     z = (0.05 if k >= 4 else 0.0) + noise
                 else:
                     tau = 10.0 + (2.0 if k >= 4 else 0.0) + 0.01 * k
-                    z = (0.08 if k >= 4 else 0.0) + noise
+                    z = (drift if k >= 4 else 0.0) + noise
                 pts.append((x, 0.01 * w, z, tau, 0.0, 0.0))
             wheels.append(pts)
         out.append(wheels)
@@ -112,6 +115,33 @@ def test_a_planted_problem_is_learned() -> None:
     test, y_test = _planted(rng, 40)
     got = score_events(PairTable(make_patches(test)), result.params)
     np.testing.assert_array_equal(got.predicted, y_test)
+
+
+def test_adapted_steps_reach_a_penalty_the_halved_ones_cannot() -> None:
+    """The planted problem with drifts of 5-9 cm over 2 s: every larger alpha_3 ranks a few
+    more drifts below the 5 cm step, and all of them from about 0.021. From alpha_3 = 0 with
+    an increment of 0.005, the paper's halving can move it by less than 0.01 in all, so it
+    stops partway; the adapted increments double while the steps are taken and get there.
+    Only alpha_3 moves (with every element free the search finds other ways round)."""
+    rng = np.random.default_rng(3)
+    train, y_train = _planted(rng, 60, drift_m=(0.05, 0.09))
+    small = list(_config().increments)
+    small[2] = 0.005
+    only_time = tuple(j == 2 for j in range(13))
+    got = {}
+    for rule in ("halve", "adapt"):
+        config = _config(increments=tuple(small), step_rule=rule, free=only_time)
+        got[rule] = coordinate_ascent(PairTable(make_patches(train)), y_train, config)
+    assert got["halve"].params.alpha[2] < 0.01 and got["halve"].objective < 1.0
+    assert got["adapt"].objective == 1.0 and got["adapt"].params.alpha[2] > 0.015
+    test, y_test = _planted(rng, 40, drift_m=(0.05, 0.09))
+    fresh = score_events(PairTable(make_patches(test)), got["adapt"].params)
+    np.testing.assert_array_equal(fresh.predicted, y_test)
+
+
+def test_an_unknown_step_rule_is_refused() -> None:
+    with pytest.raises(ValueError, match="step_rule"):
+        _config(step_rule="double")
 
 
 def test_without_the_time_term_the_planted_problem_is_not_learned() -> None:

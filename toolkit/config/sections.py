@@ -278,6 +278,10 @@ class LearnConfig:
     #: ranks them best (every round(1 / share)-th block of 50 consecutive events; 0: none, the
     #: paper's search; model.json records the share actually held out).
     validation_share: Annotated[float, Rule(ge=0.0, le=0.5)] = 0.0
+    #: How the increments change between rotations: "halve" (every one halved, the paper's)
+    #: or "adapt" (each doubled after its step is taken, halved after both signs fail;
+    #: toolkit.model.ascent).
+    step_rule: Annotated[str, Rule(choices=("halve", "adapt"))] = "halve"
     #: Beyond the paper: a look-ahead penalty in eq. (4), alpha_11 |lead|^alpha_12 per point
     #: (toolkit.model.roughness), learned like the others from initial_lead with
     #: increment_lead; false is the paper's eq. (4).

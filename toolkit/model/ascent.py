@@ -51,6 +51,15 @@ repeats a fixed number of times. Decisions the paper leaves open:
   :meth:`RoughnessParams.admissible`) is skipped, as is one whose scores overflow.
 - *mu between two adjacent R_combined values* is their midpoint; on a tie in J between
   thresholds, the one predicting fewer events rough (lambda > 0 prefers few false alarms).
+- *The step sizes* (``step_rule``, :data:`STEP_RULES`): ``"halve"`` is the paper's, every
+  increment halved after each full rotation, so element j can move at most about
+  ``2 I_j`` from its start in all: the initial increments decide which scales the search can
+  reach, and a start far from the optimum (a penalty at zero whose useful weight is ten
+  increments away) stays there. ``"adapt"`` (beyond the paper; a compass search with
+  expansion, Kolda, Lewis and Torczon 2003, sect. 3): each element keeps its own increment,
+  doubled after a step along it is accepted and halved after both signs fail, so a
+  penalty that helps keeps growing geometrically until it overshoots, and one that does not
+  narrows in as the paper's does. The number of rotations is the same either way.
 - *Frozen parameters*: ``free`` names the elements of B the search may change; the others
   keep their initial value (the baseline of Fig. 6 learns upsilon, omega and zeta only; the
   ablations fix the time or the rate terms at zero).
@@ -92,6 +101,9 @@ def b_names(size: int) -> tuple[str, ...]:
 #: What decides whether a step improves (module docstring): eq. (6) first, the AUC first,
 #: or the partial AUC first.
 ACCEPTANCE = ("objective", "auc", "pauc")
+#: How the increments change (module docstring): after every rotation, all halved (the
+#: paper's), or each by its own element's success (doubled) and failure (halved).
+STEP_RULES = ("halve", "adapt")
 #: The partial AUC's upper FPR: sect. 7.1, "the most important region (0-20% false
 #: positive rate)".
 PAUC_MAX_FPR = 0.2
@@ -202,10 +214,14 @@ class AscentConfig:
     #: ``validation_block`` consecutive events (:func:`validation_events`).
     validation_share: float = 0.0
     validation_block: int = 50
+    #: How the increments change (:data:`STEP_RULES`).
+    step_rule: str = "halve"
 
     def __post_init__(self) -> None:
         if self.accept not in ACCEPTANCE:
             raise ValueError(f"accept must be one of {ACCEPTANCE}, not {self.accept!r}")
+        if self.step_rule not in STEP_RULES:
+            raise ValueError(f"step_rule must be one of {STEP_RULES}, not {self.step_rule!r}")
         n = len(self.initial)
         if n not in (len(B_NAMES), len(B_NAMES_LEAD)) or len(self.increments) != n:
             raise ValueError(
@@ -379,15 +395,19 @@ def _rotate(
     evaluate: _Evaluator,
     climb: _Climb,
     rotation: int,
-    inc: Sequence[float],
+    inc: list[float],
     config: AscentConfig,
     fit: BoolArray | None,
 ) -> _Climb:
     """One full rotation of sect. 6: each free element of B in turn tries eq. (7)'s two
     signs with increments ``inc``, and B takes the first T that improves. The source then
-    keeps the new B's terms (every later candidate differs from it in one element)."""
+    keeps the new B's terms (every later candidate differs from it in one element).
+
+    ``inc`` is updated in place for the next rotation by ``config.step_rule``: all halved
+    (the paper's), or each element's doubled if its step was taken and halved if not."""
     names = b_names(len(climb.b))
     omega = names.index("omega")
+    moved = [False] * len(climb.b)
     for j in range(len(climb.b)):
         if not config.moves(j):
             continue
@@ -396,6 +416,9 @@ def _rotate(
             t, candidate, got, r = better
             evaluate.source.hold(candidate.alpha)
             climb = _Climb(t, got, r, (*climb.steps, (rotation, names[j], t[j], got.objective)))
+            moved[j] = True
+    for j, took in enumerate(moved):
+        inc[j] *= 2.0 if took and config.step_rule == "adapt" else 0.5
     return climb
 
 
@@ -451,7 +474,6 @@ def coordinate_ascent(
             stop = _EarlyStop(held, list(climb.b), value)
         for rotation in range(config.iterations):
             climb = _rotate(evaluate, climb, rotation, inc, config, fit)
-            inc = [v / 2.0 for v in inc]
             history.append(climb.best.objective)
             measures.append(climb.best.key(config.accept)[0])
             if stop is not None:
@@ -496,6 +518,7 @@ __all__ = [
     "B_NAMES",
     "B_NAMES_LEAD",
     "PAUC_MAX_FPR",
+    "STEP_RULES",
     "AscentConfig",
     "AscentResult",
     "Threshold",

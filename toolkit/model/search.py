@@ -36,6 +36,7 @@ def ascent_config(
         free=free if free is not None else (),
         accept=lc.accept,
         validation_share=lc.validation_share,
+        step_rule=lc.step_rule,
     )
 
 

@@ -128,6 +128,7 @@ def model_json(
         ],
         "initial": dict(zip(b_names(len(config.initial)), config.initial, strict=True)),
         "increments": dict(zip(b_names(len(config.initial)), config.increments, strict=True)),
+        "step_rule": config.step_rule,
         "training": {
             "events": events,
             "positives": positives,
