@@ -124,11 +124,10 @@ def row_of(text: str, method: str) -> str:
 
 
 def test_index_html_shows_the_zero_share_next_to_the_auc() -> None:
-    """A method's row: name, AUC with its interval, then the shares scored 0 and unscored
-    (all events / rough ones, in %), then TPR at each FPR, Spearman and the points it
-    scored. A method not
-    evaluated spans every column; a summary written before the shares existed shows
-    n/a."""
+    """A method's row: name, AUC with its interval, its start's AUC ("-" without one), then
+    the shares scored 0 and unscored (all events / rough ones, in %), then TPR at each FPR,
+    Spearman and the points it scored. A method not evaluated spans every column; a summary
+    written before the shares existed shows n/a."""
     entry: dict[str, Any] = tied_summary(0).to_json()
     old = {k: v for k, v in entry.items() if "share" not in k}
     text = page(
@@ -143,25 +142,53 @@ def test_index_html_shows_the_zero_share_next_to_the_auc() -> None:
     )
     cells = re.findall(r"<td[^>]*>(.*?)</td>", row_of(text, "self_supervised"))
     assert cells[1].startswith(f"{entry['auc']:.3f} [")
+    assert cells[2] == "-"  # no start_auc in this entry
     assert (
-        cells[2] == f"{100 * entry['zero_share']:.1f} % / {100 * entry['zero_share_rough']:.1f} %"
+        cells[3] == f"{100 * entry['zero_share']:.1f} % / {100 * entry['zero_share_rough']:.1f} %"
     )
-    assert cells[3] == (
+    assert cells[4] == (
         f"{100 * entry['unscored_share']:.1f} % / {100 * entry['unscored_share_rough']:.1f} %"
     )
-    assert len(cells) == 1 + 3 + len(entry["tpr_at_fpr"]) + 2
+    assert len(cells) == 1 + 4 + len(entry["tpr_at_fpr"]) + 2
     assert cells[-1] == "n/a"  # this entry does not say which points it scored
-    assert re.findall(r"<th>(.*?)</th>", text)[3:8] == [
+    assert re.findall(r"<th>(.*?)</th>", text)[3:9] == [
         "method",
         "AUC",
+        "its start (learning)",
         "score 0: all / rough",
         "unscored: all / rough",
         "TPR at FPR 0.05",
     ]
-    assert "colspan='8'>not evaluated" in row_of(text, "oracle")
+    assert "colspan='9'>not evaluated" in row_of(text, "oracle")
     # A row left out on purpose says why.
     assert "not run: off ([evaluate] model_on_closest_laser)" in row_of(text, "model_closest_laser")
     assert "<td>n/a / n/a</td><td>n/a / n/a</td>" in row_of(text, "no_learning")
+
+
+def test_every_learned_row_shows_its_start_and_says_when_learning_did_not_help() -> None:
+    """A row with a start shows the start's test AUC and the difference; the conclusion
+    names each learned row (besides the headline) not above its start, and says so when
+    every one is."""
+    entry: dict[str, Any] = tied_summary(0).to_json()
+    auc = float(entry["auc"])
+    rows = {
+        "self_supervised": {**entry, "start_auc": auc - 0.02},
+        "oracle": {**entry, "start_auc": auc + 0.01},
+        "ablations": {"no_time_term": {**entry, "start_auc": auc - 0.05}},
+        "test_events": 3000,
+    }
+    text = page(rows)
+    cells = re.findall(r"<td[^>]*>(.*?)</td>", row_of(text, "oracle"))
+    assert cells[2] == f"{auc + 0.01:.3f} (-0.010)"
+    assert re.findall(r"<td[^>]*>(.*?)</td>", row_of(text, "no_time_term"))[2] == (
+        f"{auc - 0.05:.3f} (+0.050)"
+    )
+    said = re.findall(r"<p class='conclusion'>(.*?)</p>", text)[0]
+    assert "did not help 1 of the other 2 learned rows" in said
+    assert html.escape(title("oracle")) in said and title("no_time_term") not in said
+    rows["oracle"] = {**entry, "start_auc": auc - 0.001}
+    said = re.findall(r"<p class='conclusion'>(.*?)</p>", page(rows))[0]
+    assert "Every other learned row (2) ends above its own start." in said
 
 
 def test_index_html_puts_the_warnings_first() -> None:

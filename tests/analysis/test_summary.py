@@ -23,6 +23,7 @@ from toolkit.analysis.summary import (
     scores_table,
     speed_control,
     split_counts,
+    start_aucs,
     summary_json,
 )
 from toolkit.config import EvaluateConfig, default_config
@@ -151,6 +152,16 @@ def test_model_entry_repeats_model_json_and_names_the_points() -> None:
         model_entry({k: v for k, v in doc.items() if k != "mu"}, "hash", ())
 
 
+def test_start_aucs_are_each_learned_rows_start_on_the_test_split() -> None:
+    """The start's AUC on the test events alone (the two training events, scored to spoil
+    it, do not count); rows without a start have none; nothing when the test is untestable."""
+    start = np.array([9.0, -9.0, 0.1, 0.9, 0.2, 0.8, 0.7])  # test: rough events lowest
+    learned = dataclasses.replace(_method(SCORES), start=start)
+    methods = {"self_supervised": learned, "boosted": _method(SCORES), "oracle": None}
+    assert start_aucs(methods, TEST, ROUGH, True) == {"self_supervised": 0.0}
+    assert start_aucs(methods, TEST, ROUGH, False) == {}
+
+
 def test_summary_json_lists_every_method_the_counts_and_the_baseline_test() -> None:
     rows = Rows()
     learned, ablated = _method(SCORES), _method([-v for v in SCORES])
@@ -166,7 +177,8 @@ def test_summary_json_lists_every_method_the_counts_and_the_baseline_test() -> N
     counts = split_counts(~TEST, TEST, ROUGH)
     model = {"mu": 0.25}
     bp = BaselineParams(cell_m=0.5, delta_m=0.2, sigma0_m=0.04, growth_m2_per_s=0.001)
-    summary = summary_json(rows, rocs, speed, counts, "/laser_1", model, bp, ["careful"])
+    starts = {"self_supervised": 0.5}
+    summary = summary_json(rows, rocs, starts, speed, counts, "/laser_1", model, bp, ["careful"])
     assert list(summary) == [
         *MAIN_METHODS,
         "ablations",
@@ -183,9 +195,11 @@ def test_summary_json_lists_every_method_the_counts_and_the_baseline_test() -> N
         "toolkit_version",
     ]
     assert summary["self_supervised"] == method_entry(
-        rocs["self_supervised"], learned, {"sample": "nearest_laser"}
+        rocs["self_supervised"], learned, {"sample": "nearest_laser"}, 0.5
     )
     assert summary["self_supervised"]["auc"] == round(5 / 6, 6)
+    assert summary["self_supervised"]["start_auc"] == 0.5
+    assert "start_auc" not in summary["ablations"]["no_time_term"]
     assert all(summary[name] is None for name in MAIN_METHODS if name != "self_supervised")
     assert list(summary["ablations"]) == list(ABLATION_NAMES)
     assert summary["ablations"]["no_time_term"]["auc"] == round(1 / 6, 6)  # negated scores

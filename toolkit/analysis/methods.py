@@ -50,12 +50,15 @@ BASELINE_FREE = (False,) * 10 + (True, True, True)
 
 @dataclass(frozen=True)
 class MethodScores:
-    """One method's verdicts on every event (E,), and how it was trained (None for the
-    learned model, trained by ``terrain learn``)."""
+    """One method's verdicts on every event (E,), how it was trained (None for the learned
+    model, trained by ``terrain learn``), and the R_combined (E,) of its search's start,
+    unlearned (None for a method without one: the trees, the start itself): what learning
+    bought is the difference."""
 
     scores: EventScores
     trained: AscentResult | None
     params: RoughnessParams
+    start: FloatArray | None = None
 
 
 @dataclass(frozen=True)
@@ -112,7 +115,10 @@ class Trainer:
         (block by block: once)."""
         search = ascent_config(self.learn if learn is None else learn, free, fixed)
         result = coordinate_ascent(training, self.rough[self.train], search)
-        return MethodScores(score_events(everything, result.params), result, result.params)
+        start = score_events(everything, RoughnessParams.from_vector(search.initial, 0.0))
+        return MethodScores(
+            score_events(everything, result.params), result, result.params, start.r_combined
+        )
 
     def model_on(self, patches: TyrePatches, learn: LearnConfig | None = None) -> MethodScores:
         """The paper's model searched on ``patches``' training events (their pairs), every
@@ -135,8 +141,12 @@ def baseline(trainer: Trainer, p: TyrePatches, bp: BaselineParams) -> MethodScor
     none = (p.count.reshape(-1, 2) < 2).all(axis=1)
     s = got.scores
     r_comb = np.where(none, np.nan, s.r_combined)
+    start = None if got.start is None else np.where(none, np.nan, got.start)
     return MethodScores(
-        EventScores(s.r_left, s.r_right, r_comb, s.predicted & ~none), got.trained, got.params
+        EventScores(s.r_left, s.r_right, r_comb, s.predicted & ~none),
+        got.trained,
+        got.params,
+        start,
     )
 
 
@@ -192,12 +202,17 @@ def ablation(
     return trainer.fit(training, everything, None, free, fixed_values)
 
 
-def no_learning(trainer: Trainer, everything: TopScores) -> MethodScores:
-    """The search's initial guess as it stands, with mu eq. (6)'s best threshold on the
-    training split: what the learning itself buys."""
+def initial_guess(learn: LearnConfig, everything: TopScores) -> EventScores:
+    """Every event scored by the search's initial guess as ``learn`` sets it (mu 0)."""
+    return score_events(everything, RoughnessParams.from_vector(ascent_config(learn).initial, 0.0))
+
+
+def no_learning(trainer: Trainer, initial: EventScores) -> MethodScores:
+    """The search's initial guess as it stands (its scores of every event, ``initial``),
+    with mu eq. (6)'s best threshold on the training split: what the learning itself
+    buys."""
     train, rough = trainer.train, trainer.rough
     start_params = RoughnessParams.from_vector(ascent_config(trainer.learn).initial, 0.0)
-    initial = score_events(everything, start_params)
     mu = best_threshold(initial.r_combined[train], rough[train], trainer.learn.lambda_fp).mu
     start_params = dataclasses.replace(start_params, mu=mu)
     return MethodScores(
@@ -214,6 +229,7 @@ __all__ = [
     "ablation",
     "baseline",
     "boosted_row",
+    "initial_guess",
     "no_learning",
     "paper_exact",
     "same_points",

@@ -210,11 +210,12 @@ def _roc_rows(summary: Mapping[str, Any], n_fprs: int) -> list[str]:
         if not m:
             why = (summary.get("not_run") or {}).get(key)
             text = f"not run: {html.escape(why)}" if why else "not evaluated"
-            rows.append(f"<tr><td>{name}</td><td colspan='{n_fprs + 5}'>{text}</td></tr>")
+            rows.append(f"<tr><td>{name}</td><td colspan='{n_fprs + 6}'>{text}</td></tr>")
             continue
         ci = m.get("auc_ci95") or [None, None]
         cells = [
             f"{_fmt(m['auc'])} [{_fmt(ci[0])}, {_fmt(ci[1])}]",
+            _start_cell(m),
             _share_pair(m, "zero_share"),
             _share_pair(m, "unscored_share"),
         ]
@@ -225,6 +226,15 @@ def _roc_rows(summary: Mapping[str, Any], n_fprs: int) -> list[str]:
         cells.append(html.escape(_points_text(m.get("points"))))
         rows.append(f"<tr><td>{name}</td>" + "".join(f"<td>{c}</td>" for c in cells) + "</tr>")
     return rows
+
+
+def _start_cell(m: Mapping[str, Any]) -> str:
+    """A learned row's start, unlearned: its test AUC and what learning added ("-" for a
+    row without a start)."""
+    start = m.get("start_auc")
+    if start is None or m.get("auc") is None:
+        return "-"
+    return f"{_fmt(start)} ({float(m['auc']) - float(start):+.3f})"
 
 
 def _points_text(points: Mapping[str, Any] | None) -> str:
@@ -334,7 +344,10 @@ def _roc_section(s: Mapping[str, Any], roc_figures: Sequence[str]) -> list[str]:
         "below every score. Each is one tie: the method does not rank the events in it, and "
         "its ROC curve crosses them as one straight segment (the AUC counts a tied rough and "
         "smooth pair as half a win).</p>",
-        "<table><tr><th>method</th><th>AUC</th><th>score 0: all / rough</th>"
+        "<p><i>Its start</i> is a learned row's test AUC with the parameters its search began "
+        "from, unlearned, and in brackets what learning added to it.</p>",
+        "<table><tr><th>method</th><th>AUC</th><th>its start (learning)</th>"
+        "<th>score 0: all / rough</th>"
         f"<th>unscored: all / rough</th>{head}<th>Spearman</th><th>points scored</th></tr>",
         *_roc_rows(s, len(fprs)),
         "</table>",
@@ -388,7 +401,33 @@ def conclusion(s: Mapping[str, Any]) -> list[str]:
                 f"unlearned start, {_auc_with_interval(start)} ({gain:+.3f}); what the table "
                 "shows of it is the hand-set starting guess, not what was learned."
             )
+    said += _learning_elsewhere(s)
     return [f"<p class='conclusion'>{' '.join(said)}</p>"] if said else []
+
+
+def _learning_elsewhere(s: Mapping[str, Any]) -> list[str]:
+    """Whether learning helped the other learned rows (each against its own start's test
+    AUC), named when it did not."""
+    entries = [(k, s.get(k)) for k in METHOD_KEYS if k != HEADLINE]
+    entries += list((s.get("ablations") or {}).items())
+    judged = [
+        (key, float(m["auc"]), float(m["start_auc"]))
+        for key, m in entries
+        if isinstance(m, Mapping) and m.get("auc") is not None and m.get("start_auc") is not None
+    ]
+    if not judged:
+        return []
+    failed = [
+        f"{html.escape(title(key))}, {ours:.3f} against {start:.3f} ({ours - start:+.3f})"
+        for key, ours, start in judged
+        if ours <= start
+    ]
+    if not failed:
+        return [f"Every other learned row ({len(judged)}) ends above its own start."]
+    return [
+        f"<b>Learning did not help {len(failed)} of the other {len(judged)} learned rows</b> "
+        f"(test AUC against their start's): {'; '.join(failed)}."
+    ]
 
 
 def _model_section(s: Mapping[str, Any], m: Mapping[str, Any]) -> list[str]:

@@ -25,7 +25,7 @@ from toolkit.arrays import BoolArray, FloatArray
 from toolkit.config import EvaluateConfig
 from toolkit.model import speed_control as sc
 from toolkit.model.baseline import BaselineParams
-from toolkit.model.roc import RocSummary, summarise
+from toolkit.model.roc import RocSummary, auc, summarise
 from toolkit.model.shock import MPS_PER_MPH
 
 #: model.json's keys the summary repeats, as learn wrote them.
@@ -70,16 +70,35 @@ def method_rocs(
     }
 
 
+def start_aucs(
+    methods: Mapping[str, MethodScores | None], test: BoolArray, rough: BoolArray, testable: bool
+) -> dict[str, float]:
+    """The test AUC of each learned method's start, unlearned (its search's initial
+    parameters; only methods that have one, and none when the test split lacks a class)."""
+    if not testable:
+        return {}
+    return {
+        name: auc(m.start[test], rough[test])
+        for name, m in methods.items()
+        if m is not None and m.start is not None
+    }
+
+
 def method_entry(
-    roc: RocSummary | None, m: MethodScores | None, points: dict[str, Any] | None
+    roc: RocSummary | None,
+    m: MethodScores | None,
+    points: dict[str, Any] | None,
+    start_auc: float | None = None,
 ) -> dict[str, Any] | None:
-    """A method's summary entry: its ROC, parameters and points, and how its training went
-    (None for a method without an ROC)."""
+    """A method's summary entry: its ROC, parameters and points, how its training went,
+    and its start's test AUC (None for a method without an ROC)."""
     if roc is None or m is None:
         return None
     out = roc.to_json()
     out["params"] = m.params.to_json()
     out["points"] = points
+    if start_auc is not None:
+        out["start_auc"] = start_auc
     if m.trained is not None:
         t = m.trained
         out["train_objective"] = t.objective
@@ -102,6 +121,7 @@ def split_counts(train: BoolArray, test: BoolArray, rough: BoolArray) -> dict[st
 def summary_json(
     rows: Rows,
     rocs: Mapping[str, RocSummary | None],
+    starts: Mapping[str, float],
     speed: dict[str, Any],
     counts: dict[str, int],
     closest: str | None,
@@ -110,10 +130,12 @@ def summary_json(
     warnings: list[str],
 ) -> dict[str, Any]:
     """``summary.json``'s contents; ``model`` is the summary's model entry
-    (:func:`model_entry`)."""
+    (:func:`model_entry`), ``starts`` the learned methods' starts' test AUCs
+    (:func:`start_aucs`)."""
 
     def entry(name: str) -> dict[str, Any] | None:
-        return method_entry(rocs.get(name), rows.methods.get(name), rows.points.get(name))
+        m, points = rows.methods.get(name), rows.points.get(name)
+        return method_entry(rocs.get(name), m, points, starts.get(name))
 
     return {
         **{name: entry(name) for name in MAIN_METHODS},
@@ -255,5 +277,6 @@ __all__ = [
     "scores_table",
     "speed_control",
     "split_counts",
+    "start_aucs",
     "summary_json",
 ]

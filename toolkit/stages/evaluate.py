@@ -52,6 +52,7 @@ from toolkit.analysis.summary import (
     scores_table,
     speed_control,
     split_counts,
+    start_aucs,
     summary_json,
 )
 from toolkit.atomic import atomic_write_json
@@ -166,6 +167,7 @@ def _write_report(
         if not testable:
             warnings.append("the test split lacks rough or smooth events: no ROC")
         rocs = method_rocs(run.rows.methods, t.test, t.rough, t.ruggedness, ev, testable)
+        starts = start_aucs(run.rows.methods, t.test, t.rough, testable)
         speed, speed_files = speed_control(t.events, learned.scores.predicted, t.test, ev, report)
         timings["evaluate"] = time.perf_counter() - t0
         run.tell(None)
@@ -185,7 +187,7 @@ def _write_report(
         )
         model = model_entry(model_doc, run.config.model.point_sample, t.order)
         bp = baseline_params(ev)
-        summary = summary_json(run.rows, rocs, speed, counts, closest, model, bp, warnings)
+        summary = summary_json(run.rows, rocs, starts, speed, counts, closest, model, bp, warnings)
         summary["provenance"] = provenance(run.workspace, t.events, call.config_hash)
         write_table(
             report / SCORES_NAME,

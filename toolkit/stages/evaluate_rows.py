@@ -34,6 +34,7 @@ from toolkit.analysis.methods import (
     ablation,
     baseline,
     boosted_row,
+    initial_guess,
     no_learning,
     paper_exact,
     same_points,
@@ -43,7 +44,14 @@ from toolkit.arrays import BoolArray, FloatArray
 from toolkit.config import EvaluateConfig, LearnConfig, ModelConfig
 from toolkit.model.baseline import BaselineParams
 from toolkit.model.patches import TyrePatches
-from toolkit.model.roughness import Blockwise, RoughnessParams, TopScores, model_pairs, score_events
+from toolkit.model.roughness import (
+    Blockwise,
+    EventScores,
+    RoughnessParams,
+    TopScores,
+    model_pairs,
+    score_events,
+)
 from toolkit.pools import process_pool
 from toolkit.stages.training_data import (
     closest_laser,
@@ -206,23 +214,27 @@ class RowsRun:
         """The points the model scores, as the summary says them."""
         return {"sample": self.config.model.point_sample, "only_laser": None}
 
-    def learned(self, params: RoughnessParams) -> tuple[MethodScores, Blockwise]:
-        """The learned model's scores, and every event's pairs (the other rows on the
-        model's points score them too)."""
+    def learned(self, params: RoughnessParams) -> tuple[MethodScores, Blockwise, EventScores]:
+        """The learned model's scores (with its start's), every event's pairs (the other
+        rows on the model's points score them too), and every event scored by the search's
+        initial guess."""
         # Only the training split's pairs are held: each search scores them hundreds of
         # times. Every event is scored once per method, a block of pairs at a time, so
         # memory follows the training split, not the whole log (an hour's log: ~280 MB of
         # pairs a split).
-        self.tell("scoring the learned model")
+        self.tell("scoring the learned model and its start")
         everything = model_pairs(self.tables.patches)
-        learned = MethodScores(score_events(everything, params), None, params)
+        # Learn searched from [learn]'s initial guess, and the runner holds evaluate to the
+        # configuration learn ran with: this is the learned model's own start.
+        initial = initial_guess(self.config.learn, everything)
+        learned = MethodScores(score_events(everything, params), None, params, initial.r_combined)
         self.rows.add(HEADLINE, learned, self.model_points)
         if not self.trainer.learnable:
             self.warnings.append(
                 "the training split lacks rough or smooth events: baselines, oracle and "
                 "ablations not trained"
             )
-        return learned, everything
+        return learned, everything, initial
 
     def point_sets(self) -> PointSets:
         """The baselines' points (:class:`PointSets`)."""
@@ -311,8 +323,7 @@ class RowsRun:
         return jobs
 
     def ablation_jobs(self, everything: Blockwise) -> list[Job]:
-        """The model learned again without the time or the rate terms, and the initial
-        guess unlearned."""
+        """The model learned again without the time or the rate terms."""
         patches, trainer = self.tables.patches, self.trainer
         train_pairs: PerProcess[TopScores] = PerProcess(
             lambda: trainer.pairs(patches.take(trainer.groups))
@@ -322,17 +333,10 @@ class RowsRun:
             return ablation(trainer, name, train_pairs.get(), everything)
 
         told = "training the ablation"
-        jobs = [
+        return [
             Job(name, f"{told} {name}", partial(without, name), self.model_points)
             for name in ABLATIONS
         ]
-        start = Job(
-            UNLEARNED_START,
-            "scoring the initial guess",
-            lambda: no_learning(trainer, everything),
-            self.model_points,
-        )
-        return [*jobs, start]
 
     def oracle_job(self) -> Job:
         """The model's search on the true terrain heights (simulated logs only: None
@@ -352,10 +356,12 @@ class RowsRun:
 def train_methods(run: RowsRun, params: RoughnessParams) -> tuple[MethodScores, str | None]:
     """Every method trained and scored into ``run.rows``; the learned model's scores and
     the closest laser."""
-    learned, everything = run.learned(params)
+    learned, everything, initial = run.learned(params)
     sets = run.point_sets()
     if not run.trainer.learnable:
         return learned, sets.closest
+    # The initial guess unlearned, with mu on the training split: no training, no job.
+    run.rows.add(UNLEARNED_START, no_learning(run.trainer, initial), run.model_points)
     jobs = [
         *run.baseline_jobs(sets),
         *run.model_jobs(learned, sets),
