@@ -56,6 +56,21 @@ def rates(y: np.ndarray, r: np.ndarray) -> tuple[float, list[float]]:
     return float(roc_auc_score(y, r)), [float(np.interp(a, fpr, tpr)) for a in (0.05, 0.1, 0.2)]
 
 
+def per_log(
+    log_ids: np.ndarray, test: np.ndarray, y: np.ndarray, r: np.ndarray, r0: np.ndarray
+) -> str:
+    """Each log's test AUC, learned and (in brackets) unlearned: whether learning helped on
+    every seed, not only pooled."""
+    out = []
+    for log_id in sorted(set(log_ids.tolist())):
+        mine = test & (log_ids == log_id)
+        if 0 < y[mine].sum() < mine.sum():
+            learned, _ = rates(y[mine], r[mine])
+            start, _ = rates(y[mine], r0[mine])
+            out.append(f"{log_id.split('-')[0]} {learned:.3f} ({start:.3f})")
+    return "; ".join(out)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("workspaces", type=Path, nargs="+")
@@ -68,6 +83,7 @@ def main() -> None:
     ap.add_argument("--step-rule", nargs="+", default=["halve"], choices=["halve", "adapt"])
     ap.add_argument("--increments", nargs="+", default=["config"], choices=list(INCREMENTS))
     ap.add_argument("--iterations", type=int, nargs="+", default=[20])
+    ap.add_argument("--per-log", action="store_true", help="also each log's test AUC")
     args = ap.parse_args()
     for root in args.workspaces:
         ws = Workspace(root)
@@ -76,6 +92,7 @@ def main() -> None:
         split = np.asarray(events.column("split").to_pylist(), dtype=object)
         train, test = split == "train", split == "test"
         y = events.column("rough").to_numpy(zero_copy_only=False).astype(bool)
+        log_ids = np.asarray(events.column("log_id").to_pylist(), dtype=object)
         print(f"{root}: train {y[train].sum()} rough of {train.sum()}, test {y[test].sum()} "
               f"of {test.sum()}")  # fmt: skip
         if args.baseline:
@@ -131,6 +148,10 @@ def main() -> None:
                     f"at0 {100 * zero:.0f}% J {res.objective:.3f} ({time.perf_counter() - t0:.0f} s)",
                     flush=True,
                 )
+                if args.per_log:
+                    print(
+                        "    per log, test AUC learned (start):", per_log(log_ids, test, y, r, r0)
+                    )
 
 
 if __name__ == "__main__":
