@@ -2,7 +2,10 @@
 
 Two small logs: the bundled sample under two names (two logs to the toolkit: a log's id comes
 from its name and content), so the per-log stages run them in parallel and tables splits
-across them (the first log trains, the second tests).
+across them (the first log trains, the second tests). The workspaces take the default
+configuration with a shorter search and bootstrap (:func:`quick_config`): what is tested here
+is how the stages run, not what they learn, and the eight runs of these tests took 4 minutes
+of the slow suite with the default's.
 """
 
 from __future__ import annotations
@@ -37,6 +40,20 @@ SEED = 20261125
 STAGE_LINE = re.compile(rf"(?<![\w-])({'|'.join(STAGES)}) +\d+\.\d s  ")
 #: Longest wait for a stage's line or a run's end, s.
 TIMEOUT_S = 600.0
+
+
+def quick_config(directory: Path) -> Path:
+    """The default configuration with 4 rotations of the search instead of 20 and 50
+    bootstrap resamples instead of 1,000, written into ``directory``."""
+    text = (Path(__file__).resolve().parents[1] / "toolkit" / "default_config.toml").read_text()
+    quick = re.sub(r"^iterations = 20\b", "iterations = 4", text, count=1, flags=re.M)
+    quick = re.sub(
+        r"^bootstrap_resamples = 1000\b", "bootstrap_resamples = 50", quick, count=1, flags=re.M
+    )
+    assert quick.count("iterations = 4") == 1 and "bootstrap_resamples = 50" in quick
+    path = directory / "quick.toml"
+    path.write_text(quick)
+    return path
 
 
 def terrain(*args: str | Path, quiet: bool = True) -> list[str]:
@@ -86,11 +103,12 @@ class StageLines:
 
 
 def start_run(logs: list[Path], ws: Path) -> tuple[subprocess.Popen[str], StageLines]:
-    """`terrain run` of the logs in ``ws`` (two workers) in a session of its own, its stage
-    lines read as they come."""
+    """`terrain run` of the logs in ``ws`` (two workers, the quick configuration beside
+    them) in a session of its own, its stage lines read as they come."""
     t0 = time.perf_counter()
+    config = logs[0].parent / "quick.toml"
     child = subprocess.Popen(
-        terrain("run", *logs, "-w", ws, "--workers", "2", quiet=False),
+        terrain("run", *logs, "-w", ws, "-c", config, "--workers", "2", quiet=False),
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -151,6 +169,7 @@ def logs(tmp_path_factory: pytest.TempPathFactory) -> list[Path]:
     out = [d / "run_a.mcap", d / "run_b.mcap"]
     for p in out:
         shutil.copyfile(SAMPLE_LOG, p)
+    quick_config(d)  # beside the logs, where start_run finds it
     return out
 
 
@@ -187,7 +206,10 @@ def test_run_equals_the_verbs_one_by_one(
     """The verbs ingest, pose, project, label, tables, learn, evaluate run by hand give the
     same files, byte for byte (manifests without their timings)."""
     ws = tmp_path / "ws"
-    subprocess.run(terrain("ingest", *logs, "-w", ws), check=True, capture_output=True)
+    config = logs[0].parent / "quick.toml"
+    subprocess.run(
+        terrain("ingest", *logs, "-w", ws, "-c", config), check=True, capture_output=True
+    )
     for verb in ("pose", "project", "label", "tables", "learn", "evaluate"):
         subprocess.run(terrain(verb, "-w", ws), check=True, capture_output=True)
     got, want = state(ws), state(uninterrupted)
@@ -278,7 +300,9 @@ def test_killed_in_every_stage_then_rerun_gives_the_same_outputs(
             killed_in.append("(none: the run ended first)")
         assert not_as_at_the_end(state(ws), want) == [], stage
     subprocess.run(
-        terrain("run", *logs, "-w", ws, "--workers", "2"), check=True, capture_output=True
+        terrain("run", *logs, "-w", ws, "-c", logs[0].parent / "quick.toml", "--workers", "2"),
+        check=True,
+        capture_output=True,
     )
     got = state(ws)
     assert got.keys() == want.keys()
