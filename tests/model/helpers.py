@@ -116,3 +116,33 @@ def random_patches(
             )
         out.append(wheels)
     return out
+
+
+def planted(
+    rng: np.random.Generator, events: int, drift_m: tuple[float, float] | None = None
+) -> tuple[list[list[list[Point]]], np.ndarray]:
+    """Smooth events: a slow pose drift, 8 cm between points seen 2 s apart (as Fig. 4's
+    error growing with time; with ``drift_m``, drawn uniformly from that range per event).
+    Rough events: a 5 cm step between points seen 0.05 s apart. Height difference alone
+    ranks the drift above the step; the time term (alpha_3 > 0) separates them."""
+    out, labels = [], []
+    for e in range(events):
+        rough = e % 5 == 0
+        drift = 0.08 if drift_m is None else float(rng.uniform(*drift_m))
+        wheels = []
+        for w in range(2):
+            pts: list[Point] = []
+            for k in range(8):
+                x = 0.15 * k
+                noise = float(rng.normal(0, 0.003))
+                if rough and w == 0:
+                    tau = 10.0 + 0.01 * k
+                    z = (0.05 if k >= 4 else 0.0) + noise
+                else:
+                    tau = 10.0 + (2.0 if k >= 4 else 0.0) + 0.01 * k
+                    z = (drift if k >= 4 else 0.0) + noise
+                pts.append((x, 0.01 * w, z, tau, 0.0, 0.0))
+            wheels.append(pts)
+        out.append(wheels)
+        labels.append(rough)
+    return out, np.array(labels)

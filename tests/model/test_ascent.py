@@ -9,7 +9,7 @@ import pyarrow as pa
 import pytest
 from sklearn.metrics import auc, roc_auc_score, roc_curve
 
-from tests.model.helpers import Point, make_patches, points_table
+from tests.model.helpers import make_patches, planted, points_table
 from toolkit.model.ascent import (
     ACCEPTANCE,
     PAUC_MAX_FPR,
@@ -58,36 +58,6 @@ def test_mu_sits_midway_between_adjacent_scores() -> None:
     assert (t.mu, t.objective, t.tpr, t.fpr) == (2.0, 1.0, 1.0, 0.0)
 
 
-def _planted(
-    rng: np.random.Generator, events: int, drift_m: tuple[float, float] | None = None
-) -> tuple[list[list[list[Point]]], np.ndarray]:
-    """Smooth events: a slow pose drift, 8 cm between points seen 2 s apart (as Fig. 4's
-    error growing with time; with ``drift_m``, drawn uniformly from that range per event).
-    Rough events: a 5 cm step between points seen 0.05 s apart. Height difference alone
-    ranks the drift above the step; the time term (alpha_3 > 0) separates them."""
-    out, labels = [], []
-    for e in range(events):
-        rough = e % 5 == 0
-        drift = 0.08 if drift_m is None else float(rng.uniform(*drift_m))
-        wheels = []
-        for w in range(2):
-            pts: list[Point] = []
-            for k in range(8):
-                x = 0.15 * k
-                noise = float(rng.normal(0, 0.003))
-                if rough and w == 0:
-                    tau = 10.0 + 0.01 * k
-                    z = (0.05 if k >= 4 else 0.0) + noise
-                else:
-                    tau = 10.0 + (2.0 if k >= 4 else 0.0) + 0.01 * k
-                    z = (drift if k >= 4 else 0.0) + noise
-                pts.append((x, 0.01 * w, z, tau, 0.0, 0.0))
-            wheels.append(pts)
-        out.append(wheels)
-        labels.append(rough)
-    return out, np.array(labels)
-
-
 def _config(**kw: object) -> AscentConfig:
     base = dict(
         initial=(1.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 1.0, 2.0, 1.0),
@@ -104,7 +74,7 @@ def test_a_planted_problem_is_learned() -> None:
     penalty and separates the training events perfectly (J = 1), and the learned model
     classifies fresh events from the same process without error."""
     rng = np.random.default_rng(3)
-    train, y_train = _planted(rng, 60)
+    train, y_train = planted(rng, 60)
     source = PairTable(make_patches(train))
     start = _config().initial
     r0 = score_events(source, RoughnessParams.from_vector(start, 0.0)).r_combined
@@ -112,7 +82,7 @@ def test_a_planted_problem_is_learned() -> None:
     result = coordinate_ascent(source, y_train, _config())
     assert result.objective == 1.0 and result.tpr == 1.0 and result.fpr == 0.0
     assert result.params.alpha[2] > 0.0  # the time term was needed
-    test, y_test = _planted(rng, 40)
+    test, y_test = planted(rng, 40)
     got = score_events(PairTable(make_patches(test)), result.params)
     np.testing.assert_array_equal(got.predicted, y_test)
 
@@ -124,7 +94,7 @@ def test_adapted_steps_reach_a_penalty_the_halved_ones_cannot() -> None:
     stops partway; the adapted increments double while the steps are taken and get there.
     Only alpha_3 moves (with every element free the search finds other ways round)."""
     rng = np.random.default_rng(3)
-    train, y_train = _planted(rng, 60, drift_m=(0.05, 0.09))
+    train, y_train = planted(rng, 60, drift_m=(0.05, 0.09))
     small = list(_config().increments)
     small[2] = 0.005
     only_time = tuple(j == 2 for j in range(13))
@@ -134,7 +104,7 @@ def test_adapted_steps_reach_a_penalty_the_halved_ones_cannot() -> None:
         got[rule] = coordinate_ascent(PairTable(make_patches(train)), y_train, config)
     assert got["halve"].params.alpha[2] < 0.01 and got["halve"].objective < 1.0
     assert got["adapt"].objective == 1.0 and got["adapt"].params.alpha[2] > 0.015
-    test, y_test = _planted(rng, 40, drift_m=(0.05, 0.09))
+    test, y_test = planted(rng, 40, drift_m=(0.05, 0.09))
     fresh = score_events(PairTable(make_patches(test)), got["adapt"].params)
     np.testing.assert_array_equal(fresh.predicted, y_test)
 
@@ -148,7 +118,7 @@ def test_without_the_time_term_the_planted_problem_is_not_learned() -> None:
     """The same problem with alpha_3 frozen at 0: no parameter separates it (J < 1): the
     planted problem needs what the first test says it found."""
     rng = np.random.default_rng(3)
-    train, y_train = _planted(rng, 60)
+    train, y_train = planted(rng, 60)
     free = tuple(j not in (2, 3) for j in range(13))
     result = coordinate_ascent(PairTable(make_patches(train)), y_train, _config(free=free))
     assert result.objective < 1.0
@@ -159,7 +129,7 @@ def test_objective_never_decreases_and_omega_stays_a_positive_integer() -> None:
     """On noisy random labels (hard to learn): the objective after each rotation and at each
     accepted step never falls; omega is an integer >= 1 throughout."""
     rng = np.random.default_rng(11)
-    raw, _ = _planted(rng, 50)
+    raw, _ = planted(rng, 50)
     y = rng.random(50) < 0.3
     y[:2] = [True, False]
     result = coordinate_ascent(PairTable(make_patches(raw)), y, _config(iterations=6))
@@ -175,7 +145,7 @@ def test_objective_never_decreases_and_omega_stays_a_positive_integer() -> None:
 
 def test_the_search_is_deterministic() -> None:
     rng = np.random.default_rng(5)
-    raw, y = _planted(rng, 30)
+    raw, y = planted(rng, 30)
     a = coordinate_ascent(PairTable(make_patches(raw)), y, _config(iterations=4))
     b = coordinate_ascent(PairTable(make_patches(raw)), y, _config(iterations=4))
     assert a == b
@@ -203,7 +173,7 @@ def test_no_search_ends_below_its_start_on_what_it_climbs(accept: str) -> None:
     rotation and ends at or above the initial guess's own; mu is eq. (6)'s best threshold
     for the parameters reached."""
     rng = np.random.default_rng(11)
-    raw, _ = _planted(rng, 50)
+    raw, _ = planted(rng, 50)
     y = rng.random(50) < 0.3
     y[:2] = [True, False]
     source = PairTable(make_patches(raw))
@@ -303,7 +273,7 @@ def test_early_stopping_keeps_the_rotation_that_ranks_held_out_events_best() -> 
     well as the start and as every later rotation the search passed; mu is eq. (6)'s on all
     training events."""
     rng = np.random.default_rng(11)
-    raw, _ = _planted(rng, 90)
+    raw, _ = planted(rng, 90)
     y = rng.random(90) < 0.3
     source = PairTable(make_patches(raw))
     cfg = _config(iterations=5, accept="auc", validation_share=1 / 3, validation_block=5)
@@ -389,7 +359,7 @@ def test_the_look_ahead_term_discounts_far_laser_points() -> None:
 
 def test_early_stopping_says_what_it_held_out_and_kept() -> None:
     rng = np.random.default_rng(11)
-    raw, _ = _planted(rng, 90)
+    raw, _ = planted(rng, 90)
     y = rng.random(90) < 0.3
     cfg = _config(iterations=4, accept="auc", validation_share=1 / 3, validation_block=5)
     result = coordinate_ascent(PairTable(make_patches(raw)), y, cfg)

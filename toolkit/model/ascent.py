@@ -266,6 +266,8 @@ class AscentResult:
     validation_history: tuple[float, ...] = ()
     held_out_share: float = 0.0
     kept_rotation: int | None = None
+    #: The increments after the last rotation (where a search continued later would go on).
+    increments: tuple[float, ...] = ()
 
 
 class _Evaluator:
@@ -418,7 +420,8 @@ def _rotate(
             climb = _Climb(t, got, r, (*climb.steps, (rotation, names[j], t[j], got.objective)))
             moved[j] = True
     for j, took in enumerate(moved):
-        inc[j] *= 2.0 if took and config.step_rule == "adapt" else 0.5
+        if config.moves(j):  # a frozen element keeps its increment (an online update's)
+            inc[j] *= 2.0 if took and config.step_rule == "adapt" else 0.5
     return climb
 
 
@@ -503,6 +506,7 @@ def coordinate_ascent(
         validation_history=tuple(val_history),
         held_out_share=0.0 if stop is None else float(stop.held.mean()),
         kept_rotation=None if stop is None else stop.rotation,
+        increments=tuple(inc),
     )
 
 

@@ -113,8 +113,9 @@ class TyrePatches:
     def n_max(self) -> int:
         return int(self.valid.shape[1])
 
-    def take(self, groups: slice | BoolArray) -> TyrePatches:
-        """The patches of the rows ``groups`` (a slice, or a (G,) mask), same width n_max."""
+    def take(self, groups: slice | BoolArray | IntArray) -> TyrePatches:
+        """The patches of the rows ``groups`` (a slice, a (G,) mask or row indices), same
+        width n_max."""
         return TyrePatches(
             self.x[groups],
             self.y[groups],

@@ -1,0 +1,137 @@
+"""Learning while driving (sect. 8): test-then-train on a replayed stream of planted events."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from sklearn.metrics import roc_auc_score
+
+from tests.model.helpers import make_patches, planted
+from toolkit.model.online import (
+    LearnerState,
+    OnlineConfig,
+    Replayed,
+    Stream,
+    replay,
+    start,
+    step_ends,
+)
+from toolkit.model.roughness import model_pairs, score_events
+
+#: Height alone, no penalty (omega 1: the patch's largest height difference): the drift of
+#: the planted smooth events outscores the rough events' step until alpha_3 is learned.
+UNINFORMED = (1.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 1.0, 1.0, 1.0)
+INCREMENTS = (0.5, 0.5, 0.005, 0.5, 0.05, 0.5, 0.02, 0.5, 0.02, 0.5, 0.1, 2.0, 0.25)
+SPEED_MPS = 10.0
+EVENT_M = 1.4
+
+
+def stream(events: int, seed: int = 3, rough_from: int = 0) -> Stream:
+    """Planted events 1.4 m apart at 10 m/s (one rough in five, none before event
+    ``rough_from``), each seen 1 s before it began and known 0.5 s after."""
+    raw, rough = planted(np.random.default_rng(seed), events, drift_m=(0.05, 0.09))
+    if rough_from:
+        raw = [raw[e] if not rough[e] or e >= rough_from else raw[e + 1] for e in range(events)]
+        rough = rough & (np.arange(events) >= rough_from)
+    s = np.arange(events) * EVENT_M
+    t = np.round(s / SPEED_MPS * 1e9).astype(np.int64)
+    return Stream(t, s, t - 1_000_000_000, t + 500_000_000, rough, make_patches(raw))
+
+
+CONFIG = OnlineConfig(update_every_m=20.0, buffer_rough=20, buffer_smooth=80)
+
+
+def fresh() -> LearnerState:
+    return start(UNINFORMED, INCREMENTS)
+
+
+def auc(run: Replayed, s: Stream, rows: np.ndarray) -> float:
+    return float(roc_auc_score(s.rough[rows], run.r_combined[rows]))
+
+
+def test_the_model_learns_as_it_drives() -> None:
+    """From height alone, the second half of the drive is ranked far better than the first
+    (scored as it came, each event by the model of its time), and better than the start
+    would have ranked it."""
+    s = stream(600)
+    state, run = replay(s, fresh(), CONFIG)
+    assert np.isfinite(run.r_combined).all() and (run.version >= 0).all()
+    first, second = np.arange(s.events) < 300, np.arange(s.events) >= 300
+    unlearned = score_events(model_pairs(s.patches), fresh().params).r_combined
+    print(
+        f"\nprequential AUC: first half {auc(run, s, first):.3f}, second {auc(run, s, second):.3f}"
+    )
+    assert auc(run, s, second) > 0.95 > auc(run, s, first)
+    assert roc_auc_score(s.rough[second], unlearned[second]) < 0.8
+    assert state.params.alpha[2] > 0.01  # the time penalty that separates the classes
+    assert state.version > 0 and run.steps_kept.sum() > 0
+
+
+def test_each_event_is_scored_before_its_label_can_train_the_model() -> None:
+    """Changing the labels known after a moment changes no score of an event seen before it,
+    and every event is scored by a version made before its own label was known."""
+    s = stream(400)
+    _, run = replay(s, fresh(), CONFIG)
+    moment = s.t_start_ns[200]
+    flipped = np.where(s.t_known_ns > moment, ~s.rough, s.rough)
+    _, other = replay(dataclasses.replace(s, rough=flipped), fresh(), CONFIG)
+    before = s.t_seen_ns <= moment
+    np.testing.assert_array_equal(run.r_combined[before], other.r_combined[before])
+    assert not np.array_equal(run.r_combined[~before], other.r_combined[~before])
+    # The version scoring an event was made at a step that ended before its label was known.
+    made_at = np.r_[np.iinfo(np.int64).min, run.step_end_ns]
+    first_of_version = {
+        int(v): made_at[k] for k, v in reversed(list(enumerate(np.r_[0, run.step_version])))
+    }
+    assert all(first_of_version[int(v)] < s.t_known_ns[e] for e, v in enumerate(run.version))
+
+
+def test_a_replay_stopped_and_resumed_gives_the_same_result() -> None:
+    s = stream(300)
+    whole_state, whole = replay(s, fresh(), CONFIG)
+    state, a = replay(s, fresh(), CONFIG, stop_after=7)
+    assert state.step == 7
+    state, b = replay(s, state, CONFIG)
+    got = np.where(np.isnan(a.r_combined), b.r_combined, a.r_combined)
+    np.testing.assert_array_equal(got, whole.r_combined)
+    assert state.b == whole_state.b and state.mu == whole_state.mu
+    np.testing.assert_array_equal(np.r_[a.step_version, b.step_version], whole.step_version)
+
+
+def test_the_buffer_keeps_the_latest_of_each_class_and_no_more() -> None:
+    s = stream(500)
+    state, run = replay(s, fresh(), CONFIG)
+    assert run.buffer_rough.max() == CONFIG.buffer_rough
+    assert run.buffer_smooth.max() == CONFIG.buffer_smooth
+    known = s.t_known_ns <= run.step_end_ns[-1]
+    rough_known = np.flatnonzero(known & s.rough)[-CONFIG.buffer_rough :]
+    smooth_known = np.flatnonzero(known & ~s.rough)[-CONFIG.buffer_smooth :]
+    assert sorted(state.buffer.index.tolist()) == sorted([*rough_known, *smooth_known])
+
+
+def test_without_a_rough_event_the_model_waits_and_calls_nothing_rough() -> None:
+    """The first 200 events hold no rough one: until a rough label is known the model stays
+    the start (version 0) and, with mu above every score, flags nothing."""
+    s = stream(400, rough_from=200)
+    _, run = replay(s, fresh(), CONFIG)
+    early = s.t_seen_ns < s.t_known_ns[200]
+    assert (run.version[early] == 0).all() and not run.predicted[early].any()
+    assert run.version.max() > 0
+
+
+def test_steps_end_every_so_many_metres_and_cover_the_drive() -> None:
+    s = stream(100)  # 138.6 m
+    ends_m, ends_ns = step_ends(s, CONFIG)
+    np.testing.assert_allclose(ends_m[:-1], [20, 40, 60, 80, 100, 120])
+    assert ends_m[-1] == s.s_start_m[-1]
+    assert ends_ns[-1] >= max(s.t_seen_ns.max(), s.t_known_ns.max())
+    assert np.all(np.diff(ends_ns) > 0)
+
+
+def test_a_bad_configuration_is_refused() -> None:
+    with pytest.raises(ValueError, match="update_every_m"):
+        OnlineConfig(update_every_m=0.0)
+    with pytest.raises(ValueError, match="buffer"):
+        OnlineConfig(buffer_rough=0)

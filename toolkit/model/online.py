@@ -1,0 +1,326 @@
+"""Learning while driving (sect. 8): the search of sect. 6 run test-then-train on a replay.
+
+The paper ends on it: the method "can equally be used as an online learning method where the
+vehicle learns as it drives". Here the events come in the order the vehicle drove them, and
+each one twice:
+
+- at ``t_seen_ns``, when the last laser point under either rear tyre was seen, it is
+  *scored* with the model as it stood then: what the vehicle knew before its rear axle got
+  there;
+- at ``t_known_ns``, when the rear axle has left its stretch and the shock filter has had
+  the samples it needs (the event's end plus the filter's delay), its *label* is known, and
+  only from then on may it train the model.
+
+The replay moves in steps of ``update_every_m`` metres driven. Step k covers the times
+``(T_{k-1}, T_k]``, ``T_k`` being when the vehicle had driven ``k * update_every_m``: every
+event seen in it is scored with model version ``k - 1``; every label known by ``T_k`` then
+enters the buffer, and the model takes one update on it, which makes version ``k``.
+
+*The buffer* holds the most recent ``buffer_rough`` rough and ``buffer_smooth`` smooth
+labelled events, their patches with them, so its memory is bounded whatever the distance.
+It is class-balanced by construction; eq. (6)'s Tp and Fp are rates within each class, so
+mu chosen on it is not pulled by the classes' shares in it.
+
+*An update* is a piece of the coordinate ascent of :mod:`toolkit.model.ascent`: the next
+``coordinates_per_update`` elements of B (a rotation that runs on across updates) each try
+eq. (7)'s two signs with their own increments, adapted as ``step_rule = "adapt"`` does
+(doubled after a step is taken, halved after both signs fail); a step is kept when it
+raises the buffer's AUC, and mu is then eq. (6)'s best threshold on the buffer. Without a
+rough and a smooth event in the buffer the model stays as it is.
+
+Everything here is a function of its inputs: the same stream, start and configuration give
+the same scores and models, and a replay stopped after any step and resumed from its
+:class:`LearnerState` gives what one replay gives.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from toolkit.arrays import BoolArray, FloatArray, IntArray
+from toolkit.model.ascent import AscentConfig, coordinate_ascent
+from toolkit.model.patches import TyrePatches
+from toolkit.model.roughness import PairTable, RoughnessParams, model_pairs, score_events
+
+
+@dataclass(frozen=True)
+class OnlineConfig:
+    """How the model learns as it drives (module docstring)."""
+
+    #: Metres driven between two updates of the model.
+    update_every_m: float = 100.0
+    #: The buffer: the most recent rough events kept, and the most recent smooth ones.
+    buffer_rough: int = 64
+    buffer_smooth: int = 1024
+    #: Elements of B each update tries (eq. 7's two signs each).
+    coordinates_per_update: int = 3
+    #: Eq. (6)'s lambda, for mu.
+    lambda_fp: float = 5.0
+
+    def __post_init__(self) -> None:
+        if not self.update_every_m > 0.0:
+            raise ValueError(f"update_every_m must be positive, not {self.update_every_m}")
+        if self.buffer_rough < 1 or self.buffer_smooth < 1:
+            raise ValueError("the buffer must hold at least one event of each class")
+        if self.coordinates_per_update < 1:
+            raise ValueError("an update must try at least one element of B")
+
+
+@dataclass(frozen=True)
+class Stream:
+    """The events of a drive in the order driven (E,), with their patches (2E groups, as
+    :class:`~toolkit.model.patches.TyrePatches`): when each began (ns) and at what distance
+    driven (m, counted over the whole drive), when it was seen and when its label was known
+    (ns, module docstring), and its label."""
+
+    t_start_ns: NDArray[np.int64]
+    s_start_m: FloatArray
+    t_seen_ns: NDArray[np.int64]
+    t_known_ns: NDArray[np.int64]
+    rough: BoolArray
+    patches: TyrePatches
+
+    @property
+    def events(self) -> int:
+        return int(self.rough.size)
+
+
+@dataclass(frozen=True)
+class Buffer:
+    """The labelled events the model trains on: their patches (2 groups each), labels
+    (N,) and indices in the stream (N,), oldest first."""
+
+    patches: TyrePatches | None = None
+    rough: BoolArray = field(default_factory=lambda: np.zeros(0, bool))
+    index: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    def add(
+        self, patches: TyrePatches, rough: BoolArray, index: IntArray, config: OnlineConfig
+    ) -> Buffer:
+        """The buffer with events appended (in the order given), then the oldest of each
+        class dropped beyond the configured counts."""
+        both = patches if self.patches is None else concat(self.patches, patches)
+        labels = np.r_[self.rough, rough].astype(bool)
+        where = np.r_[self.index, index].astype(np.int64)
+        keep = _latest(labels, config.buffer_rough) | _latest(~labels, config.buffer_smooth)
+        return Buffer(both.take(np.repeat(keep, 2)), labels[keep], where[keep])
+
+    @property
+    def learnable(self) -> bool:
+        return bool(self.rough.any() and (~self.rough).any())
+
+
+def _latest(mask: BoolArray, n: int) -> BoolArray:
+    """The last ``n`` True entries of ``mask`` (N,)."""
+    out = np.zeros(mask.size, bool)
+    where = np.flatnonzero(mask)[-n:]
+    out[where] = True
+    return out
+
+
+def concat(a: TyrePatches, b: TyrePatches) -> TyrePatches:
+    """Two patch sets one after the other (the same lasers and width)."""
+    if a.lasers != b.lasers or a.n_max != b.n_max:
+        raise ValueError("patches of other lasers or another width cannot be joined")
+
+    def both(name: str) -> np.ndarray:
+        return np.concatenate([getattr(a, name), getattr(b, name)])
+
+    lead = None if a.lead is None or b.lead is None else np.concatenate([a.lead, b.lead])
+    return TyrePatches(
+        x=both("x"),
+        y=both("y"),
+        z=both("z"),
+        tau=both("tau"),
+        gamma=both("gamma"),
+        psi=both("psi"),
+        valid=both("valid"),
+        count=both("count"),
+        laser=both("laser"),
+        lasers=a.lasers,
+        lead=lead,
+    )
+
+
+@dataclass(frozen=True)
+class LearnerState:
+    """The model as it stands after ``version`` updates: B with mu, each element's
+    increment, the element the next update tries first, the buffer, and how far the
+    replay has gone (``step``: the steps done)."""
+
+    b: tuple[float, ...]
+    mu: float
+    increments: tuple[float, ...]
+    cursor: int = 0
+    version: int = 0
+    step: int = 0
+    buffer: Buffer = field(default_factory=Buffer)
+
+    @property
+    def params(self) -> RoughnessParams:
+        return RoughnessParams.from_vector(self.b, self.mu)
+
+
+def start(
+    initial: tuple[float, ...], increments: tuple[float, ...], mu: float = np.inf
+) -> LearnerState:
+    """A learner that knows nothing yet: B as given, and mu above every score (nothing is
+    called rough before a label has been seen) unless a model learned elsewhere gives one."""
+    return LearnerState(tuple(map(float, initial)), float(mu), tuple(map(float, increments)))
+
+
+def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int]:
+    """One update on the buffer (module docstring): the new state, and how many steps of
+    eq. (7) were kept. The model stays as it is without both classes in the buffer."""
+    buf = state.buffer
+    if buf.patches is None or not buf.learnable:
+        return state, 0
+    n = len(state.b)
+    tried = {(state.cursor + k) % n for k in range(min(config.coordinates_per_update, n))}
+    search = AscentConfig(
+        initial=state.b,
+        increments=state.increments,
+        lambda_fp=config.lambda_fp,
+        iterations=1,
+        free=tuple(j in tried for j in range(n)),
+        accept="auc",
+        step_rule="adapt",
+    )
+    result = coordinate_ascent(PairTable(buf.patches), buf.rough, search)
+    return (
+        LearnerState(
+            result.params.vector(),
+            result.params.mu,
+            result.increments,
+            (state.cursor + len(tried)) % n,
+            state.version + 1,
+            state.step,
+            buf,
+        ),
+        len(result.steps),
+    )
+
+
+@dataclass(frozen=True)
+class Replayed:
+    """What a replay gave: every event's score when it was seen (E,; NaN for an event not
+    reached), the verdict then, and the model version that scored it (-1: not reached); per
+    step, where it ended (m, ns), the version after it, the buffer's rough and smooth
+    counts, the steps of eq. (7) kept and the update's time (s)."""
+
+    r_combined: FloatArray
+    predicted: BoolArray
+    version: IntArray
+    step_end_m: FloatArray
+    step_end_ns: NDArray[np.int64]
+    step_version: IntArray
+    buffer_rough: IntArray
+    buffer_smooth: IntArray
+    steps_kept: IntArray
+    update_s: FloatArray
+
+
+def step_ends(stream: Stream, config: OnlineConfig) -> tuple[FloatArray, NDArray[np.int64]]:
+    """Where each step ends: ``k * update_every_m`` metres driven (k = 1, 2, ...), the last
+    at the drive's end, and when the vehicle got there (interpolated between the events'
+    starts), so that every event's seeing and knowing falls in some step."""
+    s, t = stream.s_start_m, stream.t_start_ns
+    if s.size == 0:
+        return np.zeros(0), np.zeros(0, np.int64)
+    ends_m = np.arange(1, int(np.floor(s[-1] / config.update_every_m)) + 1) * config.update_every_m
+    ends_ns = np.interp(ends_m, s, t.astype(np.float64)).astype(np.int64)
+    last = int(max(stream.t_seen_ns.max(), stream.t_known_ns.max()))
+    return np.r_[ends_m, s[-1]], np.r_[ends_ns, last].astype(np.int64)
+
+
+def replay(
+    stream: Stream,
+    state: LearnerState,
+    config: OnlineConfig,
+    stop_after: int | None = None,
+    progress: Callable[[LearnerState], None] | None = None,
+) -> tuple[LearnerState, Replayed]:
+    """Test-then-train over ``stream`` from ``state`` (a fresh :func:`start`, or a stopped
+    replay's state: it resumes at its ``step``), at most ``stop_after`` steps this call.
+    The scores are those of this call's steps (NaN elsewhere)."""
+    ends_m, ends_ns = step_ends(stream, config)
+    n = stream.events
+    r = np.full(n, np.nan)
+    predicted = np.zeros(n, bool)
+    version = np.full(n, -1, np.int64)
+    rows: list[tuple[float, int, int, int, int, int, float]] = []
+    last = ends_ns.size if stop_after is None else min(ends_ns.size, state.step + stop_after)
+    for k in range(state.step, last):
+        lo = ends_ns[k - 1] if k else np.iinfo(np.int64).min
+        seen = np.flatnonzero((stream.t_seen_ns > lo) & (stream.t_seen_ns <= ends_ns[k]))
+        if seen.size:
+            got = score_events(model_pairs(stream.patches.take(_groups(seen))), state.params)
+            r[seen], predicted[seen], version[seen] = got.r_combined, got.predicted, state.version
+        known = np.flatnonzero((stream.t_known_ns > lo) & (stream.t_known_ns <= ends_ns[k]))
+        known = known[np.argsort(stream.t_known_ns[known], kind="stable")]
+        if known.size:
+            buf = state.buffer.add(
+                stream.patches.take(_groups(known)), stream.rough[known], known, config
+            )
+            state = _with(state, buffer=buf)
+        t0 = time.perf_counter()
+        state, kept = update(state, config)
+        took = time.perf_counter() - t0
+        state = _with(state, step=k + 1)
+        b = state.buffer
+        n_rough = int(b.rough.sum())
+        rows.append(
+            (
+                float(ends_m[k]),
+                int(ends_ns[k]),
+                state.version,
+                n_rough,
+                b.rough.size - n_rough,
+                kept,
+                took,
+            )
+        )
+        if progress is not None:
+            progress(state)
+    cols = list(zip(*rows, strict=True)) if rows else [()] * 7
+    return state, Replayed(
+        r,
+        predicted,
+        version,
+        np.asarray(cols[0], np.float64),
+        np.asarray(cols[1], np.int64),
+        np.asarray(cols[2], np.int64),
+        np.asarray(cols[3], np.int64),
+        np.asarray(cols[4], np.int64),
+        np.asarray(cols[5], np.int64),
+        np.asarray(cols[6], np.float64),
+    )
+
+
+def _groups(events: IntArray) -> IntArray:
+    """Event indices (N,) -> their patches' group indices (2N,), left then right."""
+    return np.stack([2 * events, 2 * events + 1], axis=1).reshape(-1)
+
+
+def _with(state: LearnerState, **changes: object) -> LearnerState:
+    return dataclasses.replace(state, **changes)  # type: ignore[arg-type]
+
+
+__all__ = [
+    "Buffer",
+    "LearnerState",
+    "OnlineConfig",
+    "Replayed",
+    "Stream",
+    "concat",
+    "replay",
+    "start",
+    "step_ends",
+    "update",
+]
