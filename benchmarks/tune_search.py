@@ -67,7 +67,7 @@ def per_log(
         if 0 < y[mine].sum() < mine.sum():
             learned, _ = rates(y[mine], r[mine])
             start, _ = rates(y[mine], r0[mine])
-            out.append(f"{log_id.split('-')[0]} {learned:.3f} ({start:.3f})")
+            out.append(f"{log_id.rsplit('-', 1)[0]} {learned:.3f} ({start:.3f})")
     return "; ".join(out)
 
 

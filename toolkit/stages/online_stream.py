@@ -1,0 +1,118 @@
+"""A workspace's training tables as the drive that made them: the stream online learning
+replays (:class:`toolkit.model.online.Stream`).
+
+Every event of both splits, log after log in the tables' order, each log's events in the
+order driven. Per event:
+
+- ``t_seen_ns``: when the last of its patches' points was seen (its start less the smallest
+  look-ahead of its points; its start when it has none);
+- ``t_known_ns``: its end plus ``label_delay_s``, the time the shock filter needs after the
+  rear axle left the event before the event's peak is known (:func:`label_delay_s`);
+- distances and times on one clock over the whole drive: each log's own continue where the
+  previous log's ended (logs are separate drives; their clocks may even overlap).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pyarrow as pa
+
+from toolkit.arrays import IntArray
+from toolkit.config import LabelConfig, ModelConfig
+from toolkit.errors import StageError
+from toolkit.model.online import Stream
+from toolkit.stages.training_data import laser_order, patches_of, split_events
+from toolkit.workspace import Workspace
+
+#: The IMU rate the label delay assumes when the log does not say (Hz): the simulator's and
+#: the Stanley 2005 IMU's 100 Hz.
+DEFAULT_IMU_RATE_HZ = 100.0
+
+
+def label_delay_s(label: LabelConfig, imu_rate_hz: float = DEFAULT_IMU_RATE_HZ) -> float:
+    """The shock filter's delay: a linear-phase FIR of ``fir_taps`` taps delays every
+    frequency by (taps - 1) / 2 samples (sect. 5.1's 40 taps at 100 Hz: 0.195 s)."""
+    return (label.fir_taps - 1) / 2.0 / imu_rate_hz
+
+
+@dataclass(frozen=True)
+class DriveStream:
+    """The stream, and what each of its events is in the tables: log, event id, split."""
+
+    stream: Stream
+    log_id: np.ndarray
+    event_id: IntArray
+    split: np.ndarray
+
+
+def drive_stream(
+    workspace: Workspace, model: ModelConfig, label: LabelConfig, delay_s: float | None = None
+) -> DriveStream:
+    """The workspace's events as one drive (module docstring); ``delay_s`` overrides the
+    label delay."""
+    events = split_events(workspace, None)
+    order = _driven_order(events, workspace)
+    events = events.take(pa.array(order))
+    patches = patches_of(workspace, events, model, order=laser_order(workspace, model))
+    t_start = events.column("t_start_ns").to_numpy().astype(np.int64)
+    t_end = events.column("t_end_ns").to_numpy().astype(np.int64)
+    s_start = events.column("s_start_m").to_numpy().astype(np.float64)
+    s_end = events.column("s_end_m").to_numpy().astype(np.float64)
+    log_id = np.asarray(events.column("log_id").to_pylist(), dtype=object)
+    lead_s = np.zeros(patches.valid.shape) if patches.lead is None else patches.lead
+    lead = np.where(patches.valid, lead_s, np.inf).reshape(-1, 2 * patches.n_max).min(axis=1)
+    t_seen = t_start - np.round(np.where(np.isfinite(lead), lead, 0.0) * 1e9).astype(np.int64)
+    delay_ns = round(1e9 * (label_delay_s(label) if delay_s is None else delay_s))
+    t_known = t_end + delay_ns
+    clock, metres = one_clock(log_id, t_seen, t_known, s_start, s_end)
+    stream = Stream(
+        t_start + clock,
+        s_start + metres,
+        t_seen + clock,
+        t_known + clock,
+        events.column("rough").to_numpy(zero_copy_only=False).astype(bool),
+        patches,
+    )
+    split = np.asarray(events.column("split").to_pylist(), dtype=object)
+    return DriveStream(stream, log_id, events.column("event_id").to_numpy(), split)
+
+
+def one_clock(
+    log_id: np.ndarray,
+    t_seen_ns: IntArray,
+    t_known_ns: IntArray,
+    s_start_m: np.ndarray,
+    s_end_m: np.ndarray,
+) -> tuple[IntArray, np.ndarray]:
+    """What to add to each event's times (ns) and distances (m), (E,) each, so that the logs
+    (in the order of their first event) make one drive: the first log's clock starts at its
+    first point seen, each later one 1 s after the last label of the one before, and each
+    log's distances continue from where the previous log's ended."""
+    clock, metres = np.zeros(log_id.size, np.int64), np.zeros(log_id.size)
+    t_next, s_next = 0, 0.0
+    for log in dict.fromkeys(log_id.tolist()):
+        mine = log_id == log
+        shift_ns = t_next - int(t_seen_ns[mine].min())
+        shift_m = s_next - float(s_start_m[mine].min())
+        clock[mine], metres[mine] = shift_ns, shift_m
+        t_next = int(t_known_ns[mine].max()) + shift_ns + 1_000_000_000
+        s_next = float(s_end_m[mine].max()) + shift_m
+    return clock, metres
+
+
+def _driven_order(events: pa.Table, workspace: Workspace) -> IntArray:
+    """The rows of ``events`` log after log (in table order), each log's by start time."""
+    log_id = np.asarray(events.column("log_id").to_pylist(), dtype=object)
+    first = {log: k for k, log in enumerate(dict.fromkeys(log_id.tolist()))}
+    rank = np.array([first[v] for v in log_id], np.int64)
+    t = events.column("t_start_ns").to_numpy()
+    if t.size and not np.isfinite(t.astype(np.float64)).all():
+        raise StageError(
+            "events without a start time cannot be replayed", path=workspace.events_table
+        )
+    return np.lexsort((t, rank)).astype(np.int64)
+
+
+__all__ = ["DEFAULT_IMU_RATE_HZ", "DriveStream", "drive_stream", "label_delay_s", "one_clock"]
