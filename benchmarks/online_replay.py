@@ -17,8 +17,8 @@ order (:mod:`toolkit.model.online`) from an uninformed start (height alone) and,
 - the update time (p50, p95, max), the replay's speed against the drive's duration.
 
 Usage: python benchmarks/online_replay.py WS [--update-every-m 100] [--buffer-rough 64]
-       [--buffer-smooth 1024] [--coordinates 3] [--window-km 2] [--frozen-km 3]
-       [--from-offline]
+       [--buffer-smooth 1024] [--coordinates 3] [--min-rough 1] [--step-rule adapt]
+       [--window-km 2] [--frozen-km 3] [--from-offline]
 """
 
 from __future__ import annotations
@@ -62,6 +62,8 @@ def main() -> None:
     ap.add_argument("--buffer-rough", type=int, default=64)
     ap.add_argument("--buffer-smooth", type=int, default=1024)
     ap.add_argument("--coordinates", type=int, default=3)
+    ap.add_argument("--min-rough", type=int, default=1)
+    ap.add_argument("--step-rule", choices=["adapt", "halve"], default="adapt")
     ap.add_argument("--window-km", type=float, default=2.0)
     ap.add_argument("--frozen-km", type=float, default=3.0)
     ap.add_argument("--from-offline", action="store_true")
@@ -98,6 +100,8 @@ def main() -> None:
         buffer_smooth=args.buffer_smooth,
         coordinates_per_update=args.coordinates,
         lambda_fp=config.learn.lambda_fp,
+        min_rough=args.min_rough,
+        step_rule=args.step_rule,
     )
     first = (
         start(offline.params.vector(), search.increments, offline.params.mu)

@@ -121,6 +121,18 @@ def test_without_a_rough_event_the_model_waits_and_calls_nothing_rough() -> None
     assert run.version.max() > 0
 
 
+def test_the_model_waits_for_min_rough_labels_and_halving_steps_shrink_per_rotation() -> None:
+    """With ``min_rough = 10`` the first version comes after the 10th rough label is known;
+    with ``step_rule = "halve"`` the increments halve once per full rotation of B."""
+    s = stream(400)
+    config = dataclasses.replace(CONFIG, min_rough=10, step_rule="halve", coordinates_per_update=5)
+    state, run = replay(s, fresh(), config)
+    tenth = np.sort(s.t_known_ns[s.rough])[9]
+    assert (run.version[s.t_seen_ns <= tenth] == 0).all() and state.version > 0
+    rotations = (5 * state.version) // len(UNINFORMED)
+    np.testing.assert_allclose(state.increments, np.array(INCREMENTS) * 0.5**rotations)
+
+
 def test_steps_end_every_so_many_metres_and_cover_the_drive() -> None:
     s = stream(100)  # 138.6 m
     ends_m, ends_ns = step_ends(s, CONFIG)
@@ -135,3 +147,5 @@ def test_a_bad_configuration_is_refused() -> None:
         OnlineConfig(update_every_m=0.0)
     with pytest.raises(ValueError, match="buffer"):
         OnlineConfig(buffer_rough=0)
+    with pytest.raises(ValueError, match="step_rule"):
+        OnlineConfig(step_rule="double")

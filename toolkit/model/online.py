@@ -44,7 +44,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from toolkit.arrays import BoolArray, FloatArray, IntArray
-from toolkit.model.ascent import AscentConfig, coordinate_ascent
+from toolkit.model.ascent import STEP_RULES, AscentConfig, coordinate_ascent
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roughness import PairTable, RoughnessParams, model_pairs, score_events
 
@@ -60,6 +60,13 @@ class OnlineConfig:
     buffer_smooth: int = 1024
     #: Elements of B each update tries (eq. 7's two signs each).
     coordinates_per_update: int = 3
+    #: Rough events the buffer must hold before the model learns from it (with one or two,
+    #: any step that puts them on top raises the buffer's AUC).
+    min_rough: int = 1
+    #: How the increments change (:data:`toolkit.model.ascent.STEP_RULES`): "adapt" (each
+    #: element's by its own success) or "halve" (all halved after each full rotation, which
+    #: spreads over updates: the steps shrink as the drive goes on).
+    step_rule: str = "adapt"
     #: Eq. (6)'s lambda, for mu.
     lambda_fp: float = 5.0
 
@@ -70,6 +77,10 @@ class OnlineConfig:
             raise ValueError("the buffer must hold at least one event of each class")
         if self.coordinates_per_update < 1:
             raise ValueError("an update must try at least one element of B")
+        if self.min_rough < 1:
+            raise ValueError("the model needs at least one rough event to learn from")
+        if self.step_rule not in STEP_RULES:
+            raise ValueError(f"step_rule must be one of {STEP_RULES}, not {self.step_rule!r}")
 
 
 @dataclass(frozen=True)
@@ -179,7 +190,7 @@ def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int
     """One update on the buffer (module docstring): the new state, and how many steps of
     eq. (7) were kept. The model stays as it is without both classes in the buffer."""
     buf = state.buffer
-    if buf.patches is None or not buf.learnable:
+    if buf.patches is None or not buf.learnable or buf.rough.sum() < config.min_rough:
         return state, 0
     n = len(state.b)
     tried = {(state.cursor + k) % n for k in range(min(config.coordinates_per_update, n))}
@@ -193,11 +204,16 @@ def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int
         step_rule="adapt",
     )
     result = coordinate_ascent(PairTable(buf.patches), buf.rough, search)
+    increments = result.increments
+    if config.step_rule == "halve":
+        # The paper's halving, once per full rotation however many updates it spans.
+        wraps = (state.cursor + len(tried)) >= n
+        increments = tuple(v * (0.5 if wraps else 1.0) for v in state.increments)
     return (
         LearnerState(
             result.params.vector(),
             result.params.mu,
-            result.increments,
+            increments,
             (state.cursor + len(tried)) % n,
             state.version + 1,
             state.step,
