@@ -64,6 +64,8 @@ def test_the_model_learns_as_it_drives() -> None:
         f"\nprequential AUC: first half {auc(run, s, first):.3f}, second {auc(run, s, second):.3f}"
     )
     assert auc(run, s, second) > 0.95 > auc(run, s, first)
+    # Standings compare across versions: pooled over the second half they rank as well.
+    assert roc_auc_score(s.rough[second], run.standing[second]) > 0.95
     assert roc_auc_score(s.rough[second], unlearned[second]) < 0.8
     assert state.params.alpha[2] > 0.01  # the time penalty that separates the classes
     assert state.version > 0 and run.steps_kept.sum() > 0
@@ -131,6 +133,26 @@ def test_the_model_waits_for_min_rough_labels_and_halving_steps_shrink_per_rotat
     assert (run.version[s.t_seen_ns <= tenth] == 0).all() and state.version > 0
     rotations = (5 * state.version) // len(UNINFORMED)
     np.testing.assert_allclose(state.increments, np.array(INCREMENTS) * 0.5**rotations)
+
+
+def test_a_standing_is_the_share_of_buffered_smooth_events_scored_below() -> None:
+    """None before a smooth label is known; then in [0, 1]: for the events seen in step 11,
+    the share (ties half) of the smooth events in the buffer after step 10 that the model
+    after step 10 scores below them."""
+    s = stream(300)
+    _, run = replay(s, fresh(), CONFIG)
+    first_smooth = s.t_known_ns[~s.rough].min()
+    assert np.isnan(run.standing[s.t_seen_ns <= first_smooth]).all()
+    later = s.t_seen_ns > run.step_end_ns[0]
+    assert np.nanmin(run.standing[later]) >= 0.0 and np.nanmax(run.standing[later]) <= 1.0
+    after_10, _ = replay(s, fresh(), CONFIG, stop_after=10)
+    step_11 = (s.t_seen_ns > run.step_end_ns[9]) & (s.t_seen_ns <= run.step_end_ns[10])
+    buf = after_10.buffer
+    assert step_11.any() and buf.patches is not None
+    smooth = buf.patches.take(np.repeat(~buf.rough, 2))
+    ref = score_events(model_pairs(smooth), after_10.params).r_combined
+    want = [((ref < v).sum() + (ref <= v).sum()) / (2 * ref.size) for v in run.r_combined[step_11]]
+    np.testing.assert_allclose(run.standing[step_11], want)
 
 
 def test_steps_end_every_so_many_metres_and_cover_the_drive() -> None:

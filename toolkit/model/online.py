@@ -21,6 +21,13 @@ labelled events, their patches with them, so its memory is bounded whatever the 
 It is class-balanced by construction; eq. (6)'s Tp and Fp are rates within each class, so
 mu chosen on it is not pulled by the classes' shares in it.
 
+*Scores across versions.* Each version scores on its own scale (a step of alpha_1 rescales
+every score), so the scores of a drive, pooled, would rank events by when they were seen as
+much as by how rough they are. Each event also gets its *standing*: the share of the
+buffer's smooth events that the same version scores below it (ties half), an estimate of
+the false-positive rate a cut just below it would have. Standings compare across versions;
+an event scored before the buffer holds a smooth event has none (NaN).
+
 *An update* is a piece of the coordinate ascent of :mod:`toolkit.model.ascent`: the next
 ``coordinates_per_update`` elements of B (a rotation that runs on across updates) each try
 eq. (7)'s two signs with their own increments, adapted as ``step_rule = "adapt"`` does
@@ -226,11 +233,13 @@ def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int
 @dataclass(frozen=True)
 class Replayed:
     """What a replay gave: every event's score when it was seen (E,; NaN for an event not
-    reached), the verdict then, and the model version that scored it (-1: not reached); per
-    step, where it ended (m, ns), the version after it, the buffer's rough and smooth
-    counts, the steps of eq. (7) kept and the update's time (s)."""
+    reached), its standing then (module docstring), the verdict then, and the model version
+    that scored it (-1: not reached); per step, where it ended (m, ns), the version after
+    it, the buffer's rough and smooth counts, the steps of eq. (7) kept and the update's
+    time (s)."""
 
     r_combined: FloatArray
+    standing: FloatArray
     predicted: BoolArray
     version: IntArray
     step_end_m: FloatArray
@@ -268,7 +277,9 @@ def replay(
     ends_m, ends_ns = step_ends(stream, config)
     n = stream.events
     r = np.full(n, np.nan)
+    standing = np.full(n, np.nan)
     predicted = np.zeros(n, bool)
+    reference = _smooth_scores(state)
     version = np.full(n, -1, np.int64)
     rows: list[tuple[float, int, int, int, int, int, float]] = []
     last = ends_ns.size if stop_after is None else min(ends_ns.size, state.step + stop_after)
@@ -278,6 +289,7 @@ def replay(
         if seen.size:
             got = score_events(model_pairs(stream.patches.take(_groups(seen))), state.params)
             r[seen], predicted[seen], version[seen] = got.r_combined, got.predicted, state.version
+            standing[seen] = _standing(got.r_combined, reference)
         known = np.flatnonzero((stream.t_known_ns > lo) & (stream.t_known_ns <= ends_ns[k]))
         known = known[np.argsort(stream.t_known_ns[known], kind="stable")]
         if known.size:
@@ -288,6 +300,8 @@ def replay(
         t0 = time.perf_counter()
         state, kept = update(state, config)
         took = time.perf_counter() - t0
+        if known.size or kept:  # the buffer or the model changed: so does the reference
+            reference = _smooth_scores(state)
         state = _with(state, step=k + 1)
         b = state.buffer
         n_rough = int(b.rough.sum())
@@ -307,6 +321,7 @@ def replay(
     cols = list(zip(*rows, strict=True)) if rows else [()] * 7
     return state, Replayed(
         r,
+        standing,
         predicted,
         version,
         np.asarray(cols[0], np.float64),
@@ -317,6 +332,25 @@ def replay(
         np.asarray(cols[5], np.int64),
         np.asarray(cols[6], np.float64),
     )
+
+
+def _smooth_scores(state: LearnerState) -> FloatArray:
+    """The buffer's smooth events scored by the state's model, sorted (empty without any)."""
+    buf = state.buffer
+    if buf.patches is None or buf.rough.all():
+        return np.zeros(0)
+    smooth = buf.patches.take(np.repeat(~buf.rough, 2))
+    return np.sort(score_events(model_pairs(smooth), state.params).r_combined)
+
+
+def _standing(r: FloatArray, reference: FloatArray) -> FloatArray:
+    """The share of ``reference`` (sorted) below each of ``r``, ties counted half (NaN
+    without a reference)."""
+    if reference.size == 0:
+        return np.full(r.size, np.nan)
+    below = np.searchsorted(reference, r, side="left")
+    at_most = np.searchsorted(reference, r, side="right")
+    return (below + at_most) / (2.0 * reference.size)
 
 
 def _groups(events: IntArray) -> IntArray:
