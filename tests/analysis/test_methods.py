@@ -15,8 +15,9 @@ from toolkit.model.roughness import PairTable
 
 
 def test_the_paper_exact_row_and_the_race_test_ignore_the_extensions() -> None:
-    """The paper's method as written has no look-ahead term and no early stopping whatever
-    the configuration; the race test trains its 13-vector with the look-ahead term on."""
+    """The paper's method as written has no look-ahead term, no early stopping and halved
+    increments whatever the configuration; the race test trains its 13-vector with the
+    look-ahead term on."""
     cfg = default_config()
     extended = dataclasses.replace(
         cfg, learn=dataclasses.replace(cfg.learn, lead_term=True, validation_share=0.3)
@@ -24,6 +25,7 @@ def test_the_paper_exact_row_and_the_race_test_ignore_the_extensions() -> None:
     model, learn = paper_exact(extended.model, extended.learn)
     assert model.point_sample == "hash" and learn.accept == "objective"
     assert not learn.lead_term and learn.validation_share == 0.0
+    assert extended.learn.step_rule == "adapt" and learn.step_rule == "halve"
     rng = np.random.default_rng(0)
     patches = make_patches(random_patches(rng, 40, 8))
     rough = np.arange(40) % 4 == 0

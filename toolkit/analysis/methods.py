@@ -164,11 +164,13 @@ def same_points(a: TyrePatches, b: TyrePatches) -> bool:
 def paper_exact(model: ModelConfig, learn: LearnConfig) -> tuple[ModelConfig, LearnConfig]:
     """The paper's method as written, with the configured initial guess: every laser's
     points alike (the uniform sample, sect. 7: "data from all lasers is used"), eq. (4)
-    without the look-ahead term, and steps accepted by eq. (6) itself with no early stopping
-    (sect. 6)."""
+    without the look-ahead term, and steps accepted by eq. (6) itself, every increment
+    halved after each rotation, with no early stopping (sect. 6)."""
     return (
         dataclasses.replace(model, point_sample="hash"),
-        dataclasses.replace(learn, accept="objective", lead_term=False, validation_share=0.0),
+        dataclasses.replace(
+            learn, accept="objective", lead_term=False, validation_share=0.0, step_rule="halve"
+        ),
     )
 
 
