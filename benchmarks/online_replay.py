@@ -18,7 +18,7 @@ order (:mod:`toolkit.model.online`) from an uninformed start (height alone) and,
 - the update time (p50, p95, max), the replay's speed against the drive's duration.
 
 Usage: python benchmarks/online_replay.py WS [--update-every-m 100] [--buffer-rough 64]
-       [--buffer-smooth 1024] [--coordinates 3] [--min-rough 1] [--step-rule adapt]
+       [--buffer-smooth 1024] [--coordinates 3] [--min-rough 1] [--step-rule adapt] [--average]
        [--window-km 2] [--frozen-km 3] [--from-offline]
 """
 
@@ -65,6 +65,7 @@ def main() -> None:
     ap.add_argument("--coordinates", type=int, default=3)
     ap.add_argument("--min-rough", type=int, default=1)
     ap.add_argument("--step-rule", choices=["adapt", "halve"], default="adapt")
+    ap.add_argument("--average", action="store_true", help="score with B averaged over versions")
     ap.add_argument("--window-km", type=float, default=2.0)
     ap.add_argument("--frozen-km", type=float, default=3.0)
     ap.add_argument("--from-offline", action="store_true")
@@ -103,6 +104,7 @@ def main() -> None:
         lambda_fp=config.learn.lambda_fp,
         min_rough=args.min_rough,
         step_rule=args.step_rule,
+        average=args.average,
     )
     first = (
         start(offline.params.vector(), search.increments, offline.params.mu)

@@ -18,7 +18,7 @@ from toolkit.model.online import (
     start,
     step_ends,
 )
-from toolkit.model.roughness import model_pairs, score_events
+from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
 
 #: Height alone, no penalty (omega 1: the patch's largest height difference): the drift of
 #: the planted smooth events outscores the rough events' step until alpha_3 is learned.
@@ -153,6 +153,22 @@ def test_a_standing_is_the_share_of_buffered_smooth_events_scored_below() -> Non
     ref = score_events(model_pairs(smooth), after_10.params).r_combined
     want = [((ref < v).sum() + (ref <= v).sum()) / (2 * ref.size) for v in run.r_combined[step_11]]
     np.testing.assert_allclose(run.standing[step_11], want)
+
+
+def test_averaging_scores_with_the_mean_of_every_version_learned() -> None:
+    """With ``average`` the events are scored with B averaged over the versions so far
+    (omega rounded), the search itself going on from its latest B."""
+    s = stream(200)
+    config = dataclasses.replace(CONFIG, average=True)
+    state, learned = fresh(), []
+    for _ in range(8):
+        state, _ = replay(s, state, config, stop_after=1)
+        if state.version > len(learned):
+            learned.append(state.b)
+    assert len(learned) >= 3 and state.scoring
+    mean = RoughnessParams.from_vector(np.mean(learned, axis=0).tolist(), 0.0)
+    np.testing.assert_allclose(state.params.vector(), mean.vector())
+    assert state.params.vector() != state.b
 
 
 def test_steps_end_every_so_many_metres_and_cover_the_drive() -> None:

@@ -51,7 +51,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from toolkit.arrays import BoolArray, FloatArray, IntArray
-from toolkit.model.ascent import STEP_RULES, AscentConfig, coordinate_ascent
+from toolkit.model.ascent import STEP_RULES, AscentConfig, best_threshold, coordinate_ascent
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roughness import PairTable, RoughnessParams, model_pairs, score_events
 
@@ -74,6 +74,9 @@ class OnlineConfig:
     #: element's by its own success) or "halve" (all halved after each full rotation, which
     #: spreads over updates: the steps shrink as the drive goes on).
     step_rule: str = "adapt"
+    #: Score with the average of B over the versions learned so far (Polyak averaging), mu
+    #: chosen for it on the buffer, instead of the search's latest B: steadier versions.
+    average: bool = False
     #: Eq. (6)'s lambda, for mu.
     lambda_fp: float = 5.0
 
@@ -179,9 +182,16 @@ class LearnerState:
     version: int = 0
     step: int = 0
     buffer: Buffer = field(default_factory=Buffer)
+    #: With ``average``: the sum of B over the versions learned, and the averaged model
+    #: the events are scored with (B then mu; empty: score with ``b`` and ``mu``).
+    b_sum: tuple[float, ...] = ()
+    scoring: tuple[float, ...] = ()
 
     @property
     def params(self) -> RoughnessParams:
+        """The model events are scored with."""
+        if self.scoring:
+            return RoughnessParams.from_vector(self.scoring[:-1], self.scoring[-1])
         return RoughnessParams.from_vector(self.b, self.mu)
 
 
@@ -216,15 +226,25 @@ def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int
         # The paper's halving, once per full rotation however many updates it spans.
         wraps = (state.cursor + len(tried)) >= n
         increments = tuple(v * (0.5 if wraps else 1.0) for v in state.increments)
+    b_new = result.params.vector()
+    b_sum, scoring = state.b_sum, state.scoring
+    if config.average:
+        b_sum = tuple(float(v) for v in np.add(b_sum or (0.0,) * n, b_new))
+        mean = RoughnessParams.from_vector([v / (state.version + 1) for v in b_sum], 0.0)
+        r = score_events(PairTable(buf.patches), mean).r_combined
+        mu = best_threshold(r, buf.rough, config.lambda_fp).mu
+        scoring = (*mean.vector(), mu)
     return (
         LearnerState(
-            result.params.vector(),
+            b_new,
             result.params.mu,
             increments,
             (state.cursor + len(tried)) % n,
             state.version + 1,
             state.step,
             buf,
+            b_sum,
+            scoring,
         ),
         len(result.steps),
     )
