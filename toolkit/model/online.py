@@ -33,7 +33,10 @@ an event scored before the buffer holds a smooth event has none (NaN).
 eq. (7)'s two signs with their own increments, adapted as ``step_rule = "adapt"`` does
 (doubled after a step is taken, halved after both signs fail); a step is kept when it
 raises the buffer's AUC, and mu is then eq. (6)'s best threshold on the buffer. Without a
-rough and a smooth event in the buffer the model stays as it is.
+rough and a smooth event in the buffer, or with fewer than ``min_rough`` rough ones, the
+model stays as it is. ``step_rule = "halve"`` halves every increment once per full rotation
+instead (the steps shrink as the drive goes on); ``average`` scores with B averaged over
+the versions learned (measured in ``benchmarks/README.md``, "Online, test-then-train").
 
 Everything here is a function of its inputs: the same stream, start and configuration give
 the same scores and models, and a replay stopped after any step and resumed from its
