@@ -19,6 +19,7 @@ order (:mod:`toolkit.model.online`) from an uninformed start (height alone) and,
 
 Usage: python benchmarks/online_replay.py WS [--update-every-m 100] [--buffer-rough 64]
        [--buffer-smooth 1024] [--coordinates 3] [--min-rough 1] [--step-rule adapt] [--average]
+       [--validation 0.5]
        [--window-km 2] [--frozen-km 3] [--from-offline]
 """
 
@@ -66,6 +67,7 @@ def main() -> None:
     ap.add_argument("--min-rough", type=int, default=1)
     ap.add_argument("--step-rule", choices=["adapt", "halve"], default="adapt")
     ap.add_argument("--average", action="store_true", help="score with B averaged over versions")
+    ap.add_argument("--validation", type=float, default=0.0, help="buffer share held out")
     ap.add_argument("--window-km", type=float, default=2.0)
     ap.add_argument("--frozen-km", type=float, default=3.0)
     ap.add_argument("--from-offline", action="store_true")
@@ -105,6 +107,7 @@ def main() -> None:
         min_rough=args.min_rough,
         step_rule=args.step_rule,
         average=args.average,
+        validation_share=args.validation,
     )
     first = (
         start(offline.params.vector(), search.increments, offline.params.mu)

@@ -171,6 +171,29 @@ def test_averaging_scores_with_the_mean_of_every_version_learned() -> None:
     assert state.params.vector() != state.b
 
 
+def test_held_out_an_update_is_kept_only_when_it_ranks_the_held_out_events_better() -> None:
+    """With half the buffer held out, every version the replay makes ranks the held-out
+    half (every other buffered event) at least as well as the version before it did, and the
+    model still learns the planted problem."""
+    s = stream(600)
+    config = dataclasses.replace(CONFIG, validation_share=0.5)
+    state, before = fresh(), []
+    for _ in range(20):
+        prev = state
+        state, _ = replay(s, state, config, stop_after=1)
+        if state.version > prev.version and state.b != prev.b:
+            buf = state.buffer
+            held = np.arange(buf.rough.size) % 2 == 1
+            assert buf.patches is not None and buf.rough[held].any()
+            pairs = model_pairs(buf.patches.take(np.repeat(held, 2)))
+            old = score_events(pairs, prev.params).r_combined
+            new = score_events(pairs, state.params).r_combined
+            before.append(roc_auc_score(buf.rough[held], new) - roc_auc_score(buf.rough[held], old))
+    assert before and min(before) > 0.0
+    _, run = replay(s, fresh(), config)
+    assert auc(run, s, np.arange(s.events) >= 300) > 0.95
+
+
 def test_steps_end_every_so_many_metres_and_cover_the_drive() -> None:
     s = stream(100)  # 138.6 m
     ends_m, ends_ns = step_ends(s, CONFIG)
@@ -187,3 +210,5 @@ def test_a_bad_configuration_is_refused() -> None:
         OnlineConfig(buffer_rough=0)
     with pytest.raises(ValueError, match="step_rule"):
         OnlineConfig(step_rule="double")
+    with pytest.raises(ValueError, match="validation_share"):
+        OnlineConfig(validation_share=0.8)

@@ -80,6 +80,10 @@ class OnlineConfig:
     #: Score with the average of B over the versions learned so far (Polyak averaging), mu
     #: chosen for it on the buffer, instead of the search's latest B: steadier versions.
     average: bool = False
+    #: Hold out this share of the buffer (every other event at 0.5) and keep an update's
+    #: steps only if they rank the held-out events better (toolkit.model.ascent's early
+    #: stopping, one rotation long); 0: every step the fitted events accept is kept.
+    validation_share: float = 0.0
     #: Eq. (6)'s lambda, for mu.
     lambda_fp: float = 5.0
 
@@ -94,6 +98,8 @@ class OnlineConfig:
             raise ValueError("the model needs at least one rough event to learn from")
         if self.step_rule not in STEP_RULES:
             raise ValueError(f"step_rule must be one of {STEP_RULES}, not {self.step_rule!r}")
+        if not 0.0 <= self.validation_share <= 0.5:
+            raise ValueError(f"validation_share must be in [0, 0.5], not {self.validation_share}")
 
 
 @dataclass(frozen=True)
@@ -222,9 +228,15 @@ def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int
         free=tuple(j in tried for j in range(n)),
         accept="auc",
         step_rule="adapt",
+        validation_share=config.validation_share,
+        validation_block=1,
     )
     result = coordinate_ascent(PairTable(buf.patches), buf.rough, search)
     increments = result.increments
+    # Held out, the update's steps were refused (the start kept): as if none was taken.
+    refused = result.kept_rotation == 0
+    if refused:
+        increments = tuple(v * (0.5 if j in tried else 1.0) for j, v in enumerate(state.increments))
     if config.step_rule == "halve":
         # The paper's halving, once per full rotation however many updates it spans.
         wraps = (state.cursor + len(tried)) >= n
@@ -249,7 +261,7 @@ def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int
             b_sum,
             scoring,
         ),
-        len(result.steps),
+        0 if refused else len(result.steps),
     )
 
 
