@@ -158,3 +158,17 @@ def test_the_nearest_laser_sample_keeps_the_nearest_lasers_points(near: int, cap
     assert kept_near == min(near, cap) and p.count[0] == cap
     uniform = build_patches(events, both, cap)
     assert int(np.count_nonzero(uniform.valid[0] & (uniform.laser[0] == near_index))) < cap
+
+
+def test_joined_patches_are_the_first_set_then_the_second() -> None:
+    """``join`` keeps every array's rows in order; patches of another width are refused."""
+    rng = np.random.default_rng(4)
+    raw = random_patches(rng, 6, 5)
+    whole = build_patches(events_table(6), points_table(raw), 8)
+    joined = whole.take(slice(0, 4)).join(whole.take(slice(4, None)))
+    for name in ("x", "y", "z", "tau", "gamma", "psi", "valid", "count", "laser", "lead"):
+        np.testing.assert_array_equal(getattr(joined, name), getattr(whole, name), err_msg=name)
+    assert joined.lasers == whole.lasers
+    narrow = build_patches(events_table(6), points_table(raw), 3)
+    with pytest.raises(ValueError, match="width"):
+        whole.join(narrow)

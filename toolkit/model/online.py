@@ -135,7 +135,7 @@ class Buffer:
     ) -> Buffer:
         """The buffer with events appended (in the order given), then the oldest of each
         class dropped beyond the configured counts."""
-        both = patches if self.patches is None else concat(self.patches, patches)
+        both = patches if self.patches is None else self.patches.join(patches)
         labels = np.r_[self.rough, rough].astype(bool)
         where = np.r_[self.index, index].astype(np.int64)
         keep = _latest(labels, config.buffer_rough) | _latest(~labels, config.buffer_smooth)
@@ -152,30 +152,6 @@ def _latest(mask: BoolArray, n: int) -> BoolArray:
     where = np.flatnonzero(mask)[-n:]
     out[where] = True
     return out
-
-
-def concat(a: TyrePatches, b: TyrePatches) -> TyrePatches:
-    """Two patch sets one after the other (the same lasers and width)."""
-    if a.lasers != b.lasers or a.n_max != b.n_max:
-        raise ValueError("patches of other lasers or another width cannot be joined")
-
-    def both(name: str) -> np.ndarray:
-        return np.concatenate([getattr(a, name), getattr(b, name)])
-
-    lead = None if a.lead is None or b.lead is None else np.concatenate([a.lead, b.lead])
-    return TyrePatches(
-        x=both("x"),
-        y=both("y"),
-        z=both("z"),
-        tau=both("tau"),
-        gamma=both("gamma"),
-        psi=both("psi"),
-        valid=both("valid"),
-        count=both("count"),
-        laser=both("laser"),
-        lasers=a.lasers,
-        lead=lead,
-    )
 
 
 @dataclass(frozen=True)
@@ -403,7 +379,6 @@ __all__ = [
     "OnlineConfig",
     "Replayed",
     "Stream",
-    "concat",
     "replay",
     "start",
     "step_ends",

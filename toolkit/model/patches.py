@@ -130,6 +130,29 @@ class TyrePatches:
             None if self.lead is None else self.lead[groups],
         )
 
+    def join(self, other: TyrePatches) -> TyrePatches:
+        """These patches, then ``other``'s (the same lasers and width n_max); the
+        look-ahead is kept only if both have it."""
+        if other.lasers != self.lasers or other.n_max != self.n_max:
+            raise ValueError("patches of other lasers or another width cannot be joined")
+
+        def both(name: str) -> np.ndarray:
+            return np.concatenate([getattr(self, name), getattr(other, name)])
+
+        return TyrePatches(
+            x=both("x"),
+            y=both("y"),
+            z=both("z"),
+            tau=both("tau"),
+            gamma=both("gamma"),
+            psi=both("psi"),
+            valid=both("valid"),
+            count=both("count"),
+            laser=both("laser"),
+            lasers=self.lasers,
+            lead=None if self.lead is None or other.lead is None else both("lead"),
+        )
+
     def with_z(self, z: FloatArray) -> TyrePatches:
         """The same patches with other heights (G, n_max) (the oracle's true terrain)."""
         return TyrePatches(

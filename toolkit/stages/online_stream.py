@@ -107,11 +107,13 @@ def _driven_order(events: pa.Table, workspace: Workspace) -> IntArray:
     log_id = np.asarray(events.column("log_id").to_pylist(), dtype=object)
     first = {log: k for k, log in enumerate(dict.fromkeys(log_id.tolist()))}
     rank = np.array([first[v] for v in log_id], np.int64)
-    t = events.column("t_start_ns").to_numpy()
-    if t.size and not np.isfinite(t.astype(np.float64)).all():
+    missing = events.column("t_start_ns").null_count
+    if missing:
         raise StageError(
-            "events without a start time cannot be replayed", path=workspace.events_table
+            f"{missing} event(s) without a start time cannot be replayed in time order",
+            path=workspace.events_table,
         )
+    t = events.column("t_start_ns").to_numpy()
     return np.lexsort((t, rank)).astype(np.int64)
 
 
