@@ -245,6 +245,7 @@ def main() -> None:
         "per_seed": per_seed,
         "model": summary.get("model"),
         "warnings": summary.get("warnings"),
+        "online": summary.get("online"),
     }
     (root / f"{args.workspace}_fig6.json").write_text(json.dumps(result, indent=2))
     draw(test_scores, rough[test], root / f"{args.workspace}_fig6.png")
@@ -269,6 +270,33 @@ def main() -> None:
         aucs = ", ".join(f"{n} {v:.3f}" for n, v in (s["auc"] or {}).items())
         print(f"{log_id}: test {s['test_rough']} rough of {s['test_events']}, rate "
               f"{100 * s['rough_rate']:.2f} %; {aucs}")  # fmt: skip
+    if result["online"]:
+        print_online(result["online"], summary)
+
+
+def print_online(online: dict, summary: dict) -> None:
+    """Learning while driving (``terrain online``), pooled over the races: the test split
+    (each race's second half) as scored when seen, against the race test and the offline
+    model; the distance to within 0.02 of the offline model; Fig. 7 from the online flags."""
+    race = summary.get(REFERENCE) or {}
+    print("online, test split (second half of each race), scored as each event was seen:")
+    for name in ("online", "offline", "frozen", "final", "start"):
+        e = online["test"].get(name)
+        if e is not None:
+            tprs = " / ".join(f"{v:.2f}" for v in e["tpr_at_fpr"].values())
+            print(f"  {name:8s} AUC {e['auc']:.3f}  TPR at 5 / 10 / 20 % {tprs}")
+    if race.get("tpr_at_fpr"):
+        print(f"  race test, closest laser: TPR at FPR 10 % {race['tpr_at_fpr']['0.1']:.2f}")
+    within = online["within_0_02_from_m"]
+    print(f"  within 0.02 of the offline model from: "
+          f"{'never' if within is None else f'{within / 1609.344:.1f} miles'}")  # fmt: skip
+    sc = online.get("speed_control") or {}
+    if sc.get("online") is not None and sc.get("offline"):
+        print(f"  speed control: online {sc['online']:.3f}, offline {sc['offline']:.3f} "
+              f"({100 * sc['online'] / sc['offline']:.0f} %)")  # fmt: skip
+    for row in online["stretches"]:
+        print(f"    {row['from_m'] / 1000:5.1f} km: online {row['online']}, offline "
+              f"{row['offline']}, final {row['final']} ({row['rough']} rough)")  # fmt: skip
 
 
 if __name__ == "__main__":

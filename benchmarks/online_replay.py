@@ -68,6 +68,8 @@ def main() -> None:
     ap.add_argument("--step-rule", choices=["adapt", "halve"], default="adapt")
     ap.add_argument("--average", action="store_true", help="score with B averaged over versions")
     ap.add_argument("--validation", type=float, default=0.0, help="buffer share held out")
+    ap.add_argument("--refit-every-m", type=float, default=0.0, help="whole search on the buffer")
+    ap.add_argument("--refit-iterations", type=int, default=20)
     ap.add_argument("--window-km", type=float, default=2.0)
     ap.add_argument("--frozen-km", type=float, default=3.0)
     ap.add_argument("--from-offline", action="store_true")
@@ -108,6 +110,8 @@ def main() -> None:
         step_rule=args.step_rule,
         average=args.average,
         validation_share=args.validation,
+        refit_every_m=args.refit_every_m,
+        refit_iterations=args.refit_iterations,
     )
     first = (
         start(offline.params.vector(), search.increments, offline.params.mu)

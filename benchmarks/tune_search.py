@@ -48,6 +48,8 @@ INITIAL = {
 INCREMENTS = {
     "config": None,
     "flat": ((0.05, 0.25) * 5, 0.05, 2.0, 0.25),
+    # The hand-set increments of the tuned default until issue 38 (with "linear", "halve").
+    "tuned": ((0.5, 0.5, 0.02, 0.5, 0.005, 0.5, 0.02, 0.5, 0.02, 0.5), 0.05, 2.0, 0.25),
 }
 
 

@@ -203,14 +203,14 @@ def test_the_stage_list_is_the_pipelines() -> None:
 def test_run_equals_the_verbs_one_by_one(
     uninterrupted: Path, logs: list[Path], tmp_path: Path
 ) -> None:
-    """The verbs ingest, pose, project, label, tables, learn, evaluate run by hand give the
-    same files, byte for byte (manifests without their timings)."""
+    """The verbs ingest, pose, project, label, tables, learn, online, evaluate run by hand
+    give the same files, byte for byte (manifests without their timings)."""
     ws = tmp_path / "ws"
     config = logs[0].parent / "quick.toml"
     subprocess.run(
         terrain("ingest", *logs, "-w", ws, "-c", config), check=True, capture_output=True
     )
-    for verb in ("pose", "project", "label", "tables", "learn", "evaluate"):
+    for verb in ("pose", "project", "label", "tables", "learn", "online", "evaluate"):
         subprocess.run(terrain(verb, "-w", ws), check=True, capture_output=True)
     got, want = state(ws), state(uninterrupted)
     assert got.keys() == want.keys()

@@ -132,6 +132,11 @@ _WORKSPACE_FILES: dict[str, str] = {
     "scores": "report/scores.parquet",
     "summary": "report/summary.json",
     "index": "report/index.html",
+    "online_scores": "online/scores.parquet",
+    "online_steps": "online/steps.parquet",
+    "online_summary": "online/summary.json",
+    "online_state": "online/state.json",
+    "online_checkpoint": "online/checkpoint.npz",
 }
 
 

@@ -76,6 +76,7 @@ def test_default_has_the_papers_settings() -> None:
         "evaluate",
         "lidar",
         "imu",
+        "online",
     )
 
 

@@ -212,3 +212,22 @@ def test_a_bad_configuration_is_refused() -> None:
         OnlineConfig(step_rule="double")
     with pytest.raises(ValueError, match="validation_share"):
         OnlineConfig(validation_share=0.8)
+
+
+def test_a_refit_is_the_offline_search_on_the_buffer_taken_at_the_next_update() -> None:
+    """With refit_every_m, the whole search runs on the buffer from the start at each
+    multiple of it; the next update takes its model as a new version (no step of its own),
+    and the drive is ranked well from there on."""
+    s = stream(600)
+    config = dataclasses.replace(CONFIG, refit_every_m=200.0, refit_iterations=10)
+    first, _ = replay(s, fresh(), config, stop_after=10)  # 10 steps of 20 m: one refit
+    assert first.pending, "the refit's model waits for the next update"
+    nxt, run = replay(s, first, config, stop_after=1)
+    assert not nxt.pending and nxt.version == first.version + 1
+    assert nxt.b == first.pending[:-1] and nxt.mu == first.pending[-1]
+    assert nxt.increments == nxt.origin_increments == INCREMENTS
+    assert run.steps_kept.tolist() == [0]
+    state, rest = replay(s, nxt, config)
+    second = np.arange(s.events) >= 300
+    assert roc_auc_score(s.rough[second], rest.r_combined[second]) > 0.95
+    assert (rest.refit_s > 0).sum() == 3  # at 400, 600 and 800 m driven, of 840 m

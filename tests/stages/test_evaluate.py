@@ -413,8 +413,9 @@ def test_a_report_killed_mid_write_is_the_old_one(
 def test_a_failed_learn_inside_run_says_evaluate_was_not_run(
     pipeline: Pipeline, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """``terrain run`` whose learn fails: its line, then a line saying evaluate was not run
-    because of it (as a per-log stage no log reached says so), exit 1 with the cause."""
+    """``terrain run`` whose learn fails: its line, then a line saying online and evaluate
+    were not run because of it (as a per-log stage no log reached says so), exit 1 with the
+    cause."""
     import dataclasses
 
     from toolkit.stages import learn
@@ -432,7 +433,7 @@ def test_a_failed_learn_inside_run_says_evaluate_was_not_run(
     assert result.exit_code == 1, result.output
     lines = result.stdout.splitlines()
     assert any(line.startswith("learn") and "1 failed" in line for line in lines), lines
-    assert "evaluate not run: learn failed (its error is below)" in lines
+    assert "online, evaluate not run: learn failed (its error is below)" in lines
     assert "no pair of events to learn from" in result.stderr
 
 

@@ -156,6 +156,7 @@ HASHED = {
     "label": ("label", "vehicle"),
     "tables": ("tables", "vehicle", "model.wheel_window_radius_m"),
     "learn": ("model", "learn"),
+    "online": ("model", "label", "learn", "online"),
     "evaluate": ("model", "learn", "evaluate"),
 }
 

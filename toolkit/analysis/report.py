@@ -26,6 +26,7 @@ from toolkit.analysis.method_registry import (
     method,
     title,
 )
+from toolkit.analysis.online_page import online_section
 
 #: What the search's steps had to raise (``model.json``'s ``accepted_by``), in words.
 _ACCEPTED = {
@@ -176,6 +177,8 @@ class ReportInputs:
     roc_figures: Sequence[str]
     speed_files: Sequence[str]
     log_figures: Sequence[tuple[str, str]] = field(default=())
+    #: Learning while driving's figure, when the workspace has an online replay.
+    online_figure: str | None = None
 
 
 def _fmt(v: Any, digits: int = 3) -> str:
@@ -552,6 +555,7 @@ def index_html(inputs: ReportInputs) -> str:
         *_roc_section(s, inputs.roc_figures),
         *_model_section(s, m),
         *_speed_section(s, inputs.speed_files),
+        *online_section(s, inputs.online_figure),
         *_log_figures_section(inputs.log_figures),
         f"<p><small>terrain {_fmt(s.get('toolkit_version'))}</small></p></body></html>\n",
     ]

@@ -225,11 +225,9 @@ def _routes(events: pa.Table, predicted: BoolArray, test: BoolArray) -> list[sc.
     return routes
 
 
-def speed_control(
-    events: pa.Table, predicted: BoolArray, test: BoolArray, ev: EvaluateConfig, out_dir: Path
-) -> tuple[dict[str, Any], list[Path]]:
-    """Fig. 7: the curves, the CSV and PNG, and the summary entry."""
-    base = sc.SpeedControlParams(
+def _speed_params(ev: EvaluateConfig) -> sc.SpeedControlParams:
+    """The controller of ``[evaluate]``, at its first slowing fraction."""
+    return sc.SpeedControlParams(
         slow_fraction=ev.slow_fractions[0],
         decel_mps2=ev.decel_mps2,
         recovery_mps2=ev.recovery_mps2,
@@ -237,6 +235,29 @@ def speed_control(
         lookahead_m=ev.lookahead_m,
         shock_floor_g=ev.shock_floor_g,
     )
+
+
+def shock_reduction(
+    events: pa.Table, predicted: BoolArray, test: BoolArray, ev: EvaluateConfig
+) -> float | None:
+    """Fig. 7's headline for any flags (E,) on the test events: the largest shock
+    reduction of the proactive controller driven by them against the reactive race
+    controller, at equal time (None where the fronts never meet)."""
+    base = _speed_params(ev)
+    routes = _routes(events, predicted, test)
+    reactive = sc.reactive_curve(routes, base, ev.slow_fractions, ev.recovery_rates_mps2)
+    proactive = sc.proactive_curve(routes, base, ev.slow_fractions)
+    best = sc.shock_reduction_at_equal_time(
+        sc.pareto_front(reactive), sc.pareto_front(proactive)
+    ).max_reduction
+    return None if not np.isfinite(best) else round(float(best), 6)
+
+
+def speed_control(
+    events: pa.Table, predicted: BoolArray, test: BoolArray, ev: EvaluateConfig, out_dir: Path
+) -> tuple[dict[str, Any], list[Path]]:
+    """Fig. 7: the curves, the CSV and PNG, and the summary entry."""
+    base = _speed_params(ev)
     routes = _routes(events, predicted, test)
     reactive = sc.reactive_curve(routes, base, ev.slow_fractions, ev.recovery_rates_mps2)
     proactive = sc.proactive_curve(routes, base, ev.slow_fractions)
@@ -270,6 +291,7 @@ def speed_control(
 
 
 __all__ = [
+    "shock_reduction",
     "MODEL_KEYS",
     "method_entry",
     "method_rocs",

@@ -438,6 +438,50 @@ class EvaluateConfig:
 
 
 @dataclass(frozen=True)
+class OnlineLearnConfig:
+    """Learning while driving (sect. 8): the test-then-train replay of ``terrain online``
+    (:mod:`toolkit.model.online`). It starts from ``[learn]``'s initial guess and
+    increments, or from a model learned elsewhere.
+
+    The defaults were measured on tuning logs no evaluation uses (``benchmarks/README.md``,
+    "Online, test-then-train"): whole rotations every 500 m from 8 rough labels on, with the
+    paper's halving, ranked the test halves best.
+    """
+
+    #: Metres driven between two updates.
+    update_every_m: Annotated[float, Rule(ge=1.0, le=100000.0)] = 500.0
+    #: The buffer: the most recent rough and smooth labelled events kept.
+    buffer_rough: Annotated[int, Rule(ge=1, le=100000)] = 64
+    buffer_smooth: Annotated[int, Rule(ge=1, le=1000000)] = 256
+    #: Elements of B each update tries (13: a whole rotation).
+    coordinates_per_update: Annotated[int, Rule(ge=1, le=15)] = 13
+    #: Rough labels the buffer must hold before the model learns.
+    min_rough: Annotated[int, Rule(ge=1, le=100000)] = 8
+    step_rule: Annotated[str, Rule(choices=("halve", "adapt"))] = "halve"
+    #: Score with B averaged over the versions (Polyak); measured, not better.
+    average: bool = False
+    #: Buffer share held out to accept an update; measured, not better.
+    validation_share: Annotated[float, Rule(ge=0.0, le=0.5)] = 0.0
+    #: Every this many metres (0: never) the whole search of sect. 6 is run again on the
+    #: buffer from the start, its model taken at the next update; measured, not better.
+    refit_every_m: Annotated[float, Rule(ge=0.0)] = 0.0
+    refit_iterations: Annotated[int, Rule(ge=1, le=1000)] = 20
+    #: Each log is a drive of its own, learned from the start; false: the logs are one drive
+    #: (in the tables' order) and the model carries over from one to the next.
+    restart_each_log: bool = True
+    #: A ``model.json`` learned elsewhere to start from (its B, mu, and [learn]'s increments),
+    #: relative to the workspace; "" starts from [learn]'s initial guess.
+    start_model: str = ""
+    #: The report's frozen early model: the online model as it stood after this distance of
+    #: each log, m.
+    frozen_after_m: Annotated[float, Rule(gt=0.0)] = 3000.0
+    #: The report's stretches (prequential AUC against distance), m.
+    stretch_m: Annotated[float, Rule(ge=100.0)] = 2000.0
+    #: Updates between two checkpoints of the replay (a stopped replay resumes from the last).
+    checkpoint_every: Annotated[int, Rule(ge=1, le=100000)] = 20
+
+
+@dataclass(frozen=True)
 class PipelineConfig:
     """The whole configuration: one frozen dataclass per TOML section."""
 
@@ -454,6 +498,7 @@ class PipelineConfig:
     evaluate: EvaluateConfig
     lidar: LidarConfig = field(default_factory=LidarConfig)
     imu: ImuConfig = field(default_factory=ImuConfig)
+    online: OnlineLearnConfig = field(default_factory=OnlineLearnConfig)
 
 
 #: The TOML sections, in file order (every field of PipelineConfig that is a table).

@@ -86,6 +86,13 @@ class OnlineConfig:
     validation_share: float = 0.0
     #: Eq. (6)'s lambda, for mu.
     lambda_fp: float = 5.0
+    #: Every this many metres (0: never), the whole search of sect. 6 is run again on the
+    #: buffer, from the start's B and increments, ``refit_iterations`` rotations with
+    #: adapted steps, as offline learning runs on a training split; its model is taken at
+    #: the next update (it runs beside the planner's loop, not in it), and the updates then
+    #: go on from it with the start's increments.
+    refit_every_m: float = 0.0
+    refit_iterations: int = 20
 
     def __post_init__(self) -> None:
         if not self.update_every_m > 0.0:
@@ -98,6 +105,8 @@ class OnlineConfig:
             raise ValueError("the model needs at least one rough event to learn from")
         if self.step_rule not in STEP_RULES:
             raise ValueError(f"step_rule must be one of {STEP_RULES}, not {self.step_rule!r}")
+        if self.refit_every_m < 0.0 or self.refit_iterations < 1:
+            raise ValueError("refit_every_m must be >= 0 and refit_iterations >= 1")
         if not 0.0 <= self.validation_share <= 0.5:
             raise ValueError(f"validation_share must be in [0, 0.5], not {self.validation_share}")
 
@@ -119,6 +128,17 @@ class Stream:
     @property
     def events(self) -> int:
         return int(self.rough.size)
+
+    def take(self, index: IntArray) -> Stream:
+        """The events ``index`` (in that order), with their patches."""
+        return Stream(
+            self.t_start_ns[index],
+            self.s_start_m[index],
+            self.t_seen_ns[index],
+            self.t_known_ns[index],
+            self.rough[index],
+            self.patches.take(_groups(np.asarray(index, np.int64))),
+        )
 
 
 @dataclass(frozen=True)
@@ -171,6 +191,11 @@ class LearnerState:
     #: the events are scored with (B then mu; empty: score with ``b`` and ``mu``).
     b_sum: tuple[float, ...] = ()
     scoring: tuple[float, ...] = ()
+    #: The start's B and increments (a refit searches from them), and a refit's model
+    #: (B then mu) waiting to be taken at the next update (empty: none).
+    origin: tuple[float, ...] = ()
+    origin_increments: tuple[float, ...] = ()
+    pending: tuple[float, ...] = ()
 
     @property
     def params(self) -> RoughnessParams:
@@ -185,12 +210,51 @@ def start(
 ) -> LearnerState:
     """A learner that knows nothing yet: B as given, and mu above every score (nothing is
     called rough before a label has been seen) unless a model learned elsewhere gives one."""
-    return LearnerState(tuple(map(float, initial)), float(mu), tuple(map(float, increments)))
+    b, steps = tuple(map(float, initial)), tuple(map(float, increments))
+    return LearnerState(b, float(mu), steps, origin=b, origin_increments=steps)
+
+
+def refit(state: LearnerState, config: OnlineConfig) -> LearnerState:
+    """The state with a refit's model pending (module docstring of :class:`OnlineConfig`'s
+    ``refit_every_m``): the search of sect. 6 on the buffer from the start. Unchanged
+    without enough labels to learn from."""
+    buf = state.buffer
+    if buf.patches is None or not buf.learnable or buf.rough.sum() < config.min_rough:
+        return state
+    search = AscentConfig(
+        initial=state.origin,
+        increments=state.origin_increments,
+        lambda_fp=config.lambda_fp,
+        iterations=config.refit_iterations,
+        accept="auc",
+        step_rule="adapt",
+    )
+    result = coordinate_ascent(PairTable(buf.patches), buf.rough, search)
+    return _with(state, pending=(*result.params.vector(), result.params.mu))
+
+
+def _take_pending(state: LearnerState) -> LearnerState:
+    """The state with its pending refit taken as its model (a new version), the updates'
+    increments back to the start's and the rotation from its first element."""
+    if not state.pending:
+        return state
+    return _with(
+        state,
+        b=state.pending[:-1],
+        mu=state.pending[-1],
+        increments=state.origin_increments,
+        cursor=0,
+        version=state.version + 1,
+        pending=(),
+    )
 
 
 def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int]:
     """One update on the buffer (module docstring): the new state, and how many steps of
     eq. (7) were kept. The model stays as it is without both classes in the buffer."""
+    taken = _take_pending(state)
+    if taken is not state:
+        return taken, 0
     buf = state.buffer
     if buf.patches is None or not buf.learnable or buf.rough.sum() < config.min_rough:
         return state, 0
@@ -226,16 +290,15 @@ def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int
         mu = best_threshold(r, buf.rough, config.lambda_fp).mu
         scoring = (*mean.vector(), mu)
     return (
-        LearnerState(
-            b_new,
-            result.params.mu,
-            increments,
-            (state.cursor + len(tried)) % n,
-            state.version + 1,
-            state.step,
-            buf,
-            b_sum,
-            scoring,
+        _with(
+            state,
+            b=b_new,
+            mu=result.params.mu,
+            increments=increments,
+            cursor=(state.cursor + len(tried)) % n,
+            version=state.version + 1,
+            b_sum=b_sum,
+            scoring=scoring,
         ),
         0 if refused else len(result.steps),
     )
@@ -246,8 +309,8 @@ class Replayed:
     """What a replay gave: every event's score when it was seen (E,; NaN for an event not
     reached), its standing then (module docstring), the verdict then, and the model version
     that scored it (-1: not reached); per step, where it ended (m, ns), the version after
-    it, the buffer's rough and smooth counts, the steps of eq. (7) kept and the update's
-    time (s)."""
+    it, the buffer's rough and smooth counts, the steps of eq. (7) kept, the update's
+    time and a refit's (s; 0 without one)."""
 
     r_combined: FloatArray
     standing: FloatArray
@@ -260,6 +323,7 @@ class Replayed:
     buffer_smooth: IntArray
     steps_kept: IntArray
     update_s: FloatArray
+    refit_s: FloatArray
 
 
 def step_ends(stream: Stream, config: OnlineConfig) -> tuple[FloatArray, NDArray[np.int64]]:
@@ -292,7 +356,7 @@ def replay(
     predicted = np.zeros(n, bool)
     reference = _smooth_scores(state)
     version = np.full(n, -1, np.int64)
-    rows: list[tuple[float, int, int, int, int, int, float]] = []
+    rows: list[tuple[float, int, int, int, int, int, float, float]] = []
     last = ends_ns.size if stop_after is None else min(ends_ns.size, state.step + stop_after)
     for k in range(state.step, last):
         lo = ends_ns[k - 1] if k else np.iinfo(np.int64).min
@@ -308,10 +372,16 @@ def replay(
                 stream.patches.take(_groups(known)), stream.rough[known], known, config
             )
             state = _with(state, buffer=buf)
+        before = state.version
         t0 = time.perf_counter()
         state, kept = update(state, config)
         took = time.perf_counter() - t0
-        if known.size or kept:  # the buffer or the model changed: so does the reference
+        refit_took = 0.0
+        if _refits(config, ends_m, k):
+            t0 = time.perf_counter()
+            state = refit(state, config)
+            refit_took = time.perf_counter() - t0
+        if known.size or state.version != before:  # the buffer or the model changed
             reference = _smooth_scores(state)
         state = _with(state, step=k + 1)
         b = state.buffer
@@ -325,11 +395,12 @@ def replay(
                 b.rough.size - n_rough,
                 kept,
                 took,
+                refit_took,
             )
         )
         if progress is not None:
             progress(state)
-    cols = list(zip(*rows, strict=True)) if rows else [()] * 7
+    cols = list(zip(*rows, strict=True)) if rows else [()] * 8
     return state, Replayed(
         r,
         standing,
@@ -342,6 +413,18 @@ def replay(
         np.asarray(cols[4], np.int64),
         np.asarray(cols[5], np.int64),
         np.asarray(cols[6], np.float64),
+        np.asarray(cols[7], np.float64),
+    )
+
+
+def _refits(config: OnlineConfig, ends_m: FloatArray, k: int) -> bool:
+    """Whether step ``k`` (ending at ``ends_m[k]``) crossed a multiple of
+    ``refit_every_m``."""
+    if config.refit_every_m <= 0.0:
+        return False
+    before = ends_m[k - 1] if k else 0.0
+    return bool(
+        np.floor(ends_m[k] / config.refit_every_m) > np.floor(before / config.refit_every_m)
     )
 
 
@@ -379,6 +462,7 @@ __all__ = [
     "OnlineConfig",
     "Replayed",
     "Stream",
+    "refit",
     "replay",
     "start",
     "step_ends",

@@ -8,8 +8,9 @@ search from it as well, some with elements held fixed.
 
 from __future__ import annotations
 
-from toolkit.config import LearnConfig
+from toolkit.config import LearnConfig, OnlineLearnConfig
 from toolkit.model.ascent import AscentConfig
+from toolkit.model.online import OnlineConfig
 
 
 def ascent_config(
@@ -40,4 +41,21 @@ def ascent_config(
     )
 
 
-__all__ = ["ascent_config"]
+def online_config(oc: OnlineLearnConfig, lc: LearnConfig) -> OnlineConfig:
+    """The online learner of ``[online]``, with ``[learn]``'s lambda for eq. (6)'s mu."""
+    return OnlineConfig(
+        update_every_m=oc.update_every_m,
+        buffer_rough=oc.buffer_rough,
+        buffer_smooth=oc.buffer_smooth,
+        coordinates_per_update=oc.coordinates_per_update,
+        min_rough=oc.min_rough,
+        step_rule=oc.step_rule,
+        average=oc.average,
+        validation_share=oc.validation_share,
+        lambda_fp=lc.lambda_fp,
+        refit_every_m=oc.refit_every_m,
+        refit_iterations=oc.refit_iterations,
+    )
+
+
+__all__ = ["ascent_config", "online_config"]

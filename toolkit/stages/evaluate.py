@@ -62,6 +62,7 @@ from toolkit.manifest import Manifest
 from toolkit.model.roc import caveats, small_sample_warnings
 from toolkit.sim.record import SIM_RECORD
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
+from toolkit.stages.evaluate_online import online_entry
 from toolkit.stages.evaluate_rows import (
     EvaluateSettings,
     RowsRun,
@@ -199,12 +200,22 @@ def _write_report(
         curves = {n: r.curve for n, r in rocs.items() if r is not None}
         aucs = {n: r.auc for n, r in rocs.items() if r is not None}
         figures = [roc_png(report / ROC_PNG, curves, aucs)]
+        online, online_figures = online_entry(
+            run.workspace, t.events, t.test, ev, speed["shock_reduction_at_equal_time"], report
+        )
+        if online is not None:
+            summary["online"] = online
         copied = _copy_log_figures(run.workspace, t.events, report)
         atomic_write_json(report / SUMMARY_NAME, summary)
         write_index_html(
             report / INDEX_NAME,
             ReportInputs(
-                summary, model_doc, [p.name for p in figures], [p.name for p in speed_files], copied
+                summary,
+                model_doc,
+                [p.name for p in figures],
+                [p.name for p in speed_files],
+                copied,
+                online_figures[0].name if online_figures else None,
             ),
         )
         gen.commit()
@@ -309,6 +320,9 @@ SPEC = Stage(
         Need("events_table", "tables"),
         Need("event_points_table", "tables"),
         Need("model", "learn"),
+        # Learning while driving, when it has run: its section of the report.
+        Need("online_summary", "online", optional=True),
+        Need("online_scores", "online", optional=True),
     ),
     makes=("scores", "summary", "index"),
     settings=EvaluateSettings,

@@ -53,6 +53,11 @@ REGISTRY: dict[str, Listed] = {
         "workspace",
         "Coordinate ascent on the training tables -> WS/model.json, the 14 parameters (sect. 6).",
     ),
+    "online": Listed(
+        "toolkit.stages.online",
+        "workspace",
+        "Learning while driving: test-then-train replay of the tables -> WS/online/ (sect. 8).",
+    ),
     "evaluate": Listed(
         "toolkit.stages.evaluate",
         "workspace",

@@ -161,6 +161,14 @@ def load_model(workspace: Workspace) -> tuple[RoughnessParams, dict[str, Any]]:
     path = workspace.model_path
     if not path.is_file():
         raise StageError("no model; run `terrain learn` first", path=path)
+    return load_model_file(path)
+
+
+def load_model_file(path: Path) -> tuple[RoughnessParams, dict[str, Any]]:
+    """The parameters and the whole document of a ``model.json`` at ``path``; StageError
+    if missing or malformed."""
+    if not path.is_file():
+        raise StageError("no such model file", path=path)
     try:
         doc = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
@@ -203,6 +211,7 @@ __all__ = [
     "laser_order",
     "lasers_nearest_first",
     "load_model",
+    "load_model_file",
     "pair_table",
     "patches_of",
     "split_events",

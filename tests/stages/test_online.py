@@ -1,0 +1,160 @@
+"""The online stage on the sample: test-then-train replay, stopped and resumed, started
+from a model learned elsewhere."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tests.stages.test_learn import Pipeline
+from toolkit.config import PipelineConfig, default_config
+from toolkit.errors import StageError
+from toolkit.stages.online import SPEC as ONLINE
+from toolkit.stages.runner import run_stage
+from toolkit.tableio import read_table
+from toolkit.workspace import Workspace
+
+
+def _copy(pipeline: Pipeline, tmp_path: Path, name: str = "ws") -> Workspace:
+    ws = Workspace(tmp_path / name)
+    shutil.copytree(pipeline.ws.root, ws.root, symlinks=True)
+    return ws
+
+
+def _every(metres: float, checkpoint_every: int = 2, **changes: object) -> PipelineConfig:
+    """The default configuration with an update every ``metres`` (the sample is 0.9 km)."""
+    cfg = default_config()
+    online = dataclasses.replace(
+        cfg.online, update_every_m=metres, checkpoint_every=checkpoint_every, **changes
+    )
+    return dataclasses.replace(cfg, online=online)
+
+
+def _outputs(ws: Workspace) -> dict[str, object]:
+    """The replay's outputs, compared by ``np.testing.assert_equal`` (NaN equal to NaN)."""
+    return {
+        "scores": read_table(ws.path("online_scores"), "online_scores").to_pydict(),
+        "steps": read_table(ws.path("online_steps"), "online_steps").to_pydict(),
+        "summary": json.loads(ws.path("online_summary").read_text()),
+        "state": json.loads(ws.path("online_state").read_text()),
+    }
+
+
+def test_every_event_is_scored_by_the_model_of_its_time(pipeline: Pipeline, tmp_path: Path) -> None:
+    """Each event met once, by a version no later than the updates before it was seen; no
+    event flagged before the model first learned; the offline column is model.json's score
+    of the same event in the report; nothing is left of the checkpoint."""
+    ws = _copy(pipeline, tmp_path)
+    cfg = _every(100.0, min_rough=2)
+    result = run_stage(ONLINE, ws, cfg)
+    assert result.status == "written"
+    scores = read_table(ws.path("online_scores"), "online_scores")
+    steps = read_table(ws.path("online_steps"), "online_steps")
+    events = read_table(ws.events_table, "tables_events")
+    assert scores.num_rows == events.num_rows
+    version = scores.column("version").to_numpy()
+    assert version.min() >= 0
+    s_m = scores.column("s_m").to_numpy()
+    end_m = steps.column("end_m").to_numpy()
+    # An event beginning before step k's end is scored by a version of at most k.
+    assert np.all(version <= np.searchsorted(end_m, s_m, side="right"))
+    predicted = scores.column("predicted").to_numpy(zero_copy_only=False)
+    assert not predicted[version == 0].any()
+    assert steps.column("version").to_numpy().max() >= 1, "the sample holds enough to learn"
+    report = read_table(ws.scores_table, "scores")
+    by_event = dict(
+        zip(
+            report.column("event_id").to_pylist(),
+            report.column("r_combined").to_pylist(),
+            strict=True,
+        )
+    )
+    mine = scores.filter(scores.column("split").to_numpy(zero_copy_only=False) == "test")
+    want = np.array([by_event[e] for e in mine.column("event_id").to_pylist()])
+    np.testing.assert_allclose(mine.column("r_offline").to_numpy(), want, rtol=1e-12)
+    summary = json.loads(ws.path("online_summary").read_text())
+    assert summary["updates"] == steps.num_rows and summary["not_reached"] == 0
+    assert summary["test"]["offline"]["auc"] == pytest.approx(
+        json.loads(ws.summary_path.read_text())["self_supervised"]["auc"]
+    )
+    assert not ws.path("online_checkpoint").exists()
+    assert run_stage(ONLINE, ws, cfg).status == "up_to_date"
+
+
+class _StopError(Exception):
+    """What the test's progress callback raises: the replay stopped from outside."""
+
+
+def test_a_stopped_replay_resumes_to_what_an_unbroken_one_writes(
+    pipeline: Pipeline, tmp_path: Path
+) -> None:
+    cfg = _every(100.0, checkpoint_every=2, min_rough=2)
+    whole = _copy(pipeline, tmp_path, "whole")
+    run_stage(ONLINE, whole, cfg)
+    broken = _copy(pipeline, tmp_path, "broken")
+    calls = 0
+
+    def stop_after_five(_: str) -> None:
+        nonlocal calls
+        calls += 1
+        if calls == 5:
+            raise _StopError
+
+    with pytest.raises(_StopError):
+        run_stage(ONLINE, broken, cfg, step=stop_after_five)
+    assert broken.path("online_checkpoint").is_file(), "two pieces of two updates were saved"
+    assert not broken.path("online_scores").exists()
+    resumed = run_stage(ONLINE, broken, cfg)
+    assert any("resumed a stopped replay" in w for w in resumed.warnings)
+    np.testing.assert_equal(_outputs(broken), _outputs(whole))
+    assert not broken.path("online_checkpoint").exists()
+
+
+def test_a_checkpoint_of_other_inputs_is_not_resumed(pipeline: Pipeline, tmp_path: Path) -> None:
+    """A checkpoint left by another configuration (another key) is replayed over."""
+    ws = _copy(pipeline, tmp_path)
+    stops = iter(range(10))
+
+    def stop(_: str) -> None:
+        if next(stops) == 3:
+            raise _StopError
+
+    with pytest.raises(_StopError):
+        run_stage(ONLINE, ws, _every(100.0, min_rough=2), step=stop)
+    assert ws.path("online_checkpoint").is_file()
+    other = run_stage(ONLINE, ws, _every(100.0, min_rough=3))
+    assert not any("resumed" in w for w in other.warnings)
+    fresh = _copy(pipeline, tmp_path, "fresh")
+    run_stage(ONLINE, fresh, _every(100.0, min_rough=3))
+    np.testing.assert_equal(_outputs(ws), _outputs(fresh))
+
+
+def test_it_starts_from_a_model_learned_elsewhere(pipeline: Pipeline, tmp_path: Path) -> None:
+    """With start_model, every event before the first update is scored by that model (here
+    the workspace's own, copied), and its verdicts are that model's."""
+    ws = _copy(pipeline, tmp_path)
+    shutil.copy(ws.model_path, ws.root / "elsewhere.json")
+    cfg = _every(100.0, min_rough=2, start_model="elsewhere.json")
+    run_stage(ONLINE, ws, cfg)
+    scores = read_table(ws.path("online_scores"), "online_scores")
+    np.testing.assert_array_equal(scores.column("r_start"), scores.column("r_offline"))
+    first = scores.column("version").to_numpy() == 0
+    assert first.any()
+    np.testing.assert_array_equal(
+        scores.column("r_online").to_numpy()[first], scores.column("r_offline").to_numpy()[first]
+    )
+    summary = json.loads(ws.path("online_summary").read_text())
+    assert summary["start"]["from"] == "elsewhere.json"
+
+
+def test_a_missing_start_model_is_refused_naming_it(pipeline: Pipeline, tmp_path: Path) -> None:
+    ws = _copy(pipeline, tmp_path)
+    with pytest.raises(StageError, match="start_model") as err:
+        run_stage(ONLINE, ws, _every(100.0, start_model="nowhere.json"))
+    assert "nowhere.json" in str(err.value)
+    assert not ws.path("online_scores").exists()

@@ -1,0 +1,339 @@
+"""Online stage: learning while driving (paper sect. 8), a test-then-train replay of the
+training tables -> ``WS/online/``.
+
+The workspace's events are replayed as the vehicle drove them (:mod:`toolkit.stages.
+online_stream`): each scored by the model as it stood when its last point was seen, its label
+learned from once the rear axle has passed and the shock filter has had its samples
+(:mod:`toolkit.model.online`). With ``[online] restart_each_log`` each log is a drive of its
+own, learned from the start; otherwise the logs are one drive and the model carries over.
+The start is ``[learn]``'s initial guess (the uninformed one by default) or, with
+``start_model``, a ``model.json`` learned elsewhere.
+
+Outputs:
+
+- ``online/scores.parquet`` (schema ``online_scores``): every event as it was met, beside the
+  offline model (``model.json``), the start, the frozen early model and the final one;
+- ``online/steps.parquet`` (``online_steps``): every update, with B and mu after it;
+- ``online/summary.json``: what the report says of it (:mod:`toolkit.analysis.
+  online_summary`);
+- ``online/state.json``: each drive's learner at its end, its buffer as (log, event) pairs.
+
+*Stopped and resumed.* Every ``checkpoint_every`` updates the replay so far is saved to
+``online/checkpoint.npz``, keyed by the stage's inputs, configuration and code. A run that
+finds a checkpoint with its own key resumes from it (and says so); the replay is
+deterministic, so a resumed run writes what an unbroken one writes, byte for byte. The
+checkpoint is removed once the outputs are written.
+
+The update times and the replay's speed, which differ from run to run, are in the stage's
+manifest record (``timings_s``), not in its outputs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import pyarrow as pa
+
+from toolkit.analysis.online_summary import FPRS, online_summary
+from toolkit.atomic import atomic_write_json
+from toolkit.config import (
+    LabelConfig,
+    LearnConfig,
+    ModelConfig,
+    OnlineLearnConfig,
+    PipelineConfig,
+)
+from toolkit.errors import StageError
+from toolkit.manifest import Manifest, file_sha256
+from toolkit.model.online import LearnerState, OnlineConfig, start
+from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
+from toolkit.model.search import ascent_config, online_config
+from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
+from toolkit.stages.online_replay import Drive, ReplayLog, replay_drives
+from toolkit.stages.online_stream import drive_stream
+from toolkit.stages.training_data import load_model, load_model_file
+from toolkit.tableio import write_table
+from toolkit.workspace import Workspace
+
+STAGE = "online"
+NEEDS = (
+    Need("events_table", "tables"),
+    Need("event_points_table", "tables"),
+    Need("model", "learn"),
+)
+
+
+@dataclass(frozen=True)
+class OnlineSettings:
+    """What the replay reads of the configuration."""
+
+    model: ModelConfig
+    label: LabelConfig
+    learn: LearnConfig
+    online: OnlineLearnConfig
+
+
+@dataclass(frozen=True)
+class OnlineResult:
+    """What ``terrain online`` did, for the command line."""
+
+    status: str  # "written" or "up_to_date"
+    summary: dict[str, Any]
+    seconds: float
+    warnings: tuple[str, ...] = ()
+    #: The run's timings (the manifest's): the updates' p50 and p95, the replay's speed.
+    timings: dict[str, float] = dataclasses.field(default_factory=dict)
+
+    def text(self) -> str:
+        s = self.summary
+        if self.status == "up_to_date":
+            return "online replay up to date"
+        lines = [
+            f"online replay of {s['drives']} drive(s) in {self.seconds:.1f} s: {s['events']} "
+            f"events ({s['rough']} rough), {s['updates']} updates"
+        ]
+        for name in ("online", "offline", "frozen", "start"):
+            got = s["test"].get(name)
+            if got is not None:
+                tpr = ", ".join(f"{k}: {v:.2f}" for k, v in got["tpr_at_fpr"].items())
+                lines.append(f"  test split, {name}: AUC {got['auc']:.3f}; TPR at FPR {tpr}")
+        within = s["within_0_02_from_m"]
+        lines.append(
+            "  within 0.02 AUC of the offline model: "
+            + ("never" if within is None else f"from {within / 1000:.1f} km driven on")
+        )
+        t = self.timings
+        if t:
+            lines.append(
+                f"  an update took {1000 * t['update_p50']:.0f} ms (p50), "
+                f"{1000 * t['update_p95']:.0f} ms (p95); the replay ran at "
+                f"{t['real_time_factor']:.0f}x real time"
+            )
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+
+def start_state(
+    workspace: Workspace, settings: OnlineSettings
+) -> tuple[LearnerState, dict[str, Any]]:
+    """The learner each drive starts from, and what the summary says of it: ``[learn]``'s
+    initial guess with mu above every score (nothing flagged before a label is seen), or
+    ``start_model``'s B and mu; ``[learn]``'s increments either way."""
+    search = ascent_config(settings.learn)
+    name = settings.online.start_model
+    if not name:
+        return start(search.initial, search.increments), {"from": "initial_guess"}
+    path = workspace.root / name
+    params, _ = load_model_file(path)
+    b = params.vector()
+    if len(b) != len(search.increments):
+        raise StageError(
+            f"start_model has {len(b)} elements of B and [learn] {len(search.increments)} "
+            "(lead_term differs)",
+            path=path,
+        )
+    return start(b, search.increments, params.mu), {"from": name, "sha256": file_sha256(path)}
+
+
+def _gather(workspace: Workspace, config: PipelineConfig) -> tuple[dict[str, str], None]:
+    """The tables and model.json, checked current (as every stage's needs), and the start
+    model's file: a new file at the same path replays again."""
+    from toolkit.stages.runner import check_needs
+
+    manifest = Manifest(workspace.manifest_path)
+    inputs = check_needs(NEEDS, workspace.path, manifest, config, STAGE)
+    if config.online.start_model:
+        path = workspace.root / config.online.start_model
+        if not path.is_file():
+            raise StageError("[online] start_model: no such file", path=path)
+        inputs["start_model"] = file_sha256(path)
+    return inputs, None
+
+
+def checkpoint_key(call: Call[OnlineSettings]) -> str:
+    """What a checkpoint must match to be resumed from: the inputs, configuration and code."""
+    from toolkit.stages.registry import code_version_of
+
+    doc = {"inputs": dict(call.inputs), "config": call.config_hash, "code": code_version_of(STAGE)}
+    return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
+
+
+def _compute(call: Call[OnlineSettings]) -> Made[OnlineResult]:
+    """Replay, score, summarise and write (the module docstring)."""
+    ws, settings = call.workspace, call.settings
+    t0 = time.perf_counter()
+    stream = drive_stream(ws, settings.model, settings.label)
+    if stream.stream.events == 0:
+        raise StageError("the tables hold no event to replay", path=ws.events_table)
+    offline, _ = load_model(ws)
+    first, started = start_state(ws, settings)
+    oc = online_config(settings.online, settings.learn)
+    drives = split_drives(stream.log_id, stream.stream.s_start_m, settings.online)
+    read_s = time.perf_counter() - t0
+    log = ReplayLog(ws.path("online_checkpoint"), checkpoint_key(call), settings.online)
+    t0 = time.perf_counter()
+    done = replay_drives(stream.stream, drives, first, oc, log, lambda: call.step(""))
+    replay_s = time.perf_counter() - t0
+    frozen_steps = max(1, math.ceil(settings.online.frozen_after_m / oc.update_every_m))
+    models = {"r_offline": [offline] * len(drives)}
+    models["r_start"] = [first.params] * len(drives)
+    models["r_frozen"] = [done.model_after(d, frozen_steps, first) for d in range(len(drives))]
+    models["r_final"] = [done.model_after(d, None, first) for d in range(len(drives))]
+    scores = _scores_table(stream, drives, done, models)
+    steps = done.steps_table()
+    summary = online_summary(
+        _columns(scores),
+        _columns(steps.drop_columns(["b"])),
+        fprs=FPRS,
+        stretch_m=settings.online.stretch_m,
+        update_every_m=oc.update_every_m,
+        frozen_after_m=settings.online.frozen_after_m,
+    )
+    summary["start"] = started
+    warnings = _warnings(summary, done.resumed_at, oc)
+    sources = sorted(set(call.inputs.values()))
+    for name, table in (("online_scores", scores), ("online_steps", steps)):
+        write_table(ws.path(name), table, name, source_sha256=sources, config_hash=call.config_hash)
+    atomic_write_json(ws.path("online_summary"), summary)
+    atomic_write_json(ws.path("online_state"), done.state_doc(stream.log_id, stream.event_id))
+    log.remove()
+    update_s = np.asarray(done.update_s) if done.update_s else np.zeros(1)
+    drive_s = float(done.driven_s)
+    timings = {
+        "read": read_s,
+        "replay": replay_s,
+        "update_p50": float(np.percentile(update_s, 50)),
+        "update_p95": float(np.percentile(update_s, 95)),
+        "update_max": float(update_s.max()),
+        "driven": drive_s,
+        "real_time_factor": drive_s / max(replay_s, 1e-9),
+    }
+    seconds = time.perf_counter() - call.start
+    return Made(
+        OnlineResult("written", summary, seconds, tuple(warnings), timings),
+        tuple(
+            ws.path(n).relative_to(ws.root).as_posix()
+            for n in ("online_scores", "online_steps", "online_summary", "online_state")
+        ),
+        row_counts={"events": scores.num_rows, "updates": steps.num_rows},
+        timings_s={**timings, "total": seconds},
+        warnings=tuple(warnings),
+    )
+
+
+def split_drives(log_id: np.ndarray, s_m: np.ndarray, online: OnlineLearnConfig) -> list[Drive]:
+    """The drives replayed: one per log (in the stream's order) with ``restart_each_log``,
+    else one; each with its events' rows in the stream and where its distance starts."""
+    if not online.restart_each_log:
+        rows = np.arange(log_id.size, dtype=np.int64)
+        return [Drive(rows, float(s_m.min()))]
+    out = []
+    for log in dict.fromkeys(log_id.tolist()):
+        rows = np.flatnonzero(log_id == log).astype(np.int64)
+        out.append(Drive(rows, float(s_m[rows].min())))
+    return out
+
+
+def _scores_table(
+    stream: Any, drives: list[Drive], done: Any, models: dict[str, list[RoughnessParams]]
+) -> pa.Table:
+    """One row per event (stream order): as met online, and each compared model's R."""
+    s = stream.stream
+    n = s.events
+    drive_of = np.zeros(n, np.int64)
+    s_m = np.zeros(n)
+    compared = {name: np.full(n, np.nan) for name in models}
+    for d, drive in enumerate(drives):
+        drive_of[drive.rows] = d
+        s_m[drive.rows] = s.s_start_m[drive.rows] - drive.s0_m
+        pairs = model_pairs(s.patches.take(_groups(drive.rows)))
+        for name, params in models.items():
+            compared[name][drive.rows] = score_events(pairs, params[d]).r_combined
+    return pa.table(
+        {
+            "log_id": pa.array(stream.log_id.tolist(), pa.string()),
+            "event_id": pa.array(stream.event_id, pa.int64()),
+            "split": pa.array(stream.split.tolist(), pa.string()),
+            "drive": drive_of,
+            "s_m": s_m,
+            "t_seen_ns": s.t_seen_ns,
+            "t_known_ns": s.t_known_ns,
+            "rough": s.rough,
+            "version": done.version,
+            "r_online": done.r_combined,
+            "standing": done.standing,
+            "predicted": done.predicted,
+            **compared,
+        }
+    )
+
+
+def _columns(table: pa.Table) -> dict[str, np.ndarray]:
+    """A table's columns as arrays, by name."""
+    return {n: table.column(n).to_numpy(zero_copy_only=False) for n in table.column_names}
+
+
+def _groups(events: np.ndarray) -> np.ndarray:
+    return np.stack([2 * events, 2 * events + 1], axis=1).reshape(-1)
+
+
+def _warnings(summary: dict[str, Any], resumed_at: str | None, oc: OnlineConfig) -> list[str]:
+    """What the user must know of this replay, said on the terminal."""
+    out = []
+    if resumed_at is not None:
+        out.append(f"resumed a stopped replay from its checkpoint ({resumed_at})")
+    for d, where in summary["first_update_m"].items():
+        if where is None:
+            out.append(
+                f"drive {d}: the model never learned (fewer than {oc.min_rough} rough labels, "
+                "or no smooth one): it flagged nothing"
+            )
+        elif where > 2.0 * oc.update_every_m:
+            out.append(
+                f"drive {d}: no update before {where / 1000:.1f} km (waiting for "
+                f"{oc.min_rough} rough labels); nothing was flagged before"
+            )
+    gaps = summary["gaps"]
+    if gaps:
+        km = sum(g["to_m"] - g["from_m"] for g in gaps) / 1000.0
+        out.append(
+            f"{len(gaps)} stretch(es) without events ({km:.1f} km: no pose, IMU or points "
+            "there); the model stood still across them"
+        )
+    if summary["out_of_order_labels"]:
+        out.append(
+            f"{summary['out_of_order_labels']} label(s) known before those of events driven "
+            "earlier: each entered the buffer when known"
+        )
+    return out
+
+
+def _recall(last: Recalled[OnlineSettings]) -> OnlineResult:
+    """The outcome of an up-to-date replay: its summary as written."""
+    doc = json.loads(last.workspace.path("online_summary").read_text())
+    return OnlineResult("up_to_date", doc, last.seconds)
+
+
+SPEC = Stage(
+    STAGE,
+    "workspace",
+    needs=NEEDS,
+    makes=("online_scores", "online_steps", "online_summary", "online_state"),
+    settings=OnlineSettings,
+    compute=_compute,
+    recall=_recall,
+    gather=_gather,
+    rows=("events", "updates"),
+    unit="update",
+    describe=OnlineResult.text,
+)
+
+
+__all__ = ["SPEC", "STAGE", "OnlineResult", "OnlineSettings", "split_drives", "start_state"]
