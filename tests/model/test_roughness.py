@@ -275,3 +275,20 @@ def test_a_padding_pair_is_absent_even_where_a_negative_weight_overflows() -> No
     assert np.isfinite(d[table.pair_valid]).all()
     assert np.isfinite(got.r_left).all() and np.isfinite(got.r_right).all()
     assert got.r_right[0] > 0.0
+
+
+def test_a_table_taken_and_joined_is_the_table_of_those_patches() -> None:
+    """Pairs kept from one update to the next (the online buffer) are the pairs of the
+    patches kept: take and join give PairTable's arrays for the patches taken and joined."""
+    rng = np.random.default_rng(8)
+    a = make_patches(random_patches(rng, 12, 6))
+    b = make_patches(random_patches(rng, 8, 6))
+    groups = np.array([23, 0, 5, 30, 31, 7])
+    got = PairTable(a).join(PairTable(b)).take(groups)
+    want = PairTable(a.join(b).take(groups))
+    for name in ("pair_valid", "log_dz", "log_dtau", "log_dxy", "log_gamma", "log_psi"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    params = RoughnessParams((1.0, 1.2, 0.1, 1.0, 0.2, 1.0, 0.05, 1.0, 0.05, 1.0), 1.1, 3, 1.0, 0.0)
+    np.testing.assert_array_equal(
+        score_events(got, params).r_combined, score_events(want, params).r_combined
+    )

@@ -144,11 +144,18 @@ class Stream:
 @dataclass(frozen=True)
 class Buffer:
     """The labelled events the model trains on: their patches (2 groups each), labels
-    (N,) and indices in the stream (N,), oldest first."""
+    (N,) and indices in the stream (N,), oldest first; and the patches' pairs, kept from
+    one update to the next (each event's pairs are computed once, when it enters)."""
 
     patches: TyrePatches | None = None
     rough: BoolArray = field(default_factory=lambda: np.zeros(0, bool))
     index: IntArray = field(default_factory=lambda: np.zeros(0, np.int64))
+    pairs: PairTable | None = None
+
+    @classmethod
+    def of(cls, patches: TyrePatches, rough: BoolArray, index: IntArray) -> Buffer:
+        """A buffer of these events (a resumed replay's), their pairs computed."""
+        return cls(patches, rough, index, PairTable(patches))
 
     def add(
         self, patches: TyrePatches, rough: BoolArray, index: IntArray, config: OnlineConfig
@@ -156,10 +163,13 @@ class Buffer:
         """The buffer with events appended (in the order given), then the oldest of each
         class dropped beyond the configured counts."""
         both = patches if self.patches is None else self.patches.join(patches)
+        fresh = PairTable(patches)
+        pairs = fresh if self.pairs is None else self.pairs.join(fresh)
         labels = np.r_[self.rough, rough].astype(bool)
         where = np.r_[self.index, index].astype(np.int64)
         keep = _latest(labels, config.buffer_rough) | _latest(~labels, config.buffer_smooth)
-        return Buffer(both.take(np.repeat(keep, 2)), labels[keep], where[keep])
+        groups = np.flatnonzero(np.repeat(keep, 2))
+        return Buffer(both.take(groups), labels[keep], where[keep], pairs.take(groups))
 
     @property
     def learnable(self) -> bool:
@@ -229,7 +239,7 @@ def refit(state: LearnerState, config: OnlineConfig) -> LearnerState:
         accept="auc",
         step_rule="adapt",
     )
-    result = coordinate_ascent(PairTable(buf.patches), buf.rough, search)
+    result = coordinate_ascent(_pairs(buf), buf.rough, search)
     return _with(state, pending=(*result.params.vector(), result.params.mu))
 
 
@@ -271,7 +281,7 @@ def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int
         validation_share=config.validation_share,
         validation_block=1,
     )
-    result = coordinate_ascent(PairTable(buf.patches), buf.rough, search)
+    result = coordinate_ascent(_pairs(buf), buf.rough, search)
     increments = result.increments
     # Held out, the update's steps were refused (the start kept): as if none was taken.
     refused = result.kept_rotation == 0
@@ -286,7 +296,7 @@ def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int
     if config.average:
         b_sum = tuple(float(v) for v in np.add(b_sum or (0.0,) * n, b_new))
         mean = RoughnessParams.from_vector([v / (state.version + 1) for v in b_sum], 0.0)
-        r = score_events(PairTable(buf.patches), mean).r_combined
+        r = score_events(_pairs(buf), mean).r_combined
         mu = best_threshold(r, buf.rough, config.lambda_fp).mu
         scoring = (*mean.vector(), mu)
     return (
@@ -433,8 +443,14 @@ def _smooth_scores(state: LearnerState) -> FloatArray:
     buf = state.buffer
     if buf.patches is None or buf.rough.all():
         return np.zeros(0)
-    smooth = buf.patches.take(np.repeat(~buf.rough, 2))
-    return np.sort(score_events(model_pairs(smooth), state.params).r_combined)
+    return np.sort(score_events(_pairs(buf), state.params).r_combined[~buf.rough])
+
+
+def _pairs(buf: Buffer) -> PairTable:
+    """The buffer's pairs (computed for a buffer made without them)."""
+    if buf.patches is None:
+        raise ValueError("an empty buffer has no pairs")
+    return buf.pairs if buf.pairs is not None else PairTable(buf.patches)
 
 
 def _standing(r: FloatArray, reference: FloatArray) -> FloatArray:

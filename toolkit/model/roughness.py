@@ -71,12 +71,12 @@ import os
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from toolkit.arrays import FloatArray
+from toolkit.arrays import FloatArray, IntArray
 from toolkit.model.patches import TyrePatches
 
 Float32Array = NDArray[np.float32]
@@ -210,6 +210,38 @@ class PairTable:
         self._groups = patches.groups
         self._held: tuple[tuple[object, ...], tuple[object, ...]] | None = None
         self._cache: dict[tuple[object, ...], Float32Array] = {}
+
+    #: The arrays with a row per patch, which :meth:`take` and :meth:`join` carry.
+    _ROWS = ("pair_valid", "log_dz", "log_dtau", "log_dxy", "log_gamma", "log_psi", "log_lead")
+
+    def _with_rows(self, rows: Callable[[str], Any]) -> PairTable:
+        """A table of the same pairs whose per-patch arrays are ``rows(name)``."""
+        out = object.__new__(PairTable)
+        out.r, out.c = self.r, self.c
+        for name in self._ROWS:
+            setattr(out, name, rows(name))
+        out._groups = int(out.pair_valid.shape[0])
+        out._held, out._cache = None, {}
+        return out
+
+    def take(self, groups: IntArray) -> PairTable:
+        """The patches ``groups`` (in that order): what :class:`PairTable` of those patches
+        is, without computing their pairs again."""
+        index = np.asarray(groups, np.intp)
+        return self._with_rows(
+            lambda n: None if getattr(self, n) is None else getattr(self, n)[index]
+        )
+
+    def join(self, other: PairTable) -> PairTable:
+        """This table's patches, then ``other``'s (both of patches of ``n_max`` points)."""
+        if other.r.size != self.r.size or (self.log_lead is None) != (other.log_lead is None):
+            raise ValueError("pair tables of different patch sizes or terms cannot be joined")
+
+        def both(name: str) -> Any:
+            a, b = getattr(self, name), getattr(other, name)
+            return None if a is None else np.concatenate([a, b])
+
+        return self._with_rows(both)
 
     def _diff(self, values: FloatArray) -> FloatArray:
         """(g, P) ``values[:, r] - values[:, c]`` for every pair of (g, n_max) ``values``."""

@@ -190,7 +190,9 @@ class ReplayLog:
             sub = drives[done.drive].stream(stream)
             index = got["s_buffer"].astype(np.int64)
             buffer = (
-                Buffer(sub.take(index).patches, sub.rough[index], index) if index.size else Buffer()
+                Buffer.of(sub.take(index).patches, sub.rough[index], index)
+                if index.size
+                else Buffer()
             )
             cursor, version, step = (int(v) for v in got["s_ints"])
             done.state = LearnerState(
