@@ -35,6 +35,7 @@ import hashlib
 import json
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -56,8 +57,8 @@ from toolkit.model.online import LearnerState, OnlineConfig, start
 from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
 from toolkit.model.search import ascent_config, online_config
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
-from toolkit.stages.online_replay import Drive, ReplayLog, replay_drives
-from toolkit.stages.online_stream import drive_stream
+from toolkit.stages.online_replay import Drive, Replay, ReplayLog, replay_drives
+from toolkit.stages.online_stream import DriveStream, drive_stream
 from toolkit.stages.training_data import load_model, load_model_file
 from toolkit.tableio import write_table
 from toolkit.workspace import Workspace
@@ -165,28 +166,39 @@ def checkpoint_key(call: Call[OnlineSettings]) -> str:
     return hashlib.sha256(json.dumps(doc, sort_keys=True).encode()).hexdigest()
 
 
-def _compute(call: Call[OnlineSettings]) -> Made[OnlineResult]:
-    """Replay, score, summarise and write (the module docstring)."""
-    ws, settings = call.workspace, call.settings
-    t0 = time.perf_counter()
-    stream = drive_stream(ws, settings.model, settings.label)
-    if stream.stream.events == 0:
-        raise StageError("the tables hold no event to replay", path=ws.events_table)
-    offline, _ = load_model(ws)
-    first, started = start_state(ws, settings)
+@dataclass(frozen=True)
+class OnlineRun:
+    """A replay done: the scores and steps tables, the summary, the replay itself (its
+    learners and buffers) and its timings (s; the update's p50 and p95, the speed)."""
+
+    scores: pa.Table
+    steps: pa.Table
+    summary: dict[str, Any]
+    done: Replay
+    timings: dict[str, float]
+
+
+def run_online(
+    stream: DriveStream,
+    offline: RoughnessParams,
+    first: LearnerState,
+    settings: OnlineSettings,
+    log: ReplayLog,
+    step: Callable[[], None],
+) -> OnlineRun:
+    """Replay ``stream``'s drives from ``first`` (resumed from ``log`` when it holds this
+    replay's checkpoint), score every event by the models compared, and summarise."""
     oc = online_config(settings.online, settings.learn)
     drives = split_drives(stream.log_id, stream.stream.s_start_m, settings.online)
-    read_s = time.perf_counter() - t0
-    log = ReplayLog(ws.path("online_checkpoint"), checkpoint_key(call), settings.online)
     t0 = time.perf_counter()
-    done = replay_drives(stream.stream, drives, first, oc, log, lambda: call.step(""))
+    done = replay_drives(stream.stream, drives, first, oc, log, step)
     replay_s = time.perf_counter() - t0
     frozen_steps = max(1, math.ceil(settings.online.frozen_after_m / oc.update_every_m))
     models = {"r_offline": [offline] * len(drives)}
     models["r_start"] = [first.params] * len(drives)
     models["r_frozen"] = [done.model_after(d, frozen_steps, first) for d in range(len(drives))]
     models["r_final"] = [done.model_after(d, None, first) for d in range(len(drives))]
-    scores = _scores_table(stream, drives, done, models)
+    scores = scores_table(stream, drives, done, models)
     steps = done.steps_table()
     summary = online_summary(
         _columns(scores),
@@ -196,25 +208,42 @@ def _compute(call: Call[OnlineSettings]) -> Made[OnlineResult]:
         update_every_m=oc.update_every_m,
         frozen_after_m=settings.online.frozen_after_m,
     )
-    summary["start"] = started
-    warnings = _warnings(summary, done.resumed_at, oc)
-    sources = sorted(set(call.inputs.values()))
-    for name, table in (("online_scores", scores), ("online_steps", steps)):
-        write_table(ws.path(name), table, name, source_sha256=sources, config_hash=call.config_hash)
-    atomic_write_json(ws.path("online_summary"), summary)
-    atomic_write_json(ws.path("online_state"), done.state_doc(stream.log_id, stream.event_id))
-    log.remove()
     update_s = np.asarray(done.update_s) if done.update_s else np.zeros(1)
-    drive_s = float(done.driven_s)
     timings = {
-        "read": read_s,
         "replay": replay_s,
         "update_p50": float(np.percentile(update_s, 50)),
         "update_p95": float(np.percentile(update_s, 95)),
         "update_max": float(update_s.max()),
-        "driven": drive_s,
-        "real_time_factor": drive_s / max(replay_s, 1e-9),
+        "refits": float(len(done.refit_s)),
+        "refit_max": max(done.refit_s, default=0.0),
+        "driven": float(done.driven_s),
+        "real_time_factor": float(done.driven_s) / max(replay_s, 1e-9),
     }
+    return OnlineRun(scores, steps, summary, done, timings)
+
+
+def _compute(call: Call[OnlineSettings]) -> Made[OnlineResult]:
+    """Replay, score, summarise and write (the module docstring)."""
+    ws, settings = call.workspace, call.settings
+    t0 = time.perf_counter()
+    stream = drive_stream(ws, settings.model, settings.label)
+    if stream.stream.events == 0:
+        raise StageError("the tables hold no event to replay", path=ws.events_table)
+    offline, _ = load_model(ws)
+    first, started = start_state(ws, settings)
+    read_s = time.perf_counter() - t0
+    log = ReplayLog(ws.path("online_checkpoint"), checkpoint_key(call), settings.online)
+    run = run_online(stream, offline, first, settings, log, lambda: call.step(""))
+    summary = {**run.summary, "start": started}
+    oc = online_config(settings.online, settings.learn)
+    warnings = _warnings(summary, run.done.resumed_at, oc)
+    sources = sorted(set(call.inputs.values()))
+    for name, table in (("online_scores", run.scores), ("online_steps", run.steps)):
+        write_table(ws.path(name), table, name, source_sha256=sources, config_hash=call.config_hash)
+    atomic_write_json(ws.path("online_summary"), summary)
+    atomic_write_json(ws.path("online_state"), run.done.state_doc(stream.log_id, stream.event_id))
+    log.remove()
+    timings = {"read": read_s, **run.timings}
     seconds = time.perf_counter() - call.start
     return Made(
         OnlineResult("written", summary, seconds, tuple(warnings), timings),
@@ -222,7 +251,7 @@ def _compute(call: Call[OnlineSettings]) -> Made[OnlineResult]:
             ws.path(n).relative_to(ws.root).as_posix()
             for n in ("online_scores", "online_steps", "online_summary", "online_state")
         ),
-        row_counts={"events": scores.num_rows, "updates": steps.num_rows},
+        row_counts={"events": run.scores.num_rows, "updates": run.steps.num_rows},
         timings_s={**timings, "total": seconds},
         warnings=tuple(warnings),
     )
@@ -241,8 +270,8 @@ def split_drives(log_id: np.ndarray, s_m: np.ndarray, online: OnlineLearnConfig)
     return out
 
 
-def _scores_table(
-    stream: Any, drives: list[Drive], done: Any, models: dict[str, list[RoughnessParams]]
+def scores_table(
+    stream: DriveStream, drives: list[Drive], done: Replay, models: dict[str, list[RoughnessParams]]
 ) -> pa.Table:
     """One row per event (stream order): as met online, and each compared model's R."""
     s = stream.stream
@@ -336,4 +365,15 @@ SPEC = Stage(
 )
 
 
-__all__ = ["SPEC", "STAGE", "OnlineResult", "OnlineSettings", "split_drives", "start_state"]
+__all__ = [
+    "SPEC",
+    "STAGE",
+    "OnlineResult",
+    "OnlineRun",
+    "OnlineSettings",
+    "checkpoint_key",
+    "run_online",
+    "scores_table",
+    "split_drives",
+    "start_state",
+]

@@ -65,6 +65,7 @@ class Replay:
     drive: int = 0
     state: LearnerState | None = None
     update_s: list[float] = field(default_factory=list)
+    refit_s: list[float] = field(default_factory=list)
     driven_s: float = 0.0
     resumed_at: str | None = None
 
@@ -283,6 +284,7 @@ def _piece(
         done.b.append(models[k][0])
         done.mu.append(models[k][1])
     done.update_s.extend(got.update_s.tolist())
+    done.refit_s.extend(got.refit_s[got.refit_s > 0].tolist())
     return state
 
 
