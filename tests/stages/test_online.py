@@ -158,3 +158,25 @@ def test_a_missing_start_model_is_refused_naming_it(pipeline: Pipeline, tmp_path
         run_stage(ONLINE, ws, _every(100.0, start_model="nowhere.json"))
     assert "nowhere.json" in str(err.value)
     assert not ws.path("online_scores").exists()
+
+
+def test_what_a_user_must_know_is_said() -> None:
+    """A resumed replay, a drive that never learned or learned late, stretches without
+    events and labels out of order: each a warning line of its own."""
+    from toolkit.model.online import OnlineConfig
+    from toolkit.stages.online import _warnings
+
+    summary = {
+        "first_update_m": {"0": None, "1": 4000.0, "2": 500.0},
+        "gaps": [{"drive": 1, "from_m": 100.0, "to_m": 2600.0}],
+        "out_of_order_labels": 3,
+    }
+    got = _warnings(summary, "2026-11-29 10:00:00", OnlineConfig(update_every_m=500.0))
+    assert len(got) == 5
+    assert "resumed a stopped replay" in got[0]
+    assert "drive 0: the model never learned" in got[1]
+    assert "drive 1: no update before 4.0 km" in got[2]
+    assert "1 stretch(es) without events (2.5 km" in got[3]
+    assert "3 label(s) known before" in got[4]
+    quiet = {"first_update_m": {"0": 500.0}, "gaps": [], "out_of_order_labels": 0}
+    assert _warnings(quiet, None, OnlineConfig(update_every_m=500.0)) == []
