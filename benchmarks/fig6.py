@@ -245,7 +245,7 @@ def main() -> None:
         "per_seed": per_seed,
         "model": summary.get("model"),
         "warnings": summary.get("warnings"),
-        "online": summary.get("online"),
+        "online_learning": summary.get("online_learning"),
     }
     (root / f"{args.workspace}_fig6.json").write_text(json.dumps(result, indent=2))
     draw(test_scores, rough[test], root / f"{args.workspace}_fig6.png")
@@ -270,8 +270,8 @@ def main() -> None:
         aucs = ", ".join(f"{n} {v:.3f}" for n, v in (s["auc"] or {}).items())
         print(f"{log_id}: test {s['test_rough']} rough of {s['test_events']}, rate "
               f"{100 * s['rough_rate']:.2f} %; {aucs}")  # fmt: skip
-    if result["online"]:
-        print_online(result["online"], summary)
+    if result["online_learning"]:
+        print_online(result["online_learning"], summary)
 
 
 def print_online(online: dict, summary: dict) -> None:

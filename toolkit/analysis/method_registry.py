@@ -78,6 +78,13 @@ METHODS: tuple[Method, ...] = (
         "tab:purple",
         ":",
     ),
+    Method(
+        "online",
+        "learning while driving: each event scored as it was seen (sect. 8)",
+        "compared",
+        "gold",
+        "-",
+    ),
     Method("oracle", "oracle: model on true terrain heights", "compared", "tab:gray", "-."),
     Method("no_time_term", "ablation: no time term (alpha_3 = 0)", "ablation", "tab:cyan", "--"),
     Method(

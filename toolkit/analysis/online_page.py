@@ -1,4 +1,4 @@
-"""The report's section on learning while driving (sect. 8), from the summary's ``online``
+"""The report's section on learning while driving (sect. 8), from the summary's ``online_learning``
 entry (:mod:`toolkit.stages.evaluate_online`): a table of the test split's numbers, the
 prequential curve against distance driven, and what the replay cost.
 
@@ -100,8 +100,8 @@ def _said(o: Mapping[str, Any]) -> list[str]:
 
 
 def online_section(summary: Mapping[str, Any], figure: str | None) -> list[str]:
-    """The section's HTML lines (none without an ``online`` entry)."""
-    o = summary.get("online")
+    """The section's HTML lines (none without an ``online_learning`` entry)."""
+    o = summary.get("online_learning")
     if not isinstance(o, Mapping):
         return []
     fprs: Mapping[str, Any] = next(

@@ -62,7 +62,7 @@ from toolkit.manifest import Manifest
 from toolkit.model.roc import caveats, small_sample_warnings
 from toolkit.sim.record import SIM_RECORD
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
-from toolkit.stages.evaluate_online import online_entry
+from toolkit.stages.evaluate_online import online_entry, online_row
 from toolkit.stages.evaluate_rows import (
     EvaluateSettings,
     RowsRun,
@@ -204,7 +204,7 @@ def _write_report(
             run.workspace, t.events, t.test, ev, speed["shock_reduction_at_equal_time"], report
         )
         if online is not None:
-            summary["online"] = online
+            summary["online_learning"] = online
         copied = _copy_log_figures(run.workspace, t.events, report)
         atomic_write_json(report / SUMMARY_NAME, summary)
         write_index_html(
@@ -244,6 +244,11 @@ def _compute(call: Call[EvaluateSettings]) -> Made[EvaluateResult]:
     )
     run = RowsRun(workspace, config, tables, trainer, steps.tell, Rows(), warnings)
     learned, closest = train_methods(run, params)
+    online = online_row(workspace, tables.events)
+    if online is not None:
+        run.rows.add("online", online, run.model_points)
+    else:
+        run.rows.not_run["online"] = "not replayed: run `terrain online` (or `terrain run`)"
     timings["methods"] = time.perf_counter() - t0
 
     summary, counts = _write_report(run, learned, closest, model_doc, call, timings)

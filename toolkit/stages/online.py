@@ -234,7 +234,9 @@ def _compute(call: Call[OnlineSettings]) -> Made[OnlineResult]:
     read_s = time.perf_counter() - t0
     log = ReplayLog(ws.path("online_checkpoint"), checkpoint_key(call), settings.online)
     run = run_online(stream, offline, first, settings, log, lambda: call.step(""))
-    summary = {**run.summary, "start": started}
+    # The start's model, for the report's row (mu None: above every score).
+    mu = first.mu if np.isfinite(first.mu) else None
+    summary = {**run.summary, "start": {**started, "b": list(first.b), "mu": mu}}
     oc = online_config(settings.online, settings.learn)
     warnings = _warnings(summary, run.done.resumed_at, oc)
     sources = sorted(set(call.inputs.values()))
