@@ -72,8 +72,8 @@ def test_the_summary_compares_on_the_test_split() -> None:
         "r_online": np.arange(n, dtype=float),
         "r_offline": np.array([0, 0, 0, 0, 9.0, 1, 2, 3]),
         "r_start": np.zeros(n),
-        "r_frozen": np.zeros(n),
-        "r_final": np.zeros(n),
+        "standing_frozen": np.zeros(n),
+        "standing_final": np.zeros(n),
     }
     steps = {
         "drive": np.zeros(2, np.int64),

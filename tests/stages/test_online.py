@@ -77,6 +77,11 @@ def test_every_event_is_scored_by_the_model_of_its_time(pipeline: Pipeline, tmp_
     mine = scores.filter(scores.column("split").to_numpy(zero_copy_only=False) == "test")
     want = np.array([by_event[e] for e in mine.column("event_id").to_pylist()])
     np.testing.assert_allclose(mine.column("r_offline").to_numpy(), want, rtol=1e-12)
+    # The final model's standings rank as its scores do, each a share of its buffer.
+    r_final = scores.column("r_final").to_numpy()
+    s_final = scores.column("standing_final").to_numpy()
+    assert np.all(np.diff(s_final[np.argsort(r_final, kind="stable")]) >= 0)
+    assert s_final.min() >= 0.0 and s_final.max() <= 1.0
     summary = json.loads(ws.path("online_summary").read_text())
     assert summary["updates"] == steps.num_rows and summary["not_reached"] == 0
     assert summary["test"]["offline"]["auc"] == pytest.approx(

@@ -41,8 +41,8 @@ COMPARED = {
     "online_raw": "r_online",
     "offline": "r_offline",
     "start": "r_start",
-    "frozen": "r_frozen",
-    "final": "r_final",
+    "frozen": "standing_frozen",
+    "final": "standing_final",
 }
 #: The false-positive rates the TPR is stated at (sect. 7's operating points; the issue's
 #: 5, 10 and 20 %), fixed so that the replay is not keyed by ``[evaluate]``.
@@ -151,7 +151,11 @@ def online_summary(
     rows = stretches(
         scores["s_m"],
         rough,
-        {"online": scores["standing"], "offline": scores["r_offline"], "final": scores["r_final"]},
+        {
+            "online": scores["standing"],
+            "offline": scores["r_offline"],
+            "final": scores["standing_final"],
+        },
         stretch_m,
     )
     compared = {name: rates(scores[col][test], rough[test], fprs) for name, col in COMPARED.items()}

@@ -374,7 +374,7 @@ def replay(
         if seen.size:
             got = score_events(model_pairs(stream.patches.take(_groups(seen))), state.params)
             r[seen], predicted[seen], version[seen] = got.r_combined, got.predicted, state.version
-            standing[seen] = _standing(got.r_combined, reference)
+            standing[seen] = standing_of(got.r_combined, reference)
         known = np.flatnonzero((stream.t_known_ns > lo) & (stream.t_known_ns <= ends_ns[k]))
         known = known[np.argsort(stream.t_known_ns[known], kind="stable")]
         if known.size:
@@ -453,7 +453,7 @@ def _pairs(buf: Buffer) -> PairTable:
     return buf.pairs if buf.pairs is not None else PairTable(buf.patches)
 
 
-def _standing(r: FloatArray, reference: FloatArray) -> FloatArray:
+def standing_of(r: FloatArray, reference: FloatArray) -> FloatArray:
     """The share of ``reference`` (sorted) below each of ``r``, ties counted half (NaN
     without a reference)."""
     if reference.size == 0:
@@ -480,6 +480,7 @@ __all__ = [
     "Stream",
     "refit",
     "replay",
+    "standing_of",
     "start",
     "step_ends",
     "update",

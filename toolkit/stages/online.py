@@ -53,7 +53,7 @@ from toolkit.config import (
 )
 from toolkit.errors import StageError
 from toolkit.manifest import Manifest, file_sha256
-from toolkit.model.online import LearnerState, OnlineConfig, start
+from toolkit.model.online import LearnerState, OnlineConfig, standing_of, start
 from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
 from toolkit.model.search import ascent_config, online_config
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
@@ -198,7 +198,11 @@ def run_online(
     models["r_start"] = [first.params] * len(drives)
     models["r_frozen"] = [done.model_after(d, frozen_steps, first) for d in range(len(drives))]
     models["r_final"] = [done.model_after(d, None, first) for d in range(len(drives))]
-    scores = scores_table(stream, drives, done, models)
+    as_of = {
+        "r_frozen": [done.step_end_ns(d, frozen_steps) for d in range(len(drives))],
+        "r_final": [done.step_end_ns(d, None) for d in range(len(drives))],
+    }
+    scores = scores_table(stream, drives, done, models, as_of, oc.buffer_smooth)
     steps = done.steps_table()
     summary = online_summary(
         _columns(scores),
@@ -273,20 +277,38 @@ def split_drives(log_id: np.ndarray, s_m: np.ndarray, online: OnlineLearnConfig)
 
 
 def scores_table(
-    stream: DriveStream, drives: list[Drive], done: Replay, models: dict[str, list[RoughnessParams]]
+    stream: DriveStream,
+    drives: list[Drive],
+    done: Replay,
+    models: dict[str, list[RoughnessParams]],
+    as_of: dict[str, list[int]],
+    buffer_smooth: int,
 ) -> pa.Table:
-    """One row per event (stream order): as met online, and each compared model's R."""
+    """One row per event (stream order): as met online, and each compared model's R.
+
+    ``as_of`` names the models that differ from drive to drive (the frozen and the final
+    online models) and, per drive, the time (ns) each stood at: their scores are also given
+    as standings (``standing_<name>``), against the ``buffer_smooth`` latest smooth events
+    known by then (the buffer's, as it was), so that they pool over drives as the online
+    scores do."""
     s = stream.stream
     n = s.events
     drive_of = np.zeros(n, np.int64)
     s_m = np.zeros(n)
     compared = {name: np.full(n, np.nan) for name in models}
+    standings = {f"standing_{name[2:]}": np.full(n, np.nan) for name in as_of}
     for d, drive in enumerate(drives):
         drive_of[drive.rows] = d
         s_m[drive.rows] = s.s_start_m[drive.rows] - drive.s0_m
         pairs = model_pairs(s.patches.take(_groups(drive.rows)))
         for name, params in models.items():
             compared[name][drive.rows] = score_events(pairs, params[d]).r_combined
+        for name, when in as_of.items():
+            r = compared[name][drive.rows]
+            ref = _buffered_smooth(s.t_known_ns[drive.rows], s.rough[drive.rows], when[d])
+            standings[f"standing_{name[2:]}"][drive.rows] = standing_of(
+                r, np.sort(r[ref[-buffer_smooth:]])
+            )
     return pa.table(
         {
             "log_id": pa.array(stream.log_id.tolist(), pa.string()),
@@ -302,8 +324,16 @@ def scores_table(
             "standing": done.standing,
             "predicted": done.predicted,
             **compared,
+            **standings,
         }
     )
+
+
+def _buffered_smooth(t_known_ns: np.ndarray, rough: np.ndarray, until_ns: int) -> np.ndarray:
+    """The smooth events (rows of a drive) whose labels were known by ``until_ns``, in the
+    order known: the buffer takes them so, and keeps the latest."""
+    rows = np.flatnonzero(~rough & (t_known_ns <= until_ns))
+    return rows[np.argsort(t_known_ns[rows], kind="stable")]
 
 
 def _columns(table: pa.Table) -> dict[str, np.ndarray]:

@@ -88,6 +88,14 @@ class Replay:
             return first.params
         return RoughnessParams.from_vector(self.b[mine[-1]], self.mu[mine[-1]])
 
+    def step_end_ns(self, drive: int, steps: int | None) -> int:
+        """When drive ``drive``'s model after ``steps`` updates (None: its last) stood:
+        the end of that update (of its last, with fewer), or before the drive without any."""
+        mine = [k for k, row in enumerate(self.steps) if row[0] == drive]
+        if steps is not None:
+            mine = mine[:steps]
+        return self.step_end[mine[-1]][1] if mine else int(np.iinfo(np.int64).min)
+
     def steps_table(self) -> pa.Table:
         """``online/steps.parquet`` (schema ``online_steps``)."""
         ints = np.asarray(self.steps, np.int64).reshape(-1, len(STEP_INTS))
