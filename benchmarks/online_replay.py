@@ -111,20 +111,23 @@ def main() -> None:
         "online": "online, standing as it came",
         "online_raw": "online, raw score as it came",
         "offline": "offline (model.json)",
+        "offline_as_met": "offline, standing as the online",
         "frozen": f"frozen after {cfg.online.frozen_after_m / 1000:g} km",
         "final": "online model at its drive's end",
         "start": "the start, unlearned",
     }
     for key, name in names.items():
         print(line(name, summary["test"][key]))
-    print(f"per {cfg.online.stretch_m / 1000:g} km: online as it came | offline | final")
+    print(f"per {cfg.online.stretch_m / 1000:g} km: online as it came | offline | offline "
+          "as met | final")  # fmt: skip
     for row in summary["stretches"]:
         cells = " | ".join("  -  " if row[k] is None else f"{row[k]:.3f}"
-                           for k in ("online", "offline", "final"))  # fmt: skip
+                           for k in ("online", "offline", "offline_as_met", "final"))  # fmt: skip
         print(f"  {row['from_m'] / 1000:5.1f} km: {cells}  [{row['rough']} rough]")
     within = summary["within_0_02_from_m"]
     print(f"within 0.02 of the offline model on every later stretch from: "
-          f"{'never' if within is None else f'{within / 1000:.1f} km'}; label latency p50 "
+          f"{'never' if within is None else f'{within / 1000:.1f} km'} (measured alike: "
+          f"{summary['within_0_02_as_met_from_m']}); label latency p50 "
           f"{summary['label_latency_s']['p50']:.2f} s, p95 {summary['label_latency_s']['p95']:.2f} s;"
           f" first update per drive (m): {summary['first_update_m']}")  # fmt: skip
     print(f"final B per drive: {[np.round(d['b'] or [], 3).tolist() for d in run.done.state_doc(stream.log_id, stream.event_id)['drives']]}")  # fmt: skip

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from toolkit.analysis.online_summary import (
+    comparable,
     gaps,
     online_summary,
     out_of_order,
@@ -72,8 +73,11 @@ def test_the_summary_compares_on_the_test_split() -> None:
         "r_online": np.arange(n, dtype=float),
         "r_offline": np.array([0, 0, 0, 0, 9.0, 1, 2, 3]),
         "r_start": np.zeros(n),
+        "standing_offline": np.zeros(n),
         "standing_frozen": np.zeros(n),
         "standing_final": np.zeros(n),
+        "r_frozen": np.zeros(n),
+        "r_final": np.zeros(n),
     }
     steps = {
         "drive": np.zeros(2, np.int64),
@@ -89,3 +93,15 @@ def test_the_summary_compares_on_the_test_split() -> None:
     assert got["first_update_m"] == {"0": 800.0}
     assert got["label_latency_s"]["p50"] == 5e-9
     assert got["gaps"] == [] and got["out_of_order_labels"] == 0
+
+
+def test_standings_tied_are_ranked_by_their_raw_scores() -> None:
+    """Two events both above every buffered smooth event stand at 1; their raw scores
+    decide between them, and no standing's order changes."""
+    standing = np.array([1.0, 1.0, 0.5, 0.25])
+    raw = np.array([7.0, 9.0, 8.0, 1.0])
+    got = comparable(standing, raw)
+    assert got[1] > got[0] > got[2] > got[3]
+    rough = np.array([False, True, False, False])
+    assert rates(got, rough, (0.1,))["auc"] == 1.0  # type: ignore[index]
+    assert rates(standing, rough, (0.1,))["auc"] < 1.0  # type: ignore[index]

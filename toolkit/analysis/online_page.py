@@ -22,6 +22,7 @@ PNG_NAME = "online_prequential.png"
 ROWS = {
     "online": "online, as each event was seen (its standing)",
     "offline": "offline model (trained on the training split)",
+    "offline_as_met": "offline model, ranked as the online scores are (standing)",
     "frozen": "frozen early model",
     "final": "online model at its drive's end",
     "start": "its start, unlearned",

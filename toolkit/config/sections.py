@@ -467,6 +467,8 @@ class OnlineLearnConfig:
     #: buffer from the start, its model taken at the next update; measured, not better.
     refit_every_m: Annotated[float, Rule(ge=0.0)] = 0.0
     refit_iterations: Annotated[int, Rule(ge=1, le=1000)] = 20
+    #: An update's step must raise the buffer's AUC by more than this (0: any rise).
+    accept_margin: Annotated[float, Rule(ge=0.0, le=1.0)] = 0.0
     #: Each log is a drive of its own, learned from the start; false: the logs are one drive
     #: (in the tables' order) and the model carries over from one to the next.
     restart_each_log: bool = True

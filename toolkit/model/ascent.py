@@ -132,8 +132,11 @@ class Threshold:
             return (self.pauc, self.auc, self.objective)
         raise ValueError(f"accept must be one of {ACCEPTANCE}, not {accept!r}")
 
-    def beats(self, other: Threshold, accept: str = "objective") -> bool:
-        """Strictly better by :meth:`key` (the paper's: a larger J, on a tie a larger AUC)."""
+    def beats(self, other: Threshold, accept: str = "objective", margin: float = 0.0) -> bool:
+        """Strictly better by :meth:`key` (the paper's: a larger J, on a tie a larger AUC);
+        with a ``margin``, better by more than it in the first measure."""
+        if margin > 0.0:
+            return self.key(accept)[0] > other.key(accept)[0] + margin
         return self.key(accept) > other.key(accept)
 
 
@@ -216,6 +219,8 @@ class AscentConfig:
     validation_block: int = 50
     #: How the increments change (:data:`STEP_RULES`).
     step_rule: str = "halve"
+    #: A step must raise the accepted measure by more than this (0: any rise, the paper's).
+    margin: float = 0.0
 
     def __post_init__(self) -> None:
         if self.accept not in ACCEPTANCE:
@@ -375,6 +380,7 @@ def _improve(
     step: float,
     fit: BoolArray | None,
     accept: str,
+    margin: float = 0.0,
 ) -> tuple[list[float], RoughnessParams, Threshold, FloatArray] | None:
     """Eq. (7) along element ``j``: ``T = B + S I`` with S_j = -1, then +1 (all others 0).
     The first admissible T whose scores are finite and beat B by ``accept`` on the fitted
@@ -388,7 +394,7 @@ def _improve(
             continue
         r = evaluate.scores(candidate)
         got = None if r is None else evaluate.judge(r, fit)
-        if r is not None and got is not None and got.beats(climb.best, accept):
+        if r is not None and got is not None and got.beats(climb.best, accept, margin):
             return t, candidate, got, r
     return None
 
@@ -413,7 +419,8 @@ def _rotate(
     for j in range(len(climb.b)):
         if not config.moves(j):
             continue
-        better = _improve(evaluate, climb, j, _step(inc[j], j, omega), fit, config.accept)
+        step = _step(inc[j], j, omega)
+        better = _improve(evaluate, climb, j, step, fit, config.accept, config.margin)
         if better is not None:
             t, candidate, got, r = better
             evaluate.source.hold(candidate.alpha)

@@ -93,6 +93,8 @@ class OnlineConfig:
     #: go on from it with the start's increments.
     refit_every_m: float = 0.0
     refit_iterations: int = 20
+    #: An update's step must raise the buffer's AUC by more than this (0: any rise).
+    accept_margin: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.update_every_m > 0.0:
@@ -280,6 +282,7 @@ def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int
         step_rule="adapt",
         validation_share=config.validation_share,
         validation_block=1,
+        margin=config.accept_margin,
     )
     result = coordinate_ascent(_pairs(buf), buf.rough, search)
     increments = result.increments

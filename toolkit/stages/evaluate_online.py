@@ -21,6 +21,7 @@ import pyarrow as pa
 
 from toolkit.analysis.methods import MethodScores
 from toolkit.analysis.online_page import PNG_NAME, prequential_png
+from toolkit.analysis.online_summary import comparable
 from toolkit.analysis.summary import shock_reduction
 from toolkit.arrays import BoolArray
 from toolkit.config import EvaluateConfig
@@ -36,7 +37,7 @@ def online_columns(workspace: Workspace, events: pa.Table) -> dict[str, np.ndarr
     when the replay left one out."""
     online = read_table(workspace.path("online_scores"), "online_scores")
     keys = pl.DataFrame(events.select(["log_id", "event_id"]))
-    wanted = ["log_id", "event_id", "standing", "predicted", "r_start"]
+    wanted = ["log_id", "event_id", "standing", "r_online", "predicted", "r_start"]
     got = keys.join(
         pl.DataFrame(online.select(wanted)), on=["log_id", "event_id"], how="left",
         maintain_order="left",
@@ -48,8 +49,11 @@ def online_columns(workspace: Workspace, events: pa.Table) -> dict[str, np.ndarr
             "online` again",
             path=workspace.path("online_scores"),
         )
+    standing = got["standing"].fill_null(np.nan).to_numpy().astype(np.float64)
+    raw = got["r_online"].fill_null(np.nan).to_numpy().astype(np.float64)
     return {
-        "standing": got["standing"].fill_null(np.nan).to_numpy().astype(np.float64),
+        # Its ties broken by the raw scores, as the replay's summary ranks it.
+        "standing": comparable(standing, raw),
         "predicted": got["predicted"].to_numpy().astype(bool),
         "r_start": got["r_start"].fill_null(np.nan).to_numpy().astype(np.float64),
     }

@@ -309,6 +309,9 @@ def scores_table(
             standings[f"standing_{name[2:]}"][drive.rows] = standing_of(
                 r, np.sort(r[ref[-buffer_smooth:]])
             )
+    standings["standing_offline"] = _as_met(
+        stream, drives, done, compared["r_offline"], buffer_smooth
+    )
     return pa.table(
         {
             "log_id": pa.array(stream.log_id.tolist(), pa.string()),
@@ -327,6 +330,27 @@ def scores_table(
             **standings,
         }
     )
+
+
+def _as_met(
+    stream: DriveStream, drives: list[Drive], done: Replay, r: np.ndarray, buffer_smooth: int
+) -> np.ndarray:
+    """Scores ``r`` (E,) of one fixed model as standings the way the online scores are:
+    each event against the buffer's smooth events as they were when it was seen (the
+    latest ``buffer_smooth`` known by the end of the update before), so that a fixed model
+    and the online one are measured alike."""
+    s = stream.stream
+    out = np.full(s.events, np.nan)
+    for d, drive in enumerate(drives):
+        ends = np.asarray([done.step_end[k][1] for k, row in enumerate(done.steps) if row[0] == d])
+        t_seen, rows = s.t_seen_ns[drive.rows], drive.rows
+        before = np.searchsorted(ends, t_seen, side="left") - 1
+        for k in np.unique(before):
+            mine = before == k
+            until = int(ends[k]) if k >= 0 else int(np.iinfo(np.int64).min)
+            ref = _buffered_smooth(s.t_known_ns[rows], s.rough[rows], until)[-buffer_smooth:]
+            out[rows[mine]] = standing_of(r[rows[mine]], np.sort(r[rows[ref]]))
+    return out
 
 
 def _buffered_smooth(t_known_ns: np.ndarray, rough: np.ndarray, until_ns: int) -> np.ndarray:
