@@ -36,12 +36,12 @@ def online_columns(workspace: Workspace, events: pa.Table) -> dict[str, np.ndarr
     ``events`` (by log and event id), as they were when each event was seen; StageError
     when the replay left one out."""
     online = read_table(workspace.path("online_scores"), "online_scores")
-    keys = pl.DataFrame(events.select(["log_id", "event_id"]))
+    # The events' own order kept by a row number (polars 1.0's join has no maintain_order).
+    keys = pl.DataFrame(events.select(["log_id", "event_id"])).with_row_index("row")
     wanted = ["log_id", "event_id", "standing", "r_online", "predicted", "r_start"]
     got = keys.join(
-        pl.DataFrame(online.select(wanted)), on=["log_id", "event_id"], how="left",
-        maintain_order="left",
-    )  # fmt: skip
+        pl.DataFrame(online.select(wanted)), on=["log_id", "event_id"], how="left"
+    ).sort("row")
     missing = got["predicted"].null_count()
     if missing:
         raise StageError(
