@@ -136,7 +136,9 @@ _WORKSPACE_FILES: dict[str, str] = {
     "online_steps": "online/steps.parquet",
     "online_summary": "online/summary.json",
     "online_state": "online/state.json",
-    "online_checkpoint": "online/checkpoint.npz",
+    # Hidden, as work in progress is: a replay stopped part-way leaves it, the next run
+    # resumes from it and removes it once the outputs are written.
+    "online_checkpoint": "online/.checkpoint.npz",
 }
 
 

@@ -19,7 +19,7 @@ Outputs:
 - ``online/state.json``: each drive's learner at its end, its buffer as (log, event) pairs.
 
 *Stopped and resumed.* Every ``checkpoint_every`` updates the replay so far is saved to
-``online/checkpoint.npz``, keyed by the stage's inputs, configuration and code. A run that
+``online/.checkpoint.npz``, keyed by the stage's inputs, configuration and code. A run that
 finds a checkpoint with its own key resumes from it (and says so); the replay is
 deterministic, so a resumed run writes what an unbroken one writes, byte for byte. The
 checkpoint is removed once the outputs are written.

@@ -3,7 +3,7 @@
 :func:`replay_drives` runs :func:`toolkit.model.online.replay` over each drive in pieces of
 ``[online] checkpoint_every`` updates; after each piece :class:`ReplayLog` saves what is done
 (every event met so far, every update with its B and mu, the learner of the drive under way
-with its buffer as indices) to ``online/checkpoint.npz``, written aside and renamed. A run
+with its buffer as indices) to ``online/.checkpoint.npz``, written aside and renamed. A run
 finding a checkpoint with its own key starts where it stopped: the buffer's patches are
 taken again from the stream by those indices, so the state is the one saved, and the replay
 goes on as if it had never stopped.
