@@ -33,6 +33,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -64,6 +65,9 @@ from toolkit.tableio import write_table
 from toolkit.workspace import Workspace
 
 STAGE = "online"
+_log = logging.getLogger(__name__)
+#: The warning a resumed replay gives (on the terminal, not in the manifest).
+RESUMED = "resumed a stopped replay from its checkpoint"
 NEEDS = (
     Need("events_table", "tables"),
     Need("event_points_table", "tables"),
@@ -243,6 +247,8 @@ def _compute(call: Call[OnlineSettings]) -> Made[OnlineResult]:
     summary = {**run.summary, "start": {**started, "b": list(first.b), "mu": mu}}
     oc = online_config(settings.online, settings.learn)
     warnings = _warnings(summary, run.done.resumed_at, oc)
+    if run.done.resumed_at is not None:  # said on the terminal under `terrain run` too
+        _log.warning("%s (%s)", RESUMED, run.done.resumed_at)
     sources = sorted(set(call.inputs.values()))
     for name, table in (("online_scores", run.scores), ("online_steps", run.steps)):
         write_table(ws.path(name), table, name, source_sha256=sources, config_hash=call.config_hash)
@@ -259,7 +265,9 @@ def _compute(call: Call[OnlineSettings]) -> Made[OnlineResult]:
         ),
         row_counts={"events": run.scores.num_rows, "updates": run.steps.num_rows},
         timings_s={**timings, "total": seconds},
-        warnings=tuple(warnings),
+        # A resumed run is recorded as an unbroken one is (its outputs are the same); the
+        # resumption is said on the terminal, in the outcome's text.
+        warnings=tuple(w for w in warnings if not w.startswith(RESUMED)),
     )
 
 
@@ -373,7 +381,7 @@ def _warnings(summary: dict[str, Any], resumed_at: str | None, oc: OnlineConfig)
     """What the user must know of this replay, said on the terminal."""
     out = []
     if resumed_at is not None:
-        out.append(f"resumed a stopped replay from its checkpoint ({resumed_at})")
+        out.append(f"{RESUMED} ({resumed_at})")
     for d, where in summary["first_update_m"].items():
         if where is None:
             out.append(
