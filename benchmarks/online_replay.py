@@ -14,11 +14,18 @@ each log's first half trains, its second tests; ``model.json`` learned), the rep
 - the update time (p50, p95, max; the loop's work, without a refit), a refit's time, the
   replay's speed against the drive's duration, the process's peak memory.
 
+``--cut-into WS2 --minutes M --logs N`` makes workspace WS2 of the first M minutes of each
+of WS's first N logs (both tables cut, so that every pass over the points reads only
+theirs, as in a workspace of logs that long) and stops: replayed in a fresh process, what
+the peak memory is measured against, the patches being read a window at a
+time (:mod:`toolkit.stages.online_patches`).
+
 ``--start-from WS2`` starts every drive from the model the offline search (``[learn]`` of
 this workspace) learns on WS2's training split: a model learned on other logs. WS2's tables
 are read as they are (their freshness is not checked).
 
 Usage: python benchmarks/online_replay.py WS [--set online.KEY=VALUE ...] [--start-from WS2]
+       python benchmarks/online_replay.py WS --cut-into WS2 [--minutes M] [--logs N]
 """
 
 from __future__ import annotations
@@ -26,12 +33,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import resource
+import shutil
 import tempfile
 import time
 import tomllib
 from pathlib import Path
 
 import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
 
 from toolkit.config import PipelineConfig, load_config
 from toolkit.model.ascent import coordinate_ascent
@@ -41,6 +51,13 @@ from toolkit.stages.online import OnlineSettings, run_online, start_state
 from toolkit.stages.online_replay import ReplayLog
 from toolkit.stages.online_stream import drive_stream
 from toolkit.stages.training_data import load_model, pair_table, patches_of, split_events
+from toolkit.tableio import (
+    TableWriter,
+    iter_table_batches,
+    read_table,
+    read_table_metadata,
+    write_table,
+)
 from toolkit.workspace import Workspace
 
 
@@ -68,6 +85,50 @@ def learned_elsewhere(other: Path, cfg: PipelineConfig) -> tuple[tuple[float, ..
     return result.params.vector(), result.params.mu
 
 
+def cut(ws: Workspace, aside: Path, minutes: float | None, logs: int | None) -> Workspace:
+    """A workspace at ``aside`` whose tables are ``ws``'s first ``logs`` logs' first
+    ``minutes`` each (both tables cut, so that every pass over the points reads only
+    theirs, as in a workspace of logs that long), model and configuration copied."""
+    events = read_table(ws.events_table, "tables_events")
+    log_id = np.asarray(events.column("log_id").to_pylist(), dtype=object)
+    t = events.column("t_start_ns").to_numpy().astype(np.int64)
+    keep = np.zeros(log_id.size, bool)
+    for k, log in enumerate(dict.fromkeys(log_id.tolist())):
+        mine = log_id == log
+        if logs is not None and k >= logs:
+            break
+        span = np.inf if minutes is None else minutes * 60e9
+        keep |= mine & (t - t[mine].min() < span)
+    out = Workspace(aside)
+    out.events_table.parent.mkdir(parents=True)
+    meta = read_table_metadata(ws.events_table)
+    provenance = {
+        "source_sha256": meta["source_sha256"].split(","),
+        "config_hash": meta["config_hash"],
+    }
+    kept = events.filter(pa.array(keep))
+    write_table(out.events_table, kept, "tables_events", **provenance)
+    kept_log = np.asarray(kept.column("log_id").to_pylist(), dtype=object)
+    kept_id = kept.column("event_id").to_numpy()
+    wanted = {log: kept_id[kept_log == log] for log in dict.fromkeys(kept_log.tolist())}
+    columns = pq.read_schema(ws.event_points_table).names
+    with TableWriter(out.event_points_table, "event_points", **provenance) as writer:
+        for batch in iter_table_batches(
+            ws.event_points_table, "event_points", columns=columns, batch_rows=1 << 20
+        ):
+            logs_in = np.asarray(batch.column("log_id").to_pylist(), dtype=object)
+            ids = batch.column("event_id").to_numpy()
+            mask = np.zeros(batch.num_rows, bool)
+            for log, chosen in wanted.items():
+                mine = logs_in == log
+                mask[mine] = np.isin(ids[mine], chosen)
+            if mask.any():
+                writer.write(pa.table(batch).filter(pa.array(mask)))
+    shutil.copy(ws.model_path, out.model_path)
+    shutil.copy(ws.config_path, out.config_path)
+    return out
+
+
 def line(name: str, m: dict | None) -> str:
     if m is None:
         return f"  {name:34s} (one class only)"
@@ -80,8 +141,20 @@ def main() -> None:
     ap.add_argument("workspace", type=Path)
     ap.add_argument("--set", action="append", default=[], dest="overrides")
     ap.add_argument("--start-from", type=Path, default=None)
+    ap.add_argument("--minutes", type=float, default=None)
+    ap.add_argument("--logs", type=int, default=None)
+    ap.add_argument("--cut-into", type=Path, default=None)
     args = ap.parse_args()
     ws = Workspace(args.workspace)
+    if args.cut_into is not None:
+        cut(ws, args.cut_into, args.minutes, args.logs)
+        print(f"cut into {args.cut_into}: replay it in a fresh process to measure its memory")
+        return
+    replay(ws, args)
+
+
+def replay(ws: Workspace, args: argparse.Namespace) -> None:
+    """The replay of ``ws``, measured and printed (module docstring)."""
     cfg = with_overrides(load_config(ws.config_path), args.overrides)
     settings = OnlineSettings(cfg.model, cfg.label, cfg.learn, cfg.online)
     t0 = time.perf_counter()

@@ -172,3 +172,24 @@ def test_joined_patches_are_the_first_set_then_the_second() -> None:
     narrow = build_patches(events_table(6), points_table(raw), 3)
     with pytest.raises(ValueError, match="width"):
         whole.join(narrow)
+
+
+def test_conformed_patches_name_more_lasers_and_pad_wider_without_losing_a_point() -> None:
+    """``conform`` renumbers the lasers into a larger sorted list and pads every row to a
+    wider n_max; a list lacking one of the lasers, or a narrower width, is refused."""
+    rng = np.random.default_rng(5)
+    raw = random_patches(rng, 4, 5)
+    whole = build_patches(events_table(4), points_table(raw, laser="/laser/b"), 6)
+    wide = whole.conform(("/laser/a", "/laser/b", "/laser/c"), 9)
+    assert wide.n_max == 9 and wide.lasers == ("/laser/a", "/laser/b", "/laser/c")
+    for name in ("x", "y", "z", "tau", "gamma", "psi", "valid", "lead"):
+        got = getattr(wide, name)
+        np.testing.assert_array_equal(got[:, :6], getattr(whole, name), err_msg=name)
+        assert not got[:, 6:].any(), name
+    np.testing.assert_array_equal(wide.laser[:, :6], np.where(whole.valid, 1, -1))
+    assert (wide.laser[:, 6:] == -1).all()
+    np.testing.assert_array_equal(wide.count, whole.count)
+    with pytest.raises(ValueError, match="do not fit"):
+        whole.conform(("/laser/a",), 9)
+    with pytest.raises(ValueError, match="do not fit"):
+        whole.conform(whole.lasers, 5)

@@ -102,6 +102,7 @@ def test_a_stopped_replay_resumes_to_what_an_unbroken_one_writes(
     whole = _copy(pipeline, tmp_path, "whole")
     run_stage(ONLINE, whole, cfg)
     broken = _copy(pipeline, tmp_path, "broken")
+    manifest_before = broken.manifest_path.read_bytes()
     calls = 0
 
     def stop_after_five(_: str) -> None:
@@ -113,11 +114,21 @@ def test_a_stopped_replay_resumes_to_what_an_unbroken_one_writes(
     with pytest.raises(_StopError):
         run_stage(ONLINE, broken, cfg, step=stop_after_five)
     assert broken.path("online_checkpoint").is_file(), "two pieces of two updates were saved"
-    assert not broken.path("online_scores").exists()
+    # Stopped, it left nothing but work in progress (hidden) and the manifest as it was.
+    folder = broken.path("online_scores").parent
+    assert [p.name for p in folder.iterdir() if not p.name.startswith(".")] == []
+    assert broken.manifest_path.read_bytes() == manifest_before
     resumed = run_stage(ONLINE, broken, cfg)
     assert any("resumed a stopped replay" in w for w in resumed.warnings)
     np.testing.assert_equal(_outputs(broken), _outputs(whole))
     assert not broken.path("online_checkpoint").exists()
+    # Recorded as the unbroken run is, but for its timings (the resumption is not a warning).
+    records = [
+        {k: v for k, v in json.loads(w.manifest_path.read_text())["stages"]["online"].items()
+         if k not in ("timings_s", "finished_utc")}
+        for w in (broken, whole)
+    ]  # fmt: skip
+    assert records[0] == records[1]
 
 
 def test_a_checkpoint_of_other_inputs_is_not_resumed(pipeline: Pipeline, tmp_path: Path) -> None:

@@ -106,3 +106,44 @@ def test_strings_read_as_dictionaries_come_in_whole_batches(
     assert one.column("laser").cast(pa.string()).to_pylist() == [
         "laser_1", "laser_2", "laser_3", "laser_1"
     ]  # fmt: skip
+
+
+def test_row_groups_are_read_alone_by_what_their_statistics_hold(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``row_group_ranges`` gives each row group's min and max of a column; reading
+    ``row_groups`` gives exactly their rows, in file order, whatever order they are named."""
+    from toolkit.tableio import iter_table_batches, row_group_ranges
+
+    monkeypatch.setattr(tableio_writer, "ROW_GROUP_ROWS", 10)
+    n = 35
+    table = pa.table(
+        {
+            "log_id": ["a"] * 20 + ["b"] * 15,
+            "event_id": [k // 2 for k in range(n)],
+            "wheel": ["left", "right"] * (n // 2) + ["left"],
+            **{c: [float(k) for k in range(n)] for c in ("x", "y", "z", "tau")},
+            **{c: [0.0] * n for c in ("roll_rate", "pitch_rate")},
+            "laser": ["l"] * n,
+            "t_ns": list(range(n)),
+        }
+    )
+    path = tmp_path / "event_points.parquet"
+    write_table(path, table, "event_points", source_sha256=SHA, config_hash=CFG)
+    assert row_group_ranges(path, "event_points", "event_id") == [
+        (0, 4),
+        (5, 9),
+        (10, 14),
+        (15, 17),
+    ]
+    assert row_group_ranges(path, "event_points", "log_id") == [
+        ("a", "a"), ("a", "a"), ("b", "b"), ("b", "b")
+    ]  # fmt: skip
+    got = pa.Table.from_batches(
+        iter_table_batches(
+            path, "event_points", columns=["t_ns"], batch_rows=100, row_groups=[3, 1]
+        )
+    )
+    assert got.column("t_ns").to_pylist() == list(range(10, 20)) + list(range(30, 35))
+    with pytest.raises(SchemaError, match="holds table 'event_points', expected 'imu'"):
+        row_group_ranges(path, "imu", "t_ns")

@@ -49,6 +49,7 @@ import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -113,19 +114,41 @@ class OnlineConfig:
             raise ValueError(f"validation_share must be in [0, 0.5], not {self.validation_share}")
 
 
+class PatchSource(Protocol):
+    """Where a stream's patches come from: :class:`~toolkit.model.patches.TyrePatches`
+    held whole, or read as they are asked for (:class:`toolkit.stages.online_patches.
+    PatchWindows`). The replay asks in driven order."""
+
+    def take(self, groups: IntArray) -> TyrePatches:
+        """The patches of ``groups`` (group ``2 e + w``: event ``e``'s wheel ``w``)."""
+        ...
+
+
+@dataclass(frozen=True)
+class _Part:
+    """The patches of some events of a source (``events``: their indices in it)."""
+
+    source: PatchSource
+    events: IntArray
+
+    def take(self, groups: IntArray) -> TyrePatches:
+        groups = np.asarray(groups, np.int64)
+        return self.source.take(2 * self.events[groups // 2] + groups % 2)
+
+
 @dataclass(frozen=True)
 class Stream:
     """The events of a drive in the order driven (E,), with their patches (2E groups, as
-    :class:`~toolkit.model.patches.TyrePatches`): when each began (ns) and at what distance
-    driven (m, counted over the whole drive), when it was seen and when its label was known
-    (ns, module docstring), and its label."""
+    :class:`~toolkit.model.patches.TyrePatches`, from a :class:`PatchSource`): when each
+    began (ns) and at what distance driven (m, counted over the whole drive), when it was
+    seen and when its label was known (ns, module docstring), and its label."""
 
     t_start_ns: NDArray[np.int64]
     s_start_m: FloatArray
     t_seen_ns: NDArray[np.int64]
     t_known_ns: NDArray[np.int64]
     rough: BoolArray
-    patches: TyrePatches
+    patches: PatchSource
 
     @property
     def events(self) -> int:
@@ -139,7 +162,20 @@ class Stream:
             self.t_seen_ns[index],
             self.t_known_ns[index],
             self.rough[index],
-            self.patches.take(_groups(np.asarray(index, np.int64))),
+            self.patches.take(event_groups(np.asarray(index, np.int64))),
+        )
+
+    def part(self, index: IntArray) -> Stream:
+        """The events ``index`` (in that order), their patches still read as asked for
+        (:meth:`take` reads them at once)."""
+        index = np.asarray(index, np.int64)
+        return Stream(
+            self.t_start_ns[index],
+            self.s_start_m[index],
+            self.t_seen_ns[index],
+            self.t_known_ns[index],
+            self.rough[index],
+            _Part(self.patches, index),
         )
 
 
@@ -375,14 +411,14 @@ def replay(
         lo = ends_ns[k - 1] if k else np.iinfo(np.int64).min
         seen = np.flatnonzero((stream.t_seen_ns > lo) & (stream.t_seen_ns <= ends_ns[k]))
         if seen.size:
-            got = score_events(model_pairs(stream.patches.take(_groups(seen))), state.params)
+            got = score_events(model_pairs(stream.patches.take(event_groups(seen))), state.params)
             r[seen], predicted[seen], version[seen] = got.r_combined, got.predicted, state.version
             standing[seen] = standing_of(got.r_combined, reference)
         known = np.flatnonzero((stream.t_known_ns > lo) & (stream.t_known_ns <= ends_ns[k]))
         known = known[np.argsort(stream.t_known_ns[known], kind="stable")]
         if known.size:
             buf = state.buffer.add(
-                stream.patches.take(_groups(known)), stream.rough[known], known, config
+                stream.patches.take(event_groups(known)), stream.rough[known], known, config
             )
             state = _with(state, buffer=buf)
         before = state.version
@@ -466,7 +502,7 @@ def standing_of(r: FloatArray, reference: FloatArray) -> FloatArray:
     return (below + at_most) / (2.0 * reference.size)
 
 
-def _groups(events: IntArray) -> IntArray:
+def event_groups(events: IntArray) -> IntArray:
     """Event indices (N,) -> their patches' group indices (2N,), left then right."""
     return np.stack([2 * events, 2 * events + 1], axis=1).reshape(-1)
 
@@ -479,8 +515,10 @@ __all__ = [
     "Buffer",
     "LearnerState",
     "OnlineConfig",
+    "PatchSource",
     "Replayed",
     "Stream",
+    "event_groups",
     "refit",
     "replay",
     "standing_of",

@@ -153,6 +153,36 @@ class TyrePatches:
             lead=None if self.lead is None or other.lead is None else both("lead"),
         )
 
+    def conform(self, lasers: tuple[str, ...], n_max: int) -> TyrePatches:
+        """The same patches over ``lasers`` (sorted names, a superset of this one's) and
+        ``n_max`` points wide (at least this one's): patches built apart (a window of
+        events at a time) made joinable. ValueError if either would lose a point."""
+        missing = set(self.lasers) - set(lasers)
+        if missing or n_max < self.n_max or list(lasers) != sorted(lasers):
+            raise ValueError(
+                f"patches of lasers {self.lasers} and width {self.n_max} do not fit lasers "
+                f"{lasers} and width {n_max}"
+            )
+        to_new = np.array([lasers.index(n) for n in self.lasers] + [-1], np.int16)
+        pad = ((0, 0), (0, n_max - self.n_max))
+
+        def wide(a: np.ndarray) -> np.ndarray:
+            return np.pad(a, pad) if pad[1][1] else a
+
+        return TyrePatches(
+            wide(self.x),
+            wide(self.y),
+            wide(self.z),
+            wide(self.tau),
+            wide(self.gamma),
+            wide(self.psi),
+            wide(self.valid),
+            self.count,
+            np.pad(to_new[self.laser], pad, constant_values=-1),  # -1 (padding) stays -1
+            lasers,
+            None if self.lead is None else wide(self.lead),
+        )
+
     def with_z(self, z: FloatArray) -> TyrePatches:
         """The same patches with other heights (G, n_max) (the oracle's true terrain)."""
         return TyrePatches(

@@ -54,10 +54,11 @@ from toolkit.config import (
 )
 from toolkit.errors import StageError
 from toolkit.manifest import Manifest, file_sha256
-from toolkit.model.online import LearnerState, OnlineConfig, standing_of, start
+from toolkit.model.online import LearnerState, OnlineConfig, event_groups, standing_of, start
 from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
 from toolkit.model.search import ascent_config, online_config
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
+from toolkit.stages.online_patches import WINDOW_EVENTS
 from toolkit.stages.online_replay import Drive, Replay, ReplayLog, replay_drives
 from toolkit.stages.online_stream import DriveStream, drive_stream
 from toolkit.stages.training_data import load_model, load_model_file
@@ -308,9 +309,11 @@ def scores_table(
     for d, drive in enumerate(drives):
         drive_of[drive.rows] = d
         s_m[drive.rows] = s.s_start_m[drive.rows] - drive.s0_m
-        pairs = model_pairs(s.patches.take(_groups(drive.rows)))
-        for name, params in models.items():
-            compared[name][drive.rows] = score_events(pairs, params[d]).r_combined
+        for rows in np.array_split(drive.rows, max(1, -(-drive.rows.size // WINDOW_EVENTS))):
+            # A window's events at a time: a drive's pairs at once grow with its length.
+            pairs = model_pairs(s.patches.take(event_groups(rows)))
+            for name, params in models.items():
+                compared[name][rows] = score_events(pairs, params[d]).r_combined
         for name, when in as_of.items():
             r = compared[name][drive.rows]
             ref = _buffered_smooth(s.t_known_ns[drive.rows], s.rough[drive.rows], when[d])
@@ -371,10 +374,6 @@ def _buffered_smooth(t_known_ns: np.ndarray, rough: np.ndarray, until_ns: int) -
 def _columns(table: pa.Table) -> dict[str, np.ndarray]:
     """A table's columns as arrays, by name."""
     return {n: table.column(n).to_numpy(zero_copy_only=False) for n in table.column_names}
-
-
-def _groups(events: np.ndarray) -> np.ndarray:
-    return np.stack([2 * events, 2 * events + 1], axis=1).reshape(-1)
 
 
 def _warnings(summary: dict[str, Any], resumed_at: str | None, oc: OnlineConfig) -> list[str]:

@@ -25,7 +25,15 @@ import pyarrow as pa
 from toolkit.arrays import FloatArray, IntArray
 from toolkit.atomic import atomic_write_bytes
 from toolkit.config import OnlineLearnConfig
-from toolkit.model.online import Buffer, LearnerState, OnlineConfig, Stream, replay, step_ends
+from toolkit.model.online import (
+    Buffer,
+    LearnerState,
+    OnlineConfig,
+    Stream,
+    event_groups,
+    replay,
+    step_ends,
+)
 from toolkit.model.roughness import RoughnessParams
 
 #: The integer columns of an update's row, in the order :class:`Replay` keeps them.
@@ -41,7 +49,9 @@ class Drive:
     s0_m: float
 
     def stream(self, stream: Stream) -> Stream:
-        sub = stream.take(self.rows)
+        """The drive's part of ``stream`` (its patches read as the replay asks), its
+        distances from its start."""
+        sub = stream.part(self.rows)
         return dataclasses.replace(sub, s_start_m=sub.s_start_m - self.s0_m)
 
 
@@ -199,7 +209,7 @@ class ReplayLog:
             sub = drives[done.drive].stream(stream)
             index = got["s_buffer"].astype(np.int64)
             buffer = (
-                Buffer.of(sub.take(index).patches, sub.rough[index], index)
+                Buffer.of(sub.patches.take(event_groups(index)), sub.rough[index], index)
                 if index.size
                 else Buffer()
             )

@@ -2,10 +2,12 @@
 replays (:class:`toolkit.model.online.Stream`).
 
 Every event of both splits, log after log in the tables' order, each log's events in the
-order driven. Per event:
+order driven, their patches read a window at a time as the replay asks for them
+(:mod:`toolkit.stages.online_patches`). Per event:
 
-- ``t_seen_ns``: when the last of its patches' points was seen (its start less the smallest
-  look-ahead of its points; its start when it has none);
+- ``t_seen_ns``: when the last point under either of its tyres was seen (of all its
+  points, not only those its patches keep: the vehicle has to have seen them all to
+  sample them; its start when it has none);
 - ``t_known_ns``: its end plus ``label_delay_s``, the time the shock filter needs after the
   rear axle left the event before the event's peak is known (:func:`label_delay_s`);
 - distances and times on one clock over the whole drive: each log's own continue where the
@@ -23,7 +25,8 @@ from toolkit.arrays import IntArray
 from toolkit.config import LabelConfig, ModelConfig
 from toolkit.errors import StageError
 from toolkit.model.online import Stream
-from toolkit.stages.training_data import laser_order, patches_of, split_events
+from toolkit.stages.online_patches import NO_POINT, PatchWindows, point_extent
+from toolkit.stages.training_data import laser_order, split_events
 from toolkit.workspace import Workspace
 
 #: The IMU rate the label delay assumes when the log does not say (Hz): the simulator's and
@@ -55,15 +58,15 @@ def drive_stream(
     events = split_events(workspace, None)
     order = _driven_order(events, workspace)
     events = events.take(pa.array(order))
-    patches = patches_of(workspace, events, model, order=laser_order(workspace, model))
+    extent = point_extent(workspace, events)
+    patches = PatchWindows(workspace, events, model, laser_order(workspace, model), extent)
     t_start = events.column("t_start_ns").to_numpy().astype(np.int64)
     t_end = events.column("t_end_ns").to_numpy().astype(np.int64)
     s_start = events.column("s_start_m").to_numpy().astype(np.float64)
     s_end = events.column("s_end_m").to_numpy().astype(np.float64)
     log_id = np.asarray(events.column("log_id").to_pylist(), dtype=object)
-    lead_s = np.zeros(patches.valid.shape) if patches.lead is None else patches.lead
-    lead = np.where(patches.valid, lead_s, np.inf).reshape(-1, 2 * patches.n_max).min(axis=1)
-    t_seen = t_start - np.round(np.where(np.isfinite(lead), lead, 0.0) * 1e9).astype(np.int64)
+    last = extent.last_seen_ns
+    t_seen = np.where(last == NO_POINT, t_start, last).astype(np.int64)
     delay_ns = round(1e9 * (label_delay_s(label) if delay_s is None else delay_s))
     t_known = t_end + delay_ns
     clock, metres = one_clock(log_id, t_seen, t_known, s_start, s_end)

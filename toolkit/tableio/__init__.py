@@ -23,6 +23,7 @@ from toolkit.tableio.reader import (
     iter_table_batches,
     read_table,
     read_table_metadata,
+    row_group_ranges,
     table_num_rows,
 )
 from toolkit.tableio.schemas import (
@@ -79,6 +80,7 @@ __all__ = [
     "parse_arrow_type",
     "read_table",
     "read_table_metadata",
+    "row_group_ranges",
     "table_num_rows",
     "table_schema_names",
     "to_storage",

@@ -108,9 +108,13 @@ def iter_table_batches(
     batch_rows: int,
     as_dictionary: Sequence[str] = (),
     lean: bool = False,
+    row_groups: Sequence[int] | None = None,
 ) -> Iterator[pa.RecordBatch]:
     """Stream a table in record batches of at most ``batch_rows`` rows (memory bounded by a
     batch), checked as by :func:`read_table`, page checksums verified.
+
+    ``row_groups``: only these row groups (:func:`row_group_ranges` says what each holds),
+    in file order; None: all.
 
     ``as_dictionary``: string columns to read as Arrow dictionary arrays, as the writer
     stored them (:func:`dictionary_columns`), instead of a string per row: for a column of
@@ -135,7 +139,10 @@ def iter_table_batches(
             read_dictionary=list(as_dictionary) or None,
         ) as f:
             batches = f.iter_batches(
-                batch_size=batch_rows, columns=list(columns), use_threads=not lean
+                batch_size=batch_rows,
+                row_groups=None if row_groups is None else sorted(set(row_groups)),
+                columns=list(columns),
+                use_threads=not lean,
             )
             if schema.fixed_point:
                 batches = (from_storage(b, schema) for b in batches)
@@ -163,6 +170,27 @@ def iter_table_batches(
                 yield _one_batch(group)
     except (OSError, pa.ArrowException) as exc:
         raise SchemaError(f"cannot read table {schema.name!r}: {exc}", path=path) from exc
+
+
+def row_group_ranges(
+    path: str | Path, schema_name: str, column: str
+) -> list[tuple[object, object] | None]:
+    """Per row group of a table, the (min, max) of ``column`` its footer's statistics give
+    (None where it gives none), checked as by :func:`read_table`: what lets a reader of a
+    table written in key order read only the row groups a range of keys can be in."""
+    path = Path(path)
+    _check_contract(path, load_table_schema(schema_name))
+    try:
+        meta = pq.ParquetFile(path).metadata
+        at = meta.schema.names.index(column)
+        out: list[tuple[object, object] | None] = []
+        for k in range(meta.num_row_groups):
+            stats = meta.row_group(k).column(at).statistics
+            ok = stats is not None and stats.has_min_max
+            out.append((stats.min, stats.max) if ok else None)
+        return out
+    except (OSError, ValueError, pa.ArrowException) as exc:
+        raise SchemaError(f"cannot read table {schema_name!r}: {exc}", path=path) from exc
 
 
 def _one_batch(batches: list[pa.RecordBatch]) -> pa.RecordBatch:
