@@ -14,6 +14,8 @@ from toolkit.model.online import (
     OnlineConfig,
     Replayed,
     Stream,
+    reference_of,
+    reference_stride,
     replay,
     start,
     step_ends,
@@ -136,16 +138,17 @@ def test_the_model_waits_for_min_rough_labels_and_halving_steps_shrink_per_rotat
 
 
 def test_a_standing_is_the_share_of_buffered_smooth_events_scored_below() -> None:
-    """None before a smooth label is known; then in [0, 1]: for the events seen in step 11,
-    the share (ties half) of the smooth events in the buffer after step 10 that the model
-    after step 10 scores below them."""
+    """With ``reference_smooth = 0``: None before a smooth label is known; then in [0, 1]:
+    for the events seen in step 11, the share (ties half) of the smooth events in the
+    buffer after step 10 that the model after step 10 scores below them."""
     s = stream(300)
-    _, run = replay(s, fresh(), CONFIG)
+    config = dataclasses.replace(CONFIG, reference_smooth=0)
+    _, run = replay(s, fresh(), config)
     first_smooth = s.t_known_ns[~s.rough].min()
     assert np.isnan(run.standing[s.t_seen_ns <= first_smooth]).all()
     later = s.t_seen_ns > run.step_end_ns[0]
     assert np.nanmin(run.standing[later]) >= 0.0 and np.nanmax(run.standing[later]) <= 1.0
-    after_10, _ = replay(s, fresh(), CONFIG, stop_after=10)
+    after_10, _ = replay(s, fresh(), config, stop_after=10)
     step_11 = (s.t_seen_ns > run.step_end_ns[9]) & (s.t_seen_ns <= run.step_end_ns[10])
     buf = after_10.buffer
     assert step_11.any() and buf.patches is not None
@@ -153,6 +156,38 @@ def test_a_standing_is_the_share_of_buffered_smooth_events_scored_below() -> Non
     ref = score_events(model_pairs(smooth), after_10.params).r_combined
     want = [((ref < v).sum() + (ref <= v).sum()) / (2 * ref.size) for v in run.r_combined[step_11]]
     np.testing.assert_allclose(run.standing[step_11], want)
+
+
+def test_the_reference_is_a_sample_spread_over_every_smooth_label_known() -> None:
+    """After every step the reference is every stride-th smooth event known (in the order
+    known), the stride the least power of two leaving at most ``reference_smooth``, grown
+    step by step to what :func:`reference_of` gives from the whole list; a standing is the
+    share of it that its version scores below."""
+    s = stream(400)
+    config = dataclasses.replace(CONFIG, reference_smooth=16)
+    state = fresh()
+    strides = set()
+    for k in range(step_ends(s, config)[0].size):
+        state, run = replay(s, state, config, stop_after=1)
+        until = run.step_end_ns[-1]
+        known = np.flatnonzero(~s.rough & (s.t_known_ns <= until))
+        known = known[np.argsort(s.t_known_ns[known], kind="stable")]
+        want = reference_of(known, 16, config.buffer_smooth)
+        assert state.reference.index.tolist() == want.tolist(), k
+        assert state.reference.known == known.size and want.size <= 16
+        strides.add(reference_stride(known.size, 16))
+    assert {1, 2, 4, 8} <= strides  # the stride doubled as the labels came
+    assert reference_stride(0, 16) == 1 and reference_stride(33, 16) == 4
+    after_10, _ = replay(s, fresh(), config, stop_after=10)
+    _, whole = replay(s, fresh(), config)
+    step_11 = (s.t_seen_ns > whole.step_end_ns[9]) & (s.t_seen_ns <= whole.step_end_ns[10])
+    ref_patches = s.patches.take(
+        np.stack([2 * after_10.reference.index, 2 * after_10.reference.index + 1], 1).reshape(-1)
+    )
+    ref = score_events(model_pairs(ref_patches), after_10.params).r_combined
+    got = whole.r_combined[step_11]
+    want_standing = [((ref < v).sum() + (ref <= v).sum()) / (2 * ref.size) for v in got]
+    np.testing.assert_allclose(whole.standing[step_11], want_standing)
 
 
 def test_averaging_scores_with_the_mean_of_every_version_learned() -> None:

@@ -469,6 +469,9 @@ class OnlineLearnConfig:
     refit_iterations: Annotated[int, Rule(ge=1, le=1000)] = 20
     #: An update's step must raise the buffer's AUC by more than this (0: any rise).
     accept_margin: Annotated[float, Rule(ge=0.0, le=1.0)] = 0.0
+    #: The standings' reference: at most this many smooth events spread over the drive so
+    #: far (0: the buffer's smooth events, the last few hundred metres).
+    reference_smooth: Annotated[int, Rule(ge=0, le=1000000)] = 1024
     #: Each log is a drive of its own, learned from the start; false: the logs are one drive
     #: (in the tables' order) and the model carries over from one to the next.
     restart_each_log: bool = True

@@ -24,9 +24,17 @@ mu chosen on it is not pulled by the classes' shares in it.
 *Scores across versions.* Each version scores on its own scale (a step of alpha_1 rescales
 every score), so the scores of a drive, pooled, would rank events by when they were seen as
 much as by how rough they are. Each event also gets its *standing*: the share of the
-buffer's smooth events that the same version scores below it (ties half), an estimate of
-the false-positive rate a cut just below it would have. Standings compare across versions;
-an event scored before the buffer holds a smooth event has none (NaN).
+*reference*'s smooth events that the same version scores below it (ties half), an estimate
+of the false-positive rate a cut just below it would have. Standings compare across
+versions; an event scored before a smooth label is known has none (NaN). The reference
+(:class:`Reference`, ``reference_smooth`` events) is a sample spread over every smooth
+event known so far on the drive: every ``stride``-th in the order known, the stride the
+least power of two that leaves at most ``reference_smooth``. Ranked against the buffer's
+smooth events instead (``reference_smooth = 0``: the last few hundred metres of terrain),
+a standing measures an event against its neighbourhood, and pooled over a drive it ranks
+worse than the scores do: a fixed model loses 0.018 AUC on four races that way, 0.002
+against the drive-wide sample (``benchmarks/README.md``, "Online: what a standing
+measures").
 
 *An update* is a piece of the coordinate ascent of :mod:`toolkit.model.ascent`: the next
 ``coordinates_per_update`` elements of B (a rotation that runs on across updates) each try
@@ -58,6 +66,13 @@ from toolkit.arrays import BoolArray, FloatArray, IntArray
 from toolkit.model.ascent import STEP_RULES, AscentConfig, best_threshold, coordinate_ascent
 from toolkit.model.patches import TyrePatches
 from toolkit.model.roughness import PairTable, RoughnessParams, model_pairs, score_events
+from toolkit.model.standing import (
+    Reference,
+    event_groups,
+    reference_of,
+    reference_stride,
+    standing_of,
+)
 
 
 @dataclass(frozen=True)
@@ -96,6 +111,9 @@ class OnlineConfig:
     refit_iterations: int = 20
     #: An update's step must raise the buffer's AUC by more than this (0: any rise).
     accept_margin: float = 0.0
+    #: The standings' reference (module docstring): at most this many smooth events spread
+    #: over the drive so far; 0: the buffer's smooth events.
+    reference_smooth: int = 1024
 
     def __post_init__(self) -> None:
         if not self.update_every_m > 0.0:
@@ -110,6 +128,8 @@ class OnlineConfig:
             raise ValueError(f"step_rule must be one of {STEP_RULES}, not {self.step_rule!r}")
         if self.refit_every_m < 0.0 or self.refit_iterations < 1:
             raise ValueError("refit_every_m must be >= 0 and refit_iterations >= 1")
+        if self.reference_smooth < 0:
+            raise ValueError(f"reference_smooth must be >= 0, not {self.reference_smooth}")
         if not 0.0 <= self.validation_share <= 0.5:
             raise ValueError(f"validation_share must be in [0, 0.5], not {self.validation_share}")
 
@@ -244,6 +264,8 @@ class LearnerState:
     origin: tuple[float, ...] = ()
     origin_increments: tuple[float, ...] = ()
     pending: tuple[float, ...] = ()
+    #: The standings' reference (empty with ``reference_smooth = 0``: the buffer's).
+    reference: Reference = field(default_factory=Reference)
 
     @property
     def params(self) -> RoughnessParams:
@@ -417,10 +439,7 @@ def replay(
         known = np.flatnonzero((stream.t_known_ns > lo) & (stream.t_known_ns <= ends_ns[k]))
         known = known[np.argsort(stream.t_known_ns[known], kind="stable")]
         if known.size:
-            buf = state.buffer.add(
-                stream.patches.take(event_groups(known)), stream.rough[known], known, config
-            )
-            state = _with(state, buffer=buf)
+            state = _labelled(state, stream, known, config)
         before = state.version
         t0 = time.perf_counter()
         state, kept = update(state, config)
@@ -466,6 +485,20 @@ def replay(
     )
 
 
+def _labelled(
+    state: LearnerState, stream: Stream, known: IntArray, config: OnlineConfig
+) -> LearnerState:
+    """The state once the labels of events ``known`` (in the order known) are: in its
+    buffer, and the smooth ones in its reference."""
+    patches = stream.patches.take(event_groups(known))
+    buf = state.buffer.add(patches, stream.rough[known], known, config)
+    ref = state.reference
+    if config.reference_smooth:
+        smooth = np.flatnonzero(~stream.rough[known])
+        ref = ref.add(patches.take(event_groups(smooth)), known[smooth], config.reference_smooth)
+    return _with(state, buffer=buf, reference=ref)
+
+
 def _refits(config: OnlineConfig, ends_m: FloatArray, k: int) -> bool:
     """Whether step ``k`` (ending at ``ends_m[k]``) crossed a multiple of
     ``refit_every_m``."""
@@ -478,7 +511,10 @@ def _refits(config: OnlineConfig, ends_m: FloatArray, k: int) -> bool:
 
 
 def _smooth_scores(state: LearnerState) -> FloatArray:
-    """The buffer's smooth events scored by the state's model, sorted (empty without any)."""
+    """The reference's events scored by the state's model, sorted (empty without any): the
+    buffer's smooth events when the state keeps no reference."""
+    if state.reference.pairs is not None:
+        return np.sort(score_events(state.reference.pairs, state.params).r_combined)
     buf = state.buffer
     if buf.patches is None or buf.rough.all():
         return np.zeros(0)
@@ -492,21 +528,6 @@ def _pairs(buf: Buffer) -> PairTable:
     return buf.pairs if buf.pairs is not None else PairTable(buf.patches)
 
 
-def standing_of(r: FloatArray, reference: FloatArray) -> FloatArray:
-    """The share of ``reference`` (sorted) below each of ``r``, ties counted half (NaN
-    without a reference)."""
-    if reference.size == 0:
-        return np.full(r.size, np.nan)
-    below = np.searchsorted(reference, r, side="left")
-    at_most = np.searchsorted(reference, r, side="right")
-    return (below + at_most) / (2.0 * reference.size)
-
-
-def event_groups(events: IntArray) -> IntArray:
-    """Event indices (N,) -> their patches' group indices (2N,), left then right."""
-    return np.stack([2 * events, 2 * events + 1], axis=1).reshape(-1)
-
-
 def _with(state: LearnerState, **changes: object) -> LearnerState:
     return dataclasses.replace(state, **changes)  # type: ignore[arg-type]
 
@@ -516,9 +537,12 @@ __all__ = [
     "LearnerState",
     "OnlineConfig",
     "PatchSource",
+    "Reference",
     "Replayed",
     "Stream",
     "event_groups",
+    "reference_of",
+    "reference_stride",
     "refit",
     "replay",
     "standing_of",

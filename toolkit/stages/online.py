@@ -54,7 +54,14 @@ from toolkit.config import (
 )
 from toolkit.errors import StageError
 from toolkit.manifest import Manifest, file_sha256
-from toolkit.model.online import LearnerState, OnlineConfig, event_groups, standing_of, start
+from toolkit.model.online import (
+    LearnerState,
+    OnlineConfig,
+    event_groups,
+    reference_of,
+    standing_of,
+    start,
+)
 from toolkit.model.roughness import RoughnessParams, model_pairs, score_events
 from toolkit.model.search import ascent_config, online_config
 from toolkit.stages.contract import Call, Made, Need, Recalled, Stage
@@ -207,7 +214,7 @@ def run_online(
         "r_frozen": [done.step_end_ns(d, frozen_steps) for d in range(len(drives))],
         "r_final": [done.step_end_ns(d, None) for d in range(len(drives))],
     }
-    scores = scores_table(stream, drives, done, models, as_of, oc.buffer_smooth)
+    scores = scores_table(stream, drives, done, models, as_of, oc)
     steps = done.steps_table()
     summary = online_summary(
         _columns(scores),
@@ -291,15 +298,15 @@ def scores_table(
     done: Replay,
     models: dict[str, list[RoughnessParams]],
     as_of: dict[str, list[int]],
-    buffer_smooth: int,
+    oc: OnlineConfig,
 ) -> pa.Table:
     """One row per event (stream order): as met online, and each compared model's R.
 
     ``as_of`` names the models that differ from drive to drive (the frozen and the final
     online models) and, per drive, the time (ns) each stood at: their scores are also given
-    as standings (``standing_<name>``), against the ``buffer_smooth`` latest smooth events
-    known by then (the buffer's, as it was), so that they pool over drives as the online
-    scores do."""
+    as standings (``standing_<name>``), against the reference of the smooth events known by
+    then (:func:`~toolkit.model.online.reference_of`), so that they pool over drives as the
+    online scores do."""
     s = stream.stream
     n = s.events
     drive_of = np.zeros(n, np.int64)
@@ -316,13 +323,11 @@ def scores_table(
                 compared[name][rows] = score_events(pairs, params[d]).r_combined
         for name, when in as_of.items():
             r = compared[name][drive.rows]
-            ref = _buffered_smooth(s.t_known_ns[drive.rows], s.rough[drive.rows], when[d])
+            ref = _smooth_known(s.t_known_ns[drive.rows], s.rough[drive.rows], when[d])
             standings[f"standing_{name[2:]}"][drive.rows] = standing_of(
-                r, np.sort(r[ref[-buffer_smooth:]])
+                r, np.sort(r[reference_of(ref, oc.reference_smooth, oc.buffer_smooth)])
             )
-    standings["standing_offline"] = _as_met(
-        stream, drives, done, compared["r_offline"], buffer_smooth
-    )
+    standings["standing_offline"] = _as_met(stream, drives, done, compared["r_offline"], oc)
     return pa.table(
         {
             "log_id": pa.array(stream.log_id.tolist(), pa.string()),
@@ -344,12 +349,12 @@ def scores_table(
 
 
 def _as_met(
-    stream: DriveStream, drives: list[Drive], done: Replay, r: np.ndarray, buffer_smooth: int
+    stream: DriveStream, drives: list[Drive], done: Replay, r: np.ndarray, oc: OnlineConfig
 ) -> np.ndarray:
     """Scores ``r`` (E,) of one fixed model as standings the way the online scores are:
-    each event against the buffer's smooth events as they were when it was seen (the
-    latest ``buffer_smooth`` known by the end of the update before), so that a fixed model
-    and the online one are measured alike."""
+    each event against the reference as it was when it was seen (of the smooth events known
+    by the end of the update before), so that a fixed model and the online one are
+    measured alike."""
     s = stream.stream
     out = np.full(s.events, np.nan)
     for d, drive in enumerate(drives):
@@ -359,14 +364,18 @@ def _as_met(
         for k in np.unique(before):
             mine = before == k
             until = int(ends[k]) if k >= 0 else int(np.iinfo(np.int64).min)
-            ref = _buffered_smooth(s.t_known_ns[rows], s.rough[rows], until)[-buffer_smooth:]
+            ref = reference_of(
+                _smooth_known(s.t_known_ns[rows], s.rough[rows], until),
+                oc.reference_smooth,
+                oc.buffer_smooth,
+            )
             out[rows[mine]] = standing_of(r[rows[mine]], np.sort(r[rows[ref]]))
     return out
 
 
-def _buffered_smooth(t_known_ns: np.ndarray, rough: np.ndarray, until_ns: int) -> np.ndarray:
+def _smooth_known(t_known_ns: np.ndarray, rough: np.ndarray, until_ns: int) -> np.ndarray:
     """The smooth events (rows of a drive) whose labels were known by ``until_ns``, in the
-    order known: the buffer takes them so, and keeps the latest."""
+    order known, as the replay met them."""
     rows = np.flatnonzero(~rough & (t_known_ns <= until_ns))
     return rows[np.argsort(t_known_ns[rows], kind="stable")]
 

@@ -29,6 +29,7 @@ from toolkit.model.online import (
     Buffer,
     LearnerState,
     OnlineConfig,
+    Reference,
     Stream,
     event_groups,
     replay,
@@ -181,6 +182,8 @@ class ReplayLog:
                 "s_origin": np.asarray(state.origin, np.float64),
                 "s_origin_increments": np.asarray(state.origin_increments, np.float64),
                 "s_pending": np.asarray(state.pending, np.float64),
+                "s_reference": state.reference.index,
+                "s_reference_known": np.asarray(state.reference.known, np.int64),
             }
         out = io.BytesIO()
         np.savez(out, **arrays)
@@ -213,6 +216,12 @@ class ReplayLog:
                 if index.size
                 else Buffer()
             )
+            ref_index = got["s_reference"].astype(np.int64)
+            reference = Reference.of(
+                sub.patches.take(event_groups(ref_index)),
+                ref_index,
+                int(got["s_reference_known"]),
+            )
             cursor, version, step = (int(v) for v in got["s_ints"])
             done.state = LearnerState(
                 tuple(got["s_b"].tolist()),
@@ -227,6 +236,7 @@ class ReplayLog:
                 tuple(got["s_origin"].tolist()),
                 tuple(got["s_origin_increments"].tolist()),
                 tuple(got["s_pending"].tolist()),
+                reference,
             )
         return done
 
