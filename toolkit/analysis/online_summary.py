@@ -59,8 +59,9 @@ def comparable(standing: FloatArray, raw: FloatArray) -> FloatArray:
     A standing is a share of the reference's smooth events (up to 1,024): every event above
     all of them stands at 1, and those ties would throw away how far above they are (on the
     four unseen races, against the buffer's 256, a model that never changed ranked the test
-    split at 0.911 by its scores and 0.882 by its standings). Within a tie the raw scores decide, added below the
-    standings' resolution (steps of 1 / 2N), so no standing's order changes."""
+    split at 0.911 by its scores and 0.882 by its standings). Within a tie the raw scores
+    decide, added below the standings' resolution (steps of 1 / 2N), so no standing's order
+    changes."""
     order = np.argsort(np.argsort(np.where(np.isnan(raw), -np.inf, raw), kind="stable"))
     return np.asarray(standing, np.float64) + 1e-7 * (order + 1) / max(raw.size, 1)
 
