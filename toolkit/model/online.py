@@ -176,26 +176,23 @@ class Stream:
 
     def take(self, index: IntArray) -> Stream:
         """The events ``index`` (in that order), with their patches."""
-        return Stream(
-            self.t_start_ns[index],
-            self.s_start_m[index],
-            self.t_seen_ns[index],
-            self.t_known_ns[index],
-            self.rough[index],
-            self.patches.take(event_groups(np.asarray(index, np.int64))),
-        )
+        index = np.asarray(index, np.int64)
+        return self._rows(index, self.patches.take(event_groups(index)))
 
     def part(self, index: IntArray) -> Stream:
         """The events ``index`` (in that order), their patches still read as asked for
         (:meth:`take` reads them at once)."""
         index = np.asarray(index, np.int64)
+        return self._rows(index, _Part(self.patches, index))
+
+    def _rows(self, index: IntArray, patches: PatchSource) -> Stream:
         return Stream(
             self.t_start_ns[index],
             self.s_start_m[index],
             self.t_seen_ns[index],
             self.t_known_ns[index],
             self.rough[index],
-            _Part(self.patches, index),
+            patches,
         )
 
 
