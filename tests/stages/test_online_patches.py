@@ -2,15 +2,20 @@
 
 from __future__ import annotations
 
+import shutil
+from pathlib import Path
+
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
+import pyarrow.parquet as pq
 
 from tests.stages.test_learn import Pipeline
 from toolkit.config import default_config
 from toolkit.stages.online_patches import NO_POINT, PatchWindows, point_extent
 from toolkit.stages.training_data import laser_order, patches_of, split_events
-from toolkit.tableio import read_table
+from toolkit.tableio import read_table, row_group_ranges
+from toolkit.workspace import Workspace
 
 FIELDS = ("x", "y", "z", "tau", "gamma", "psi", "valid", "count", "laser", "lead")
 
@@ -62,3 +67,36 @@ def test_the_light_pass_gives_each_events_last_point_and_the_widest_tyre(
     per_tyre = points.group_by(["log_id", "event_id", "wheel"]).aggregate([([], "count_all")])
     assert extent.widest == pc.max(per_tyre.column("count_all")).as_py()
     assert extent.lasers == tuple(sorted(set(points.column("laser").to_pylist())))
+
+
+def test_a_points_table_without_statistics_is_read_whole_and_gives_the_same_patches(
+    pipeline: Pipeline, tmp_path: Path
+) -> None:
+    """A points table whose footer gives no statistics (written by another tool) cannot say
+    which row groups hold an event, so every window reads every row group: slower, and the
+    patches the same."""
+    cfg = default_config()
+    events = split_events(pipeline.ws, None)
+    order = laser_order(pipeline.ws, cfg.model)
+    extent = point_extent(pipeline.ws, events)
+    with_stats = PatchWindows(pipeline.ws, events, cfg.model, order, extent, window=64)
+    ws = Workspace(tmp_path / "ws")
+    shutil.copytree(pipeline.ws.root, ws.root)
+    table = pq.read_table(ws.event_points_table)
+    rows = max(table.num_rows // 7, 1)
+    pq.write_table(
+        table,
+        ws.event_points_table,
+        row_group_size=rows,
+        write_statistics=False,
+        compression="zstd",
+    )
+    assert all(r is None for r in row_group_ranges(ws.event_points_table, "event_points", "t_ns"))
+    without = PatchWindows(ws, events, cfg.model, order, extent, window=64)
+    groups = np.arange(2 * min(events.num_rows, 40))
+    assert without._row_groups(groups // 2) == list(
+        range(pq.ParquetFile(ws.event_points_table).num_row_groups)
+    )
+    got, want = without.take(groups), with_stats.take(groups)
+    for name in FIELDS:
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
