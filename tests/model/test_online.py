@@ -252,17 +252,42 @@ def test_a_bad_configuration_is_refused() -> None:
 def test_a_refit_is_the_offline_search_on_the_buffer_taken_at_the_next_update() -> None:
     """With refit_every_m, the whole search runs on the buffer from the start at each
     multiple of it; the next update takes its model as a new version (no step of its own),
-    and the drive is ranked well from there on."""
+    the updates going on with the increments its search ended on, and the drive is ranked
+    well from there on."""
     s = stream(600)
     config = dataclasses.replace(CONFIG, refit_every_m=200.0, refit_iterations=10)
     first, _ = replay(s, fresh(), config, stop_after=10)  # 10 steps of 20 m: one refit
     assert first.pending, "the refit's model waits for the next update"
+    n = len(UNINFORMED)
     nxt, run = replay(s, first, config, stop_after=1)
     assert not nxt.pending and nxt.version == first.version + 1
-    assert nxt.b == first.pending[:-1] and nxt.mu == first.pending[-1]
-    assert nxt.increments == nxt.origin_increments == INCREMENTS
+    assert nxt.b == first.pending[:n] and nxt.mu == first.pending[n]
+    assert nxt.increments == first.pending[n + 1 :] != INCREMENTS
     assert run.steps_kept.tolist() == [0]
     state, rest = replay(s, nxt, config)
     second = np.arange(s.events) >= 300
     assert roc_auc_score(s.rough[second], rest.r_combined[second]) > 0.95
     assert (rest.refit_s > 0).sum() == 3  # at 400, 600 and 800 m driven, of 840 m
+
+
+def test_a_refits_model_waits_for_its_budget_of_driving() -> None:
+    """A refit begun at step k with a budget of 5 s of driving (50 m at 10 m/s, steps of
+    20 m) is taken by the third update after it, not the next; with coordinates_per_update
+    = 0 nothing but refits changes the model, so the versions are the refits'."""
+    s = stream(600)
+    config = dataclasses.replace(
+        CONFIG, refit_every_m=200.0, refit_iterations=10, refit_budget_s=5.0
+    )
+    first, _ = replay(s, fresh(), config, stop_after=10)
+    assert first.pending and first.pending_ready_ns > 0
+    waiting, _ = replay(s, first, config, stop_after=2)
+    assert waiting.pending == first.pending and waiting.b == first.b
+    taken, _ = replay(s, waiting, config, stop_after=1)
+    assert not taken.pending and taken.b == first.pending[: len(UNINFORMED)]
+    only = dataclasses.replace(config, coordinates_per_update=0)
+    state, run = replay(s, fresh(), only)
+    assert run.steps_kept.sum() == 0
+    # Refits at 200, 400 and 600 m taken; the 800 m one's model, ready at 850 m, is not.
+    assert state.version == np.unique(run.step_version).size - 1 == 3 and state.pending
+    with pytest.raises(ValueError, match="only refits learn"):
+        OnlineConfig(coordinates_per_update=0)

@@ -95,10 +95,15 @@ class _StopError(Exception):
     """What the test's progress callback raises: the replay stopped from outside."""
 
 
+@pytest.mark.parametrize(
+    "changes",
+    [{}, {"refit_every_m": 150.0, "refit_iterations": 2, "refit_budget_s": 20.0}],
+    ids=["updates", "refits pending across checkpoints"],
+)
 def test_a_stopped_replay_resumes_to_what_an_unbroken_one_writes(
-    pipeline: Pipeline, tmp_path: Path
+    pipeline: Pipeline, tmp_path: Path, changes: dict[str, float]
 ) -> None:
-    cfg = _every(100.0, checkpoint_every=2, min_rough=2)
+    cfg = _every(100.0, checkpoint_every=2, min_rough=2, **changes)
     whole = _copy(pipeline, tmp_path, "whole")
     run_stage(ONLINE, whole, cfg)
     broken = _copy(pipeline, tmp_path, "broken")
@@ -196,3 +201,14 @@ def test_what_a_user_must_know_is_said() -> None:
     assert "3 label(s) known before" in got[4]
     quiet = {"first_update_m": {"0": 500.0}, "gaps": [], "out_of_order_labels": 0}
     assert _warnings(quiet, None, OnlineConfig(update_every_m=500.0)) == []
+
+
+def test_a_refit_slower_than_its_budget_is_said() -> None:
+    from toolkit.model.online import OnlineConfig
+    from toolkit.stages.online import _slow_refit
+
+    refits = OnlineConfig(refit_every_m=2000.0, refit_budget_s=30.0)
+    (said,) = _slow_refit(31.5, refits)
+    assert "a refit took 31.5 s" in said and "budget of 30 s" in said
+    assert _slow_refit(29.0, refits) == ()
+    assert _slow_refit(99.0, OnlineConfig()) == ()  # no refits

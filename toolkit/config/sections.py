@@ -455,7 +455,7 @@ class OnlineLearnConfig:
     buffer_rough: Annotated[int, Rule(ge=1, le=100000)] = 64
     buffer_smooth: Annotated[int, Rule(ge=1, le=1000000)] = 256
     #: Elements of B each update tries (13: a whole rotation).
-    coordinates_per_update: Annotated[int, Rule(ge=1, le=15)] = 4
+    coordinates_per_update: Annotated[int, Rule(ge=0, le=15)] = 4
     #: Rough labels the buffer must hold before the model learns.
     min_rough: Annotated[int, Rule(ge=1, le=100000)] = 8
     step_rule: Annotated[str, Rule(choices=("halve", "adapt"))] = "halve"
@@ -464,9 +464,11 @@ class OnlineLearnConfig:
     #: Buffer share held out to accept an update; measured, not better.
     validation_share: Annotated[float, Rule(ge=0.0, le=0.5)] = 0.0
     #: Every this many metres (0: never) the whole search of sect. 6 is run again on the
-    #: buffer from the start, its model taken at the next update; measured, not better.
+    #: buffer from the start, beside the planner's loop; its model is taken at the first
+    #: update ``refit_budget_s`` of driving after it began.
     refit_every_m: Annotated[float, Rule(ge=0.0)] = 0.0
     refit_iterations: Annotated[int, Rule(ge=1, le=1000)] = 20
+    refit_budget_s: Annotated[float, Rule(ge=0.0, le=100000.0)] = 0.0
     #: An update's step must raise the buffer's AUC by more than this (0: any rise).
     accept_margin: Annotated[float, Rule(ge=0.0, le=1.0)] = 0.0
     #: The standings' reference: at most this many smooth events spread over the drive so

@@ -104,11 +104,14 @@ class OnlineConfig:
     lambda_fp: float = 5.0
     #: Every this many metres (0: never), the whole search of sect. 6 is run again on the
     #: buffer, from the start's B and increments, ``refit_iterations`` rotations with
-    #: adapted steps, as offline learning runs on a training split; its model is taken at
-    #: the next update (it runs beside the planner's loop, not in it), and the updates then
-    #: go on from it with the start's increments.
+    #: adapted steps, as offline learning runs on a training split. It runs beside the
+    #: planner's loop, not in it: its model is taken at the first update at least
+    #: ``refit_budget_s`` of driving after the refit began (a budget in drive time, so the
+    #: replay does not depend on the machine's speed; the stage says when a refit took
+    #: longer), and the updates then go on from it with the increments its search ended on.
     refit_every_m: float = 0.0
     refit_iterations: int = 20
+    refit_budget_s: float = 0.0
     #: An update's step must raise the buffer's AUC by more than this (0: any rise).
     accept_margin: float = 0.0
     #: The standings' reference (module docstring): at most this many smooth events spread
@@ -120,14 +123,18 @@ class OnlineConfig:
             raise ValueError(f"update_every_m must be positive, not {self.update_every_m}")
         if self.buffer_rough < 1 or self.buffer_smooth < 1:
             raise ValueError("the buffer must hold at least one event of each class")
-        if self.coordinates_per_update < 1:
-            raise ValueError("an update must try at least one element of B")
+        if self.coordinates_per_update < 0:
+            raise ValueError("coordinates_per_update must be >= 0")
+        if self.coordinates_per_update == 0 and self.refit_every_m <= 0.0:
+            raise ValueError("with coordinates_per_update = 0 only refits learn: set refit_every_m")
         if self.min_rough < 1:
             raise ValueError("the model needs at least one rough event to learn from")
         if self.step_rule not in STEP_RULES:
             raise ValueError(f"step_rule must be one of {STEP_RULES}, not {self.step_rule!r}")
-        if self.refit_every_m < 0.0 or self.refit_iterations < 1:
-            raise ValueError("refit_every_m must be >= 0 and refit_iterations >= 1")
+        if self.refit_every_m < 0.0 or self.refit_iterations < 1 or self.refit_budget_s < 0.0:
+            raise ValueError(
+                "refit_every_m and refit_budget_s must be >= 0 and refit_iterations >= 1"
+            )
         if self.reference_smooth < 0:
             raise ValueError(f"reference_smooth must be >= 0, not {self.reference_smooth}")
         if not 0.0 <= self.validation_share <= 0.5:
@@ -256,11 +263,13 @@ class LearnerState:
     #: the events are scored with (B then mu; empty: score with ``b`` and ``mu``).
     b_sum: tuple[float, ...] = ()
     scoring: tuple[float, ...] = ()
-    #: The start's B and increments (a refit searches from them), and a refit's model
-    #: (B then mu) waiting to be taken at the next update (empty: none).
+    #: The start's B and increments (a refit searches from them), and a refit's model (B,
+    #: mu, then the increments its search ended on) waiting to be taken by the first update
+    #: at or after ``pending_ready_ns`` (empty: none).
     origin: tuple[float, ...] = ()
     origin_increments: tuple[float, ...] = ()
     pending: tuple[float, ...] = ()
+    pending_ready_ns: int = 0
     #: The standings' reference (empty with ``reference_smooth = 0``: the buffer's).
     reference: Reference = field(default_factory=Reference)
 
@@ -281,10 +290,10 @@ def start(
     return LearnerState(b, float(mu), steps, origin=b, origin_increments=steps)
 
 
-def refit(state: LearnerState, config: OnlineConfig) -> LearnerState:
-    """The state with a refit's model pending (module docstring of :class:`OnlineConfig`'s
-    ``refit_every_m``): the search of sect. 6 on the buffer from the start. Unchanged
-    without enough labels to learn from."""
+def refit(state: LearnerState, config: OnlineConfig, began_ns: int = 0) -> LearnerState:
+    """The state with a refit's model pending (:class:`OnlineConfig`'s ``refit_every_m``):
+    the search of sect. 6 on the buffer from the start, begun at ``began_ns`` and ready
+    ``refit_budget_s`` later. Unchanged without enough labels to learn from."""
     buf = state.buffer
     if buf.patches is None or not buf.learnable or buf.rough.sum() < config.min_rough:
         return state
@@ -297,33 +306,38 @@ def refit(state: LearnerState, config: OnlineConfig) -> LearnerState:
         step_rule="adapt",
     )
     result = coordinate_ascent(_pairs(buf), buf.rough, search)
-    return _with(state, pending=(*result.params.vector(), result.params.mu))
+    ready_ns = began_ns + int(round(config.refit_budget_s * 1e9))
+    pending = (*result.params.vector(), result.params.mu, *result.increments)
+    return _with(state, pending=pending, pending_ready_ns=ready_ns)
 
 
-def _take_pending(state: LearnerState) -> LearnerState:
-    """The state with its pending refit taken as its model (a new version), the updates'
-    increments back to the start's and the rotation from its first element."""
-    if not state.pending:
+def take_pending(state: LearnerState, now_ns: int) -> LearnerState:
+    """The state with its pending refit taken as its model (a new version) when it is
+    ready by ``now_ns``: the updates go on with the increments the refit's search ended on,
+    the rotation from its first element. Unchanged otherwise."""
+    if not state.pending or now_ns < state.pending_ready_ns:
         return state
+    n = len(state.b)
     return _with(
         state,
-        b=state.pending[:-1],
-        mu=state.pending[-1],
-        increments=state.origin_increments,
+        b=state.pending[:n],
+        mu=state.pending[n],
+        increments=state.pending[n + 1 :],
         cursor=0,
         version=state.version + 1,
         pending=(),
+        pending_ready_ns=0,
     )
 
 
 def update(state: LearnerState, config: OnlineConfig) -> tuple[LearnerState, int]:
     """One update on the buffer (module docstring): the new state, and how many steps of
-    eq. (7) were kept. The model stays as it is without both classes in the buffer."""
-    taken = _take_pending(state)
-    if taken is not state:
-        return taken, 0
+    eq. (7) were kept. The model stays as it is without both classes in the buffer, and
+    with ``coordinates_per_update = 0`` (only refits learn)."""
     buf = state.buffer
     if buf.patches is None or not buf.learnable or buf.rough.sum() < config.min_rough:
+        return state, 0
+    if config.coordinates_per_update == 0:
         return state, 0
     n = len(state.b)
     tried = {(state.cursor + k) % n for k in range(min(config.coordinates_per_update, n))}
@@ -439,12 +453,13 @@ def replay(
             state = _labelled(state, stream, known, config)
         before = state.version
         t0 = time.perf_counter()
-        state, kept = update(state, config)
+        taken = take_pending(state, int(ends_ns[k]))
+        state, kept = (taken, 0) if taken is not state else update(state, config)
         took = time.perf_counter() - t0
         refit_took = 0.0
         if _refits(config, ends_m, k):
             t0 = time.perf_counter()
-            state = refit(state, config)
+            state = refit(state, config, int(ends_ns[k]))
             refit_took = time.perf_counter() - t0
         if known.size or state.version != before:  # the buffer or the model changed
             reference = _smooth_scores(state)
@@ -545,5 +560,6 @@ __all__ = [
     "standing_of",
     "start",
     "step_ends",
+    "take_pending",
     "update",
 ]

@@ -55,6 +55,7 @@ def online_config(oc: OnlineLearnConfig, lc: LearnConfig) -> OnlineConfig:
         lambda_fp=lc.lambda_fp,
         refit_every_m=oc.refit_every_m,
         refit_iterations=oc.refit_iterations,
+        refit_budget_s=oc.refit_budget_s,
         accept_margin=oc.accept_margin,
         reference_smooth=oc.reference_smooth,
     )

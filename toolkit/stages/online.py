@@ -257,6 +257,8 @@ def _compute(call: Call[OnlineSettings]) -> Made[OnlineResult]:
     warnings = _warnings(summary, run.done.resumed_at, oc)
     if run.done.resumed_at is not None:  # said on the terminal under `terrain run` too
         _log.warning("%s (%s)", RESUMED, run.done.resumed_at)
+    # A fact of this machine, not of the inputs: on the terminal, not in the manifest.
+    slow = _slow_refit(run.timings["refit_max"], oc)
     sources = sorted(set(call.inputs.values()))
     for name, table in (("online_scores", run.scores), ("online_steps", run.steps)):
         write_table(ws.path(name), table, name, source_sha256=sources, config_hash=call.config_hash)
@@ -266,7 +268,7 @@ def _compute(call: Call[OnlineSettings]) -> Made[OnlineResult]:
     timings = {"read": read_s, **run.timings}
     seconds = time.perf_counter() - call.start
     return Made(
-        OnlineResult("written", summary, seconds, tuple(warnings), timings),
+        OnlineResult("written", summary, seconds, (*warnings, *slow), timings),
         tuple(
             ws.path(n).relative_to(ws.root).as_posix()
             for n in ("online_scores", "online_steps", "online_summary", "online_state")
@@ -414,6 +416,18 @@ def _warnings(summary: dict[str, Any], resumed_at: str | None, oc: OnlineConfig)
             "earlier: each entered the buffer when known"
         )
     return out
+
+
+def _slow_refit(refit_max_s: float, oc: OnlineConfig) -> tuple[str, ...]:
+    """What to say when a refit took longer than its budget of driving (empty: none did):
+    on the vehicle its model would have been ready later than the replay took it."""
+    if oc.refit_every_m <= 0.0 or refit_max_s <= oc.refit_budget_s:
+        return ()
+    return (
+        f"a refit took {refit_max_s:.1f} s on this machine, longer than its budget of "
+        f"{oc.refit_budget_s:g} s of driving ([online] refit_budget_s): on the vehicle its "
+        "model would have been ready later than the replay took it",
+    )
 
 
 def _recall(last: Recalled[OnlineSettings]) -> OnlineResult:

@@ -182,6 +182,7 @@ class ReplayLog:
                 "s_origin": np.asarray(state.origin, np.float64),
                 "s_origin_increments": np.asarray(state.origin_increments, np.float64),
                 "s_pending": np.asarray(state.pending, np.float64),
+                "s_pending_ready_ns": np.asarray(state.pending_ready_ns, np.int64),
                 "s_reference": state.reference.index,
                 "s_reference_known": np.asarray(state.reference.known, np.int64),
             }
@@ -236,6 +237,7 @@ class ReplayLog:
                 tuple(got["s_origin"].tolist()),
                 tuple(got["s_origin_increments"].tolist()),
                 tuple(got["s_pending"].tolist()),
+                int(got["s_pending_ready_ns"]),
                 reference,
             )
         return done
