@@ -20,11 +20,17 @@ theirs, as in a workspace of logs that long) and stops: replayed in a fresh proc
 the peak memory is measured against, the patches being read a window at a
 time (:mod:`toolkit.stages.online_patches`).
 
+``--speed-control`` also drives Fig. 7's proactive controller on the test split by the online
+flags as they were (each event's verdict when seen) and by the offline model's, each against
+the reactive race controller at equal time, as the report's ``online_learning`` entry does
+(:func:`toolkit.analysis.summary.shock_reduction`), without running ``terrain evaluate``.
+
 ``--start-from WS2`` starts every drive from the model the offline search (``[learn]`` of
 this workspace) learns on WS2's training split: a model learned on other logs. WS2's tables
 are read as they are (their freshness is not checked).
 
 Usage: python benchmarks/online_replay.py WS [--set online.KEY=VALUE ...] [--start-from WS2]
+       [--speed-control]
        python benchmarks/online_replay.py WS --cut-into WS2 [--minutes M] [--logs N]
 """
 
@@ -40,9 +46,11 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+import polars as pl
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from toolkit.analysis.summary import shock_reduction
 from toolkit.config import PipelineConfig, load_config
 from toolkit.model.ascent import coordinate_ascent
 from toolkit.model.online import start
@@ -144,6 +152,7 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=None)
     ap.add_argument("--logs", type=int, default=None)
     ap.add_argument("--cut-into", type=Path, default=None)
+    ap.add_argument("--speed-control", action="store_true")
     args = ap.parse_args()
     ws = Workspace(args.workspace)
     if args.cut_into is not None:
@@ -203,7 +212,34 @@ def replay(ws: Workspace, args: argparse.Namespace) -> None:
           f"{summary['within_0_02_as_met_from_m']}); label latency p50 "
           f"{summary['label_latency_s']['p50']:.2f} s, p95 {summary['label_latency_s']['p95']:.2f} s;"
           f" first update per drive (m): {summary['first_update_m']}")  # fmt: skip
+    if args.speed_control:
+        speed_control(ws, cfg, run.scores, offline.mu)
     print(f"final B per drive: {[np.round(d['b'] or [], 3).tolist() for d in run.done.state_doc(stream.log_id, stream.event_id)['drives']]}")  # fmt: skip
+
+
+def speed_control(ws: Workspace, cfg: PipelineConfig, scores: pa.Table, mu: float) -> None:
+    """Fig. 7's shock reduction at equal time on the test split, driven by the online flags
+    as they were and by the offline model's (``r_offline > mu``), printed."""
+    t0 = time.perf_counter()
+    events = split_events(ws, None)
+    keys = pl.DataFrame(events.select(["log_id", "event_id"])).with_row_index("row")
+    got = keys.join(
+        pl.DataFrame(scores.select(["log_id", "event_id", "predicted", "r_offline"])),
+        on=["log_id", "event_id"],
+        how="left",
+    ).sort("row")
+    test = np.asarray(events.column("split").to_pylist(), dtype=object) == "test"
+    online = got["predicted"].fill_null(False).to_numpy().astype(bool)
+    offline = got["r_offline"].fill_null(-np.inf).to_numpy() > mu
+    red = {n: shock_reduction(events, f, test, cfg.evaluate) for n, f in
+           (("online", online), ("offline", offline))}  # fmt: skip
+    share = (
+        f"{100 * red['online'] / red['offline']:.0f} %"
+        if red["online"] is not None and red["offline"]
+        else "n/a"
+    )
+    print(f"speed control, shock reduction at equal time: online flags {red['online']}, "
+          f"offline model {red['offline']} ({share} of it; {time.perf_counter() - t0:.0f} s)")  # fmt: skip
 
 
 if __name__ == "__main__":
