@@ -70,6 +70,7 @@ def test_time_correction(tmp_path: Path) -> None:
         ("[evaluate]\nfpr_points = [0.2, 0.1]\n", "evaluate.fpr_points", "increasing"),
         ("[evaluate]\nfpr_points = [0.1, 0.1]\n", "evaluate.fpr_points", "unique"),
         ("[evaluate]\nbaseline_closest_laser = '/x'\n", "evaluate.baseline_closest_laser", ""),
+        ("[online]\nrefit_every_m = 0.0\n", "online.coordinates_per_update", "only refits"),
         ("[topics]\nlasers = ['']\n", "topics.lasers[0]", "must not be empty"),
         ("[topics]\nlasers = ['/a', '/a']\n", "topics.lasers", "unique"),
         ("[topics]\ngps = '/imu/data'\n", "topics.gps", "also plays"),

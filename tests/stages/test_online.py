@@ -26,11 +26,19 @@ def _copy(pipeline: Pipeline, tmp_path: Path, name: str = "ws") -> Workspace:
     return ws
 
 
+#: The default's refits scaled to the sample's 0.9 km (the default refits every 2 km).
+SAMPLE_REFITS = {"refit_every_m": 200.0, "refit_budget_s": 5.0, "refit_iterations": 3}
+
+
 def _every(metres: float, checkpoint_every: int = 2, **changes: object) -> PipelineConfig:
-    """The default configuration with an update every ``metres`` (the sample is 0.9 km)."""
+    """The default configuration with an update every ``metres`` and its refits scaled to
+    the sample (:data:`SAMPLE_REFITS`; ``changes`` override them)."""
     cfg = default_config()
     online = dataclasses.replace(
-        cfg.online, update_every_m=metres, checkpoint_every=checkpoint_every, **changes
+        cfg.online,
+        update_every_m=metres,
+        checkpoint_every=checkpoint_every,
+        **{**SAMPLE_REFITS, **changes},
     )
     return dataclasses.replace(cfg, online=online)
 
@@ -97,8 +105,8 @@ class _StopError(Exception):
 
 @pytest.mark.parametrize(
     "changes",
-    [{}, {"refit_every_m": 150.0, "refit_iterations": 2, "refit_budget_s": 20.0}],
-    ids=["updates", "refits pending across checkpoints"],
+    [{}, {"refit_every_m": 0.0, "coordinates_per_update": 4}],
+    ids=["refits pending across checkpoints", "updates alone"],
 )
 def test_a_stopped_replay_resumes_to_what_an_unbroken_one_writes(
     pipeline: Pipeline, tmp_path: Path, changes: dict[str, float]
@@ -196,11 +204,17 @@ def test_what_a_user_must_know_is_said() -> None:
     assert len(got) == 5
     assert "resumed a stopped replay" in got[0]
     assert "drive 0: the model never learned" in got[1]
-    assert "drive 1: no update before 4.0 km" in got[2]
+    assert "drive 1: the model first changed at 4.0 km" in got[2]
     assert "1 stretch(es) without events (2.5 km" in got[3]
     assert "3 label(s) known before" in got[4]
     quiet = {"first_update_m": {"0": 500.0}, "gaps": [], "out_of_order_labels": 0}
     assert _warnings(quiet, None, OnlineConfig(update_every_m=500.0)) == []
+    # With only refits learning (every 2 km), a first change at 2.6 km is as expected; on a
+    # drive too short for one, the refits are named among the reasons.
+    refits = OnlineConfig(update_every_m=150.0, coordinates_per_update=0, refit_every_m=2000.0)
+    late = {"first_update_m": {"0": 2600.0, "1": None}, "gaps": [], "out_of_order_labels": 0}
+    (never,) = _warnings(late, None, refits)
+    assert "drive 1: the model never learned" in never and "no refit ready" in never
 
 
 def test_a_refit_slower_than_its_budget_is_said() -> None:

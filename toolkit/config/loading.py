@@ -264,6 +264,12 @@ def _validate(cfg: PipelineConfig, source: str | Path) -> None:
             f"positive (got {cfg.learn.initial_lead[1]!r})",
             path=source,
         )
+    if cfg.online.coordinates_per_update == 0 and cfg.online.refit_every_m <= 0.0:
+        raise ConfigError(
+            "online.coordinates_per_update: 0 leaves only refits to learn, and "
+            "online.refit_every_m is 0 (never): set one of them",
+            path=source,
+        )
     closest = cfg.evaluate.baseline_closest_laser
     if closest is not None and closest not in cfg.topics.lasers:
         raise ConfigError(

@@ -392,15 +392,22 @@ def _warnings(summary: dict[str, Any], resumed_at: str | None, oc: OnlineConfig)
     out = []
     if resumed_at is not None:
         out.append(f"{RESUMED} ({resumed_at})")
+    why = f"fewer than {oc.min_rough} rough labels, or no smooth one"
+    # When the model may first change: at the first update, or with only refits learning,
+    # at the first refit's (its budget of driving later).
+    expected_m = oc.update_every_m
+    if oc.coordinates_per_update == 0:
+        why += (
+            f", or no refit ready before its end (one every {oc.refit_every_m:g} m, ready "
+            f"{oc.refit_budget_s:g} s of driving later)"
+        )
+        expected_m = oc.refit_every_m
     for d, where in summary["first_update_m"].items():
         if where is None:
+            out.append(f"drive {d}: the model never learned ({why}): it flagged nothing")
+        elif where > 2.0 * expected_m:
             out.append(
-                f"drive {d}: the model never learned (fewer than {oc.min_rough} rough labels, "
-                "or no smooth one): it flagged nothing"
-            )
-        elif where > 2.0 * oc.update_every_m:
-            out.append(
-                f"drive {d}: no update before {where / 1000:.1f} km (waiting for "
+                f"drive {d}: the model first changed at {where / 1000:.1f} km (waiting for "
                 f"{oc.min_rough} rough labels); nothing was flagged before"
             )
     gaps = summary["gaps"]
