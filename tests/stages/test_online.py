@@ -226,3 +226,21 @@ def test_a_refit_slower_than_its_budget_is_said() -> None:
     assert "a refit took 31.5 s" in said and "budget of 30 s" in said
     assert _slow_refit(29.0, refits) == ()
     assert _slow_refit(99.0, OnlineConfig()) == ()  # no refits
+
+
+def test_the_terminal_states_the_refits_beside_the_loop() -> None:
+    from toolkit.stages.online import OnlineResult
+
+    summary = {"drives": 1, "events": 10, "rough": 2, "updates": 3, "test": {}}
+    timings = {"update_p50": 0.0, "update_p95": 0.001, "real_time_factor": 27.0}
+    with_refits = OnlineResult(
+        "written",
+        {**summary, "within_0_02_from_m": None},
+        1.0,
+        timings={**timings, "refits": 2.0, "refit_max": 6.84},
+    )
+    assert "2 refit(s) beside the loop, the longest 6.8 s" in with_refits.text()
+    without = OnlineResult(
+        "written", {**summary, "within_0_02_from_m": None}, 1.0, timings={**timings, "refits": 0.0}
+    )
+    assert "refit" not in without.text()

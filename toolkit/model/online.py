@@ -46,6 +46,13 @@ model stays as it is. ``step_rule = "halve"`` halves every increment once per fu
 instead (the steps shrink as the drive goes on); ``average`` scores with B averaged over
 the versions learned (measured in ``benchmarks/README.md``, "Online, test-then-train").
 
+*A refit* (``refit_every_m``) is the whole search of sect. 6 rerun on the buffer from the
+start, as offline learning runs on a training split, beside the planner's loop: its model
+(with the increments its search ended on) is taken by the first update ``refit_budget_s``
+of driving after the refit began. With ``coordinates_per_update = 0`` only refits learn.
+The stage's default does that (``benchmarks/README.md``, "Online: refits"): one element at a
+time, the updates get less from a large buffer than a search over it does.
+
 Everything here is a function of its inputs: the same stream, start and configuration give
 the same scores and models, and a replay stopped after any step and resumed from its
 :class:`LearnerState` gives what one replay gives.

@@ -129,6 +129,11 @@ class OnlineResult:
                 f"{1000 * t['update_p95']:.0f} ms (p95); the replay ran at "
                 f"{t['real_time_factor']:.0f}x real time"
             )
+            if t.get("refits"):
+                lines.append(
+                    f"  {t['refits']:.0f} refit(s) beside the loop, the longest "
+                    f"{t['refit_max']:.1f} s"
+                )
         lines += [f"warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
