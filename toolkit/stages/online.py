@@ -402,9 +402,10 @@ def _warnings(summary: dict[str, Any], resumed_at: str | None, oc: OnlineConfig)
     # at the first refit's (its budget of driving later).
     expected_m = oc.update_every_m
     if oc.coordinates_per_update == 0:
-        why += (
-            f", or no refit ready before its end (one every {oc.refit_every_m:g} m, ready "
-            f"{oc.refit_budget_s:g} s of driving later)"
+        why = (
+            f"it learns by refits, every {oc.refit_every_m:g} m driven with {oc.min_rough} "
+            f"rough labels known, each ready {oc.refit_budget_s:g} s of driving later: none "
+            "was ready before the drive's end"
         )
         expected_m = oc.refit_every_m
     for d, where in summary["first_update_m"].items():
