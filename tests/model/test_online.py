@@ -249,13 +249,16 @@ def test_a_bad_configuration_is_refused() -> None:
         OnlineConfig(validation_share=0.8)
 
 
-def test_a_refit_is_the_offline_search_on_the_buffer_taken_at_the_next_update() -> None:
-    """With refit_every_m, the whole search runs on the buffer from the start at each
-    multiple of it; the next update takes its model as a new version (no step of its own),
-    the updates going on with the increments its search ended on, and the drive is ranked
-    well from there on."""
+@pytest.mark.parametrize("smooth", ["buffer", "reference"])
+def test_a_refit_is_the_offline_search_on_the_buffer_taken_at_the_next_update(smooth: str) -> None:
+    """With refit_every_m, the whole search runs on the buffer (its smooth side, or the
+    standings' reference) from the start at each multiple of it; the next update takes its
+    model as a new version (no step of its own), the updates going on with the increments
+    its search ended on, and the drive is ranked well from there on."""
     s = stream(600)
-    config = dataclasses.replace(CONFIG, refit_every_m=200.0, refit_iterations=10)
+    config = dataclasses.replace(
+        CONFIG, refit_every_m=200.0, refit_iterations=10, refit_smooth=smooth
+    )
     first, _ = replay(s, fresh(), config, stop_after=10)  # 10 steps of 20 m: one refit
     assert first.pending, "the refit's model waits for the next update"
     n = len(UNINFORMED)
@@ -291,3 +294,5 @@ def test_a_refits_model_waits_for_its_budget_of_driving() -> None:
     assert state.version == np.unique(run.step_version).size - 1 == 3 and state.pending
     with pytest.raises(ValueError, match="only refits learn"):
         OnlineConfig(coordinates_per_update=0)
+    with pytest.raises(ValueError, match="refit_smooth"):
+        OnlineConfig(refit_smooth="everything")

@@ -472,6 +472,9 @@ class OnlineLearnConfig:
     refit_every_m: Annotated[float, Rule(ge=0.0)] = 2000.0
     refit_iterations: Annotated[int, Rule(ge=1, le=1000)] = 10
     refit_budget_s: Annotated[float, Rule(ge=0.0, le=100000.0)] = 60.0
+    #: The smooth events a refit fits: the buffer's latest, or the standings' reference
+    #: (a sample spread over the drive so far).
+    refit_smooth: Annotated[str, Rule(choices=("buffer", "reference"))] = "buffer"
     #: An update's step must raise the buffer's AUC by more than this (0: any rise).
     accept_margin: Annotated[float, Rule(ge=0.0, le=1.0)] = 0.0
     #: The standings' reference: at most this many smooth events spread over the drive so

@@ -119,6 +119,10 @@ class OnlineConfig:
     refit_every_m: float = 0.0
     refit_iterations: int = 20
     refit_budget_s: float = 0.0
+    #: The smooth events a refit fits: "buffer" (the latest ``buffer_smooth``) or
+    #: "reference" (the standings' sample spread over the whole drive so far, as the rough
+    #: side of the buffer spans much of it).
+    refit_smooth: str = "buffer"
     #: An update's step must raise the buffer's AUC by more than this (0: any rise).
     accept_margin: float = 0.0
     #: The standings' reference (module docstring): at most this many smooth events spread
@@ -141,6 +145,10 @@ class OnlineConfig:
         if self.refit_every_m < 0.0 or self.refit_iterations < 1 or self.refit_budget_s < 0.0:
             raise ValueError(
                 "refit_every_m and refit_budget_s must be >= 0 and refit_iterations >= 1"
+            )
+        if self.refit_smooth not in ("buffer", "reference"):
+            raise ValueError(
+                f"refit_smooth must be 'buffer' or 'reference', not {self.refit_smooth!r}"
             )
         if self.reference_smooth < 0:
             raise ValueError(f"reference_smooth must be >= 0, not {self.reference_smooth}")
@@ -312,7 +320,13 @@ def refit(state: LearnerState, config: OnlineConfig, began_ns: int = 0) -> Learn
         accept="auc",
         step_rule="adapt",
     )
-    result = coordinate_ascent(_pairs(buf), buf.rough, search)
+    pairs, rough = _pairs(buf), buf.rough
+    ref = state.reference.pairs
+    if config.refit_smooth == "reference" and ref is not None:
+        rough_groups = event_groups(np.flatnonzero(buf.rough))
+        pairs = pairs.take(rough_groups).join(ref)
+        rough = np.r_[np.ones(rough_groups.size // 2, bool), np.zeros(ref.groups // 2, bool)]
+    result = coordinate_ascent(pairs, rough, search)
     ready_ns = began_ns + int(round(config.refit_budget_s * 1e9))
     pending = (*result.params.vector(), result.params.mu, *result.increments)
     return _with(state, pending=pending, pending_ready_ns=ready_ns)

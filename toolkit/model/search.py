@@ -56,6 +56,7 @@ def online_config(oc: OnlineLearnConfig, lc: LearnConfig) -> OnlineConfig:
         refit_every_m=oc.refit_every_m,
         refit_iterations=oc.refit_iterations,
         refit_budget_s=oc.refit_budget_s,
+        refit_smooth=oc.refit_smooth,
         accept_margin=oc.accept_margin,
         reference_smooth=oc.reference_smooth,
     )
