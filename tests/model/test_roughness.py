@@ -186,8 +186,10 @@ def test_pair_table_built_in_chunks_equals_all_pairs_at_once() -> None:
         want_dtau = np.log(np.abs(patches.tau[:, r] - patches.tau[:, c])).astype(np.float32)
         dxy = np.hypot(patches.x[:, r] - patches.x[:, c], patches.y[:, r] - patches.y[:, c])
         want_dxy = np.log(dxy).astype(np.float32)
-    # A pair with a padding point has no height term: its log |dz| is -inf (|0|^a2 = 0).
-    want_dz[~(patches.valid[:, r] & patches.valid[:, c])] = -np.inf
+    # A pair with a padding point has no terms: its logarithms are -inf (|0|^a = 0).
+    padding = ~(patches.valid[:, r] & patches.valid[:, c])
+    for want in (want_dz, want_dtau, want_dxy):
+        want[padding] = -np.inf
     np.testing.assert_array_equal(table.log_dz, want_dz)
     np.testing.assert_array_equal(table.log_dtau, want_dtau)
     np.testing.assert_array_equal(table.log_dxy, want_dxy)
@@ -256,13 +258,12 @@ def test_the_search_is_the_same_with_and_without_the_cache(
     assert cached.params == uncached.params
 
 
-# The overflow is the point of the test (raised in the table's worker threads too, where
-# np.errstate does not reach).
-@pytest.mark.filterwarnings("ignore:overflow encountered in exp:RuntimeWarning")
+# Any warning fails the test: the terms of a padding pair are never computed as a number.
+@pytest.mark.filterwarnings("error")
 def test_a_padding_pair_is_absent_even_where_a_negative_weight_overflows() -> None:
     """A negative time weight with a steep exponent: the time term of a real point paired
-    with the padding's 0 (tau of 1.7e9 s, a raw clock) overflows float32 to -inf. The pair
-    is still absent (Delta = -inf, not NaN), and R stays finite."""
+    with the padding's 0 (tau of 1.7e9 s, a raw clock) would overflow float32. The pair is
+    absent (Delta = -inf, not NaN), R stays finite and nothing is printed."""
     t0 = 1.7e9
     pts = [(0.0, 0.0, 0.0, t0, 0.0, 0.0), (0.1, 0.0, 0.1, t0 + 0.1, 0.0, 0.0)]
     three = [*pts, (0.2, 0.0, 0.3, t0 + 0.2, 0.0, 0.0)]
@@ -275,6 +276,31 @@ def test_a_padding_pair_is_absent_even_where_a_negative_weight_overflows() -> No
     assert np.isfinite(d[table.pair_valid]).all()
     assert np.isfinite(got.r_left).all() and np.isfinite(got.r_right).all()
     assert got.r_right[0] > 0.0
+
+
+@pytest.mark.filterwarnings("error")
+def test_a_penalty_beyond_float32_makes_its_pair_absent_without_a_warning() -> None:
+    """Two real points 100 s apart under a time exponent of 25 (100^25 = 1e50, beyond
+    float32): the penalty saturates to +inf, so that pair is absent, and the patch scores
+    as it would without it (decision 4). The same pair's height term beyond float32 makes
+    R non-finite instead, which the learner rejects. Neither prints numpy's warning."""
+    t0 = 1.7e9
+    near = [(0.0, 0.0, 0.0, t0, 0.0, 0.0), (0.1, 0.0, 0.4, t0 + 0.1, 0.0, 0.0)]
+    late = [*near, (0.2, 0.0, 0.2, t0 + 100.0, 0.0, 0.0)]
+    table = PairTable(make_patches([[near, late]]))
+    alpha = (1.0, 1.0, 1e-3, 25.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0)
+    d = table.delta(alpha)
+    late_pairs = table.pair_valid[1] & (table.log_dtau[1] > math.log(50.0))
+    assert late_pairs.sum() == 2 and np.isneginf(d[1, late_pairs]).all()
+    got = score_events(table, RoughnessParams(alpha, 1.1, 3, 1.0, 0.0))
+    # The late point adds nothing: the right patch is the left one's two points.
+    assert got.r_right[0] == pytest.approx(got.r_left[0]) and got.r_left[0] > 0.0
+    steep_height = (1.0, 15.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0, 0.0, 1.0)  # (1e3 m)^15 = 1e45
+    tall = [(0.0, 0.0, 0.0, t0, 0.0, 0.0), (0.1, 0.0, 1e3, t0 + 0.1, 0.0, 0.0)]
+    high = score_events(
+        PairTable(make_patches([[tall, tall]])), RoughnessParams(steep_height, 1.1, 3, 1.0, 0.0)
+    )
+    assert not np.isfinite(high.r_combined).all()
 
 
 def test_a_table_taken_and_joined_is_the_table_of_those_patches() -> None:

@@ -46,8 +46,11 @@ point. With 10 alphas (the paper's) the term is absent.
 3. *A patch with fewer than two points* has no pair: its matrix is all zeros, R = 0.
 4. *R is never negative* (W >= 0, upsilon > 0), so ``R^zeta`` of eq. (5) is always real; the
    code still applies the signed power ``sign(R) |R|^zeta``, equal to it for R >= 0.
-   A non-finite score (NaN from a non-finite feature, an overflow) is not an absent pair:
-   it makes R non-finite, and the learner rejects such parameters.
+   A term of eq. (4) beyond float32's range saturates to +-inf. A penalty of +inf makes
+   Delta -inf: the pair weighs nothing, the limit of an ever larger penalty. Any other
+   non-finite score (a height of +inf, a negative weight's -inf penalty, NaN from a
+   non-finite feature or from +inf less +inf) is not an absent pair: it makes R
+   non-finite, and the learner rejects such parameters.
 5. *Exponents* a2, a4, a6, a8, a10 must be positive: ``|0|^a`` is infinite for a <= 0 (two
    points at the same height, or a still vehicle). With ``a > 0``, ``|0|^a = 0``.
 6. *Where mu sits* between two adjacent R_combined values is decided by the learner
@@ -91,6 +94,17 @@ CHUNK_GROUPS = 512
 #: Patches whose pairs :class:`Blockwise` holds at once (~40 MB of pairs at 40 points a tyre).
 BLOCK_GROUPS = 8 * CHUNK_GROUPS
 THREADS = 2
+
+
+def _saturating() -> np.errstate:
+    """Where a term of eq. (4) is computed: a term beyond float32's range (|d|^a above
+    3.4e38) saturates to +-inf without a warning, as decision 4 of the module docstring
+    reads it (a penalty of +inf makes the pair absent; a height of +inf, or +inf less +inf =
+    NaN, makes R non-finite, which the learner rejects). An invalid operation still warns.
+
+    A new context each time, entered in the function that computes: numpy's error state is
+    per thread (the scoring threads), and one errstate object is not reentrant."""
+    return np.errstate(over="ignore")
 
 
 @dataclass(frozen=True)
@@ -177,7 +191,7 @@ class PairTable:
     a > 0); ``log_gamma``, ``log_psi`` (G, n_max) float32; ``pair_valid`` (G, P) bool.
     Memory: about 13 bytes a pair (the 10-mile race's training half: ~9 M pairs at the
     default 40 points a tyre, ~120 MB), and up to 16 more while a search holds a point
-    (:meth:`hold`). ``log_dz`` is -inf for a pair with a padding point (no height term).
+    (:meth:`hold`). The pair logarithms are -inf for a pair with a padding point (no term).
     """
 
     def __init__(self, patches: TyrePatches) -> None:
@@ -194,15 +208,20 @@ class PairTable:
         for lo in range(0, patches.groups, CHUNK_GROUPS):
             rows = slice(lo, lo + CHUNK_GROUPS)
             self.pair_valid[rows] = patches.valid[rows][:, self.r] & patches.valid[rows][:, self.c]
-            log_dz = _log_abs(self._diff(patches.z[rows]))
-            # A pair with a padding point has no height term (|0|^a2 = 0): its Delta is
-            # then 0 - inf = -inf exactly (the penalty is +inf there, :meth:`_penalty`),
-            # even where the height of a real point over the padding's 0 would overflow.
-            log_dz[~self.pair_valid[rows]] = -np.inf
-            self.log_dz[rows] = log_dz
-            self.log_dtau[rows] = _log_abs(self._diff(patches.tau[rows]))
+            # A pair with a padding point has no terms (every |0|^a = 0): its Delta is then
+            # 0 - inf = -inf exactly (the penalty is +inf there, :meth:`_penalty`). Its
+            # logarithms are -inf, not those of a real point less the padding's 0, which
+            # overflow float32 (tau is a raw clock: |1.7e9 s|^a4 for a4 above 4.2).
+            padding = ~self.pair_valid[rows]
             dxy = np.hypot(self._diff(patches.x[rows]), self._diff(patches.y[rows]))
-            self.log_dxy[rows] = _log_abs(dxy)
+            for name, diff in (
+                ("log_dz", self._diff(patches.z[rows])),
+                ("log_dtau", self._diff(patches.tau[rows])),
+                ("log_dxy", dxy),
+            ):
+                logs = _log_abs(diff)
+                logs[padding] = -np.inf
+                getattr(self, name)[rows] = logs
         self.log_gamma = _log_abs(patches.gamma)
         self.log_psi = _log_abs(patches.psi)
         # Without look-ahead times the term cannot be asked for (it would read -inf logs).
@@ -285,19 +304,22 @@ class PairTable:
         return self._combine(height, penalty)
 
     def _height(self, a: list[np.float32], rows: slice) -> Float32Array:
-        """(g, P) ``a1 |dz|^a2``."""
-        out: Float32Array = a[0] * np.exp(a[1] * self.log_dz[rows])
+        """(g, P) ``a1 |dz|^a2``; beyond float32's range it is +-inf (:func:`_saturating`)."""
+        with _saturating():
+            out: Float32Array = a[0] * np.exp(a[1] * self.log_dz[rows])
         return out
 
     def _penalty(self, a: list[np.float32], rows: slice) -> Float32Array:
         """(g, P) the terms eq. (4) subtracts, summed in a fixed order (time, distance, roll
         rate, pitch rate; those with a zero weight left out), and +inf for a pair with a
-        padding point, so that Delta is -inf there (an absent pair) whatever the terms."""
+        padding point, so that Delta is -inf there (an absent pair) whatever the terms. A term
+        beyond float32's range is +-inf (:func:`_saturating`)."""
         total: Float32Array = np.zeros(self.log_dz[rows].shape, np.float32)
-        if a[2] != 0.0:
-            total += a[2] * np.exp(a[3] * self.log_dtau[rows])
-        if a[4] != 0.0:
-            total += a[4] * np.exp(a[5] * self.log_dxy[rows])
+        with _saturating():
+            if a[2] != 0.0:
+                total += a[2] * np.exp(a[3] * self.log_dtau[rows])
+            if a[4] != 0.0:
+                total += a[4] * np.exp(a[5] * self.log_dxy[rows])
         # The per-point terms (rates, and the look-ahead with 12 alphas): |gamma|^a8 once
         # per point, then summed per pair.
         per_point = [(a[6], a[7], self.log_gamma), (a[8], a[9], self.log_psi)]
@@ -307,12 +329,13 @@ class PairTable:
             per_point.append((a[10], a[11], self.log_lead))
         for w, e, logs in per_point:
             if w != 0.0:
-                per_point = w * np.exp(e * logs[rows])
+                with _saturating():
+                    per_point = w * np.exp(e * logs[rows])
                 pair = per_point[:, self.r]
                 pair += per_point[:, self.c]
                 total += pair
-        # Set last, not summed onto: a negative weight whose term overflows on a padding
-        # pair (a point's raw time less the padding's 0) would make inf - inf = NaN.
+        # Set last, not summed onto, so that it holds whatever a term is (a negative weight
+        # with an overflowing term would make inf - inf = NaN).
         total[~self.pair_valid[rows]] = np.inf
         return total
 
