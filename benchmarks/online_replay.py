@@ -155,6 +155,8 @@ def main() -> None:
     ap.add_argument("--speed-control", action="store_true")
     args = ap.parse_args()
     ws = Workspace(args.workspace)
+    if not ws.model_path.exists():
+        raise SystemExit(f"{ws.model_path}: no learned model yet (run `terrain learn -w WS`)")
     if args.cut_into is not None:
         cut(ws, args.cut_into, args.minutes, args.logs)
         print(f"cut into {args.cut_into}: replay it in a fresh process to measure its memory")
