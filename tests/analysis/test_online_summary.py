@@ -9,6 +9,7 @@ import pytest
 from toolkit.analysis.online_summary import (
     comparable,
     gaps,
+    learning_verdict,
     online_summary,
     out_of_order,
     rates,
@@ -105,3 +106,14 @@ def test_standings_tied_are_ranked_by_their_raw_scores() -> None:
     rough = np.array([False, True, False, False])
     assert rates(got, rough, (0.1,))["auc"] == 1.0  # type: ignore[index]
     assert rates(standing, rough, (0.1,))["auc"] < 1.0  # type: ignore[index]
+
+
+def test_the_verdict_says_whether_learning_while_driving_beat_its_start() -> None:
+    """Above the start's test AUC: helped; equal or below: did not, with the difference;
+    without either AUC (one class only): no verdict."""
+    helped, said = learning_verdict({"online": {"auc": 0.895}, "start": {"auc": 0.750}}) or ()
+    assert helped and "0.145 above its start's, unlearned (0.750)" in said
+    tie = learning_verdict({"online": {"auc": 0.8}, "start": {"auc": 0.8}})
+    assert tie is not None and not tie[0] and "did not help" in tie[1] and "+0.000" in tie[1]
+    assert learning_verdict({"online": None, "start": {"auc": 0.8}}) is None
+    assert learning_verdict({"online": {"auc": 0.8}, "start": {"auc": None}}) is None

@@ -195,26 +195,34 @@ def test_what_a_user_must_know_is_said() -> None:
     from toolkit.model.online import OnlineConfig
     from toolkit.stages.online import _warnings
 
+    worse = {"online": {"auc": 0.887}, "start": {"auc": 0.895}}
     summary = {
         "first_update_m": {"0": None, "1": 4000.0, "2": 500.0},
         "gaps": [{"drive": 1, "from_m": 100.0, "to_m": 2600.0}],
         "out_of_order_labels": 3,
+        "test": worse,
     }
     got = _warnings(summary, "2026-11-29 10:00:00", OnlineConfig(update_every_m=500.0))
-    assert len(got) == 5
+    assert len(got) == 6
     assert "resumed a stopped replay" in got[0]
     assert "drive 0: the model never learned" in got[1]
     assert "drive 1: the model first changed at 4.0 km" in got[2]
     assert "1 stretch(es) without events (2.5 km" in got[3]
-    assert "3 label(s) known before" in got[4]
-    quiet = {"first_update_m": {"0": 500.0}, "gaps": [], "out_of_order_labels": 0}
+    assert "did not help here" in got[4] and "0.887" in got[4] and "(0.895, -0.008)" in got[4]
+    assert "3 label(s) known before" in got[5]
+    better = {"online": {"auc": 0.895}, "start": {"auc": 0.750}}
+    quiet = {"first_update_m": {"0": 500.0}, "gaps": [], "out_of_order_labels": 0, "test": better}
     assert _warnings(quiet, None, OnlineConfig(update_every_m=500.0)) == []
     # With only refits learning (every 2 km), a first change at 2.6 km is as expected; on a
-    # drive too short for one, the refits are named among the reasons.
+    # drive too short for one, the refits are named among the reasons, and no drive having
+    # learned, the start's AUC equalled is not said again.
     refits = OnlineConfig(update_every_m=150.0, coordinates_per_update=0, refit_every_m=2000.0)
     late = {"first_update_m": {"0": 2600.0, "1": None}, "gaps": [], "out_of_order_labels": 0}
-    (never,) = _warnings(late, None, refits)
+    (never,) = _warnings({**late, "test": better}, None, refits)
     assert "drive 1: the model never learned" in never and "none was ready" in never
+    short = {"first_update_m": {"0": None}, "gaps": [], "out_of_order_labels": 0, "test": worse}
+    (only,) = _warnings(short, None, refits)
+    assert "never learned" in only
 
 
 def test_a_refit_slower_than_its_budget_is_said() -> None:

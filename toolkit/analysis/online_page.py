@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from toolkit.analysis.figures import new_figure, save_png_atomic
+from toolkit.analysis.online_summary import learning_verdict
 
 PNG_NAME = "online_prequential.png"
 #: The rows of the section's table: summary key -> what it is.
@@ -76,6 +77,9 @@ def _said(o: Mapping[str, Any]) -> list[str]:
             f"AUC of the offline model on every stretch ({stretch})."
         )
     ]
+    verdict = learning_verdict(o["test"])
+    if verdict is not None:
+        lines.append(verdict[1][0].upper() + verdict[1][1:] + ".")
     speed = o.get("speed_control") or {}
     if speed.get("online") is not None and speed.get("offline"):
         share = speed["online"] / speed["offline"]

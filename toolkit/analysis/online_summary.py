@@ -205,10 +205,30 @@ def online_summary(
     }
 
 
+def learning_verdict(test: Mapping[str, Any]) -> tuple[bool, str] | None:
+    """Whether learning while driving helped: the online scores' test AUC against the
+    start's, unlearned (the summary's ``test``), and the sentence that says so; None when
+    either AUC is missing (one class only)."""
+    online, first = test.get("online"), test.get("start")
+    if not online or not first or online.get("auc") is None or first.get("auc") is None:
+        return None
+    ours, start = float(online["auc"]), float(first["auc"])
+    if ours > start:
+        return True, (
+            f"learning while driving helped: the online scores' test AUC, {ours:.3f}, is "
+            f"{ours - start:.3f} above its start's, unlearned ({start:.3f})"
+        )
+    return False, (
+        f"learning while driving did not help here: the online scores' test AUC, {ours:.3f}, "
+        f"is not above its start's, unlearned ({start:.3f}, {ours - start:+.3f})"
+    )
+
+
 __all__ = [
     "COMPARED",
     "comparable",
     "FPRS",
+    "learning_verdict",
     "WITHIN_AUC",
     "online_summary",
     "rates",
