@@ -22,6 +22,7 @@ def _entry(online_auc: float, start_auc: float) -> dict[str, Any]:
         "within_0_02_from_m": 30000.0,
         "label_latency_s": {"p50": 0.86, "p95": 1.19},
         "gaps": [],
+        "first_update_m": {"0": 4650.0, "1": None},
         "speed_control": {"online": 0.56, "offline": 0.47},
     }
 
@@ -34,3 +35,6 @@ def test_the_section_says_whether_learning_while_driving_helped() -> None:
     assert "Learning while driving did not help here" in worse and "-0.008" in worse
     assert "helped:" not in worse and "<img src='f.png'" in worse
     assert online_section({}, None) == []
+    never = _entry(0.822, 0.831) | {"first_update_m": {"0": None}}
+    said = "\n".join(online_section({"online_learning": never}, None))
+    assert "The model never changed on any drive" in said and "did not help" not in said

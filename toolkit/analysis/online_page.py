@@ -78,7 +78,10 @@ def _said(o: Mapping[str, Any]) -> list[str]:
         )
     ]
     verdict = learning_verdict(o["test"])
-    if verdict is not None:
+    if not any(m is not None for m in (o.get("first_update_m") or {}).values()):
+        # Its scores are then the start's (ranked by standing): a verdict would mislead.
+        lines.append("The model never changed on any drive: the online scores are its start's.")
+    elif verdict is not None:
         lines.append(verdict[1][0].upper() + verdict[1][1:] + ".")
     speed = o.get("speed_control") or {}
     if speed.get("online") is not None and speed.get("offline"):
