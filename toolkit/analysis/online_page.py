@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from toolkit.analysis.figures import new_figure, save_png_atomic
-from toolkit.analysis.online_summary import learning_verdict
+from toolkit.analysis.online_summary import changed_anywhere, learning_verdict
 
 PNG_NAME = "online_prequential.png"
 #: The rows of the section's table: summary key -> what it is.
@@ -78,7 +78,7 @@ def _said(o: Mapping[str, Any]) -> list[str]:
         )
     ]
     verdict = learning_verdict(o["test"])
-    if not any(m is not None for m in (o.get("first_update_m") or {}).values()):
+    if not changed_anywhere(o):
         # Its scores are then the start's (ranked by standing): a verdict would mislead.
         lines.append("The model never changed on any drive: the online scores are its start's.")
     elif verdict is not None:

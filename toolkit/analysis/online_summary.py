@@ -205,6 +205,11 @@ def online_summary(
     }
 
 
+def changed_anywhere(summary: Mapping[str, Any]) -> bool:
+    """Whether the model changed on some drive of the replay (its ``first_update_m``)."""
+    return any(m is not None for m in (summary.get("first_update_m") or {}).values())
+
+
 def learning_verdict(test: Mapping[str, Any]) -> tuple[bool, str] | None:
     """Whether learning while driving helped: the online scores' test AUC against the
     start's, unlearned (the summary's ``test``), and the sentence that says so; None when
@@ -226,6 +231,7 @@ def learning_verdict(test: Mapping[str, Any]) -> tuple[bool, str] | None:
 
 __all__ = [
     "COMPARED",
+    "changed_anywhere",
     "comparable",
     "FPRS",
     "learning_verdict",

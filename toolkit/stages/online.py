@@ -43,7 +43,12 @@ from typing import Any
 import numpy as np
 import pyarrow as pa
 
-from toolkit.analysis.online_summary import FPRS, learning_verdict, online_summary
+from toolkit.analysis.online_summary import (
+    FPRS,
+    changed_anywhere,
+    learning_verdict,
+    online_summary,
+)
 from toolkit.atomic import atomic_write_json
 from toolkit.config import (
     LabelConfig,
@@ -425,8 +430,7 @@ def _warnings(summary: dict[str, Any], resumed_at: str | None, oc: OnlineConfig)
         )
     # Said when some drive learned (a drive that never did is said so above).
     verdict = learning_verdict(summary["test"])
-    learned = any(m is not None for m in summary["first_update_m"].values())
-    if verdict is not None and not verdict[0] and learned:
+    if verdict is not None and not verdict[0] and changed_anywhere(summary):
         out.append(verdict[1])
     if summary["out_of_order_labels"]:
         out.append(
